@@ -1,0 +1,187 @@
+"""AL (application layer) states and AL status codes (facts sheet section 4)."""
+
+from __future__ import annotations
+
+import enum
+
+
+class AlState(enum.IntEnum):
+    """EtherCAT state machine states (AL control/status bits 3:0)."""
+
+    NONE = 0x00
+    INIT = 0x01
+    PREOP = 0x02
+    BOOT = 0x03
+    SAFEOP = 0x04
+    OP = 0x08
+
+    @classmethod
+    def parse(cls, text: str) -> AlState:
+        """Parse a state name as users type it: INIT, PREOP, PRE-OP, SAFEOP, OP, BOOT."""
+        key = text.strip().upper().replace("-", "").replace("_", "")
+        aliases = {"PREOP": cls.PREOP, "SAFEOP": cls.SAFEOP, "BOOTSTRAP": cls.BOOT}
+        if key in aliases:
+            return aliases[key]
+        try:
+            return cls[key]
+        except KeyError:
+            raise ValueError(f"unknown AL state {text!r}: use INIT, PREOP, BOOT, SAFEOP or OP") from None
+
+    @property
+    def label(self) -> str:
+        """The name IgH's tool prints (PREOP, SAFEOP, ...)."""
+        return self.name
+
+
+def state_name(value: int) -> str:
+    """Name of an AL status value, with ``+ERR`` when the error flag is set."""
+    base = value & 0x0F
+    try:
+        name = AlState(base).name
+    except ValueError:
+        name = f"0x{base:X}"
+    return name + ("+ERR" if value & 0x10 else "")
+
+
+class AlStatusCode(enum.IntEnum):
+    """AL status codes (register 0x0134)."""
+
+    NO_ERROR = 0x0000
+    UNSPECIFIED_ERROR = 0x0001
+    NO_MEMORY = 0x0002
+    INVALID_DEVICE_SETUP = 0x0003
+    INVALID_REVISION = 0x0004
+    SII_MISMATCH = 0x0006
+    FIRMWARE_UPDATE_FAILED = 0x0007
+    LICENSE_ERROR = 0x000E
+    INVALID_STATE_CHANGE = 0x0011
+    UNKNOWN_STATE = 0x0012
+    BOOTSTRAP_NOT_SUPPORTED = 0x0013
+    NO_VALID_FIRMWARE = 0x0014
+    INVALID_MAILBOX_CONFIG_BOOT = 0x0015
+    INVALID_MAILBOX_CONFIG = 0x0016
+    INVALID_SM_CONFIG = 0x0017
+    NO_VALID_INPUTS = 0x0018
+    NO_VALID_OUTPUTS = 0x0019
+    SYNCHRONIZATION_ERROR = 0x001A
+    SM_WATCHDOG = 0x001B
+    INVALID_SM_TYPES = 0x001C
+    INVALID_OUTPUT_CONFIG = 0x001D
+    INVALID_INPUT_CONFIG = 0x001E
+    INVALID_WATCHDOG_CONFIG = 0x001F
+    NEEDS_COLD_START = 0x0020
+    NEEDS_INIT = 0x0021
+    NEEDS_PREOP = 0x0022
+    NEEDS_SAFEOP = 0x0023
+    INVALID_INPUT_MAPPING = 0x0024
+    INVALID_OUTPUT_MAPPING = 0x0025
+    INCONSISTENT_SETTINGS = 0x0026
+    FREERUN_NOT_SUPPORTED = 0x0027
+    SYNC_NOT_SUPPORTED = 0x0028
+    FREERUN_NEEDS_3BUFFER = 0x0029
+    BACKGROUND_WATCHDOG = 0x002A
+    NO_VALID_INPUTS_AND_OUTPUTS = 0x002B
+    FATAL_SYNC_ERROR = 0x002C
+    NO_SYNC_ERROR = 0x002D
+    INVALID_INPUT_FMMU_CONFIG = 0x002E
+    INVALID_DC_SYNC_CONFIG = 0x0030
+    INVALID_DC_LATCH_CONFIG = 0x0031
+    PLL_ERROR = 0x0032
+    DC_SYNC_IO_ERROR = 0x0033
+    DC_SYNC_TIMEOUT = 0x0034
+    DC_INVALID_SYNC_CYCLE_TIME = 0x0035
+    DC_INVALID_SYNC0_CYCLE_TIME = 0x0036
+    DC_INVALID_SYNC1_CYCLE_TIME = 0x0037
+    MBX_AOE = 0x0041
+    MBX_EOE = 0x0042
+    MBX_COE = 0x0043
+    MBX_FOE = 0x0044
+    MBX_SOE = 0x0045
+    MBX_VOE = 0x004F
+    EEPROM_NO_ACCESS = 0x0050
+    EEPROM_ERROR = 0x0051
+    EXTERNAL_HARDWARE_NOT_READY = 0x0052
+    SLAVE_RESTARTED_LOCALLY = 0x0060
+    DEVICE_ID_UPDATED = 0x0061
+    MODULE_ID_LIST_MISMATCH = 0x0070
+    SUPPLY_VOLTAGE_TOO_LOW = 0x0080
+    SUPPLY_VOLTAGE_TOO_HIGH = 0x0081
+    TEMPERATURE_TOO_LOW = 0x0082
+    TEMPERATURE_TOO_HIGH = 0x0083
+    APPLICATION_CONTROLLER_AVAILABLE = 0x00F0
+
+
+AL_STATUS_CODE_NAMES: dict[int, str] = {
+    0x0000: "No error",
+    0x0001: "Unspecified error",
+    0x0002: "No memory",
+    0x0003: "Invalid device setup",
+    0x0004: "Invalid revision",
+    0x0006: "SII/EEPROM information does not match firmware",
+    0x0007: "Firmware update not successful, old firmware still running",
+    0x000E: "License error",
+    0x0011: "Invalid requested state change",
+    0x0012: "Unknown requested state",
+    0x0013: "Bootstrap not supported",
+    0x0014: "No valid firmware",
+    0x0015: "Invalid mailbox configuration (BOOT)",
+    0x0016: "Invalid mailbox configuration (PRE-OP)",
+    0x0017: "Invalid sync manager configuration",
+    0x0018: "No valid inputs available",
+    0x0019: "No valid outputs",
+    0x001A: "Synchronization error",
+    0x001B: "Sync manager watchdog",
+    0x001C: "Invalid sync manager types",
+    0x001D: "Invalid output configuration",
+    0x001E: "Invalid input configuration",
+    0x001F: "Invalid watchdog configuration",
+    0x0020: "Slave needs cold start",
+    0x0021: "Slave needs INIT",
+    0x0022: "Slave needs PRE-OP",
+    0x0023: "Slave needs SAFE-OP",
+    0x0024: "Invalid input mapping",
+    0x0025: "Invalid output mapping",
+    0x0026: "Inconsistent settings",
+    0x0027: "Free-run not supported",
+    0x0028: "Synchronization not supported",
+    0x0029: "Free-run needs 3-buffer mode",
+    0x002A: "Background watchdog",
+    0x002B: "No valid inputs and outputs",
+    0x002C: "Fatal sync error",
+    0x002D: "No sync error",
+    0x002E: "Invalid input FMMU configuration",
+    0x0030: "Invalid DC SYNC configuration",
+    0x0031: "Invalid DC latch configuration",
+    0x0032: "PLL error",
+    0x0033: "DC sync I/O error",
+    0x0034: "DC sync timeout error",
+    0x0035: "DC invalid sync cycle time",
+    0x0036: "DC invalid SYNC0 cycle time",
+    0x0037: "DC invalid SYNC1 cycle time",
+    0x0041: "MBX_AOE",
+    0x0042: "MBX_EOE",
+    0x0043: "MBX_COE",
+    0x0044: "MBX_FOE",
+    0x0045: "MBX_SOE",
+    0x004F: "MBX_VOE",
+    0x0050: "EEPROM no access",
+    0x0051: "EEPROM error",
+    0x0052: "External hardware not ready",
+    0x0060: "Slave restarted locally",
+    0x0061: "Device identification value updated",
+    0x0070: "Detected module ident list does not match",
+    0x0080: "Supply voltage too low",
+    0x0081: "Supply voltage too high",
+    0x0082: "Temperature too low",
+    0x0083: "Temperature too high",
+    0x00F0: "Application controller available",
+}
+
+
+def al_status_code_name(code: int) -> str:
+    """Human-readable name of an AL status code."""
+    if code in AL_STATUS_CODE_NAMES:
+        return AL_STATUS_CODE_NAMES[code]
+    if code >= 0x8000:
+        return f"Vendor specific (0x{code:04X})"
+    return f"Unknown AL status code 0x{code:04X}"

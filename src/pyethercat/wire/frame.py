@@ -1,0 +1,236 @@
+"""Ethernet + EtherCAT frame codec (facts sheet section 1).
+
+Frames travel as raw Ethernet (EtherType 0x88A4) or as the payload of a UDP
+datagram on port 34980; in both cases the EtherCAT part is a 16-bit header
+(11-bit length, type) followed by datagrams (type 1) or one mailbox (type 5).
+"""
+
+from __future__ import annotations
+
+import enum
+import struct
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+from pyethercat.errors import FrameError, FrameTooLargeError
+from pyethercat.wire.datagram import (
+    MAX_PAYLOAD,
+    Datagram,
+    datagrams_size,
+    decode_datagrams,
+    encode_datagram_into,
+)
+
+ETHERTYPE_ETHERCAT = 0x88A4
+ETHERTYPE_VLAN = 0x8100
+#: EtherCAT over UDP (and the mailbox gateway) listen on this port.
+UDP_PORT = 34980
+BROADCAST_MAC = b"\xff" * 6
+#: SOEM's default primary/secondary source MACs; any value works.
+MASTER_MAC = b"\x01\x01\x01\x01\x01\x01"
+SECONDARY_MAC = b"\x04\x04\x04\x04\x04\x04"
+ETH_HEADER_SIZE = 14
+ECAT_HEADER_SIZE = 2
+#: Minimum Ethernet frame without FCS; shorter frames are zero-padded.
+MIN_FRAME_SIZE = 60
+#: Maximum Ethernet frame without FCS.
+MAX_FRAME_SIZE = 1514
+ECAT_LENGTH_MASK = 0x07FF
+ECAT_RESERVED_BIT = 0x0800
+ECAT_TYPE_SHIFT = 12
+#: The bit a slave sets in the first source-MAC byte of a frame it returns.
+LOCALLY_ADMINISTERED_BIT = 0x02
+
+
+class FrameType(enum.IntEnum):
+    """EtherCAT header type field."""
+
+    DATAGRAMS = 1
+    ADS = 2
+    RAW_IO = 3
+    NETWORK_VARIABLES = 4
+    MAILBOX = 5
+
+
+class NotEtherCATError(FrameError):
+    """The Ethernet frame is not an EtherCAT frame (other EtherType)."""
+
+
+@dataclass(slots=True)
+class EtherCATFrame:
+    """A decoded EtherCAT frame.
+
+    ``datagrams`` is filled for type-1 frames, ``mailbox`` holds the body of a
+    type-5 (mailbox gateway) frame, ``body`` the raw body of any other type.
+    """
+
+    frame_type: int
+    datagrams: list[Datagram] = field(default_factory=list)
+    mailbox: bytes | None = None
+    body: bytes = b""
+    dst: bytes = BROADCAST_MAC
+    src: bytes = MASTER_MAC
+    #: Bytes after the EtherCAT length (padding) in the received frame.
+    padding: int = 0
+
+
+def ecat_header(length: int, frame_type: int = FrameType.DATAGRAMS) -> int:
+    """The 16-bit EtherCAT header word."""
+    if length > ECAT_LENGTH_MASK:
+        raise FrameTooLargeError(f"EtherCAT length {length} exceeds the 11-bit field")
+    return (length & ECAT_LENGTH_MASK) | ((frame_type & 0xF) << ECAT_TYPE_SHIFT)
+
+
+def encode_ecat_payload(datagrams: Sequence[Datagram]) -> bytes:
+    """EtherCAT header + datagrams (the UDP payload form, without padding)."""
+    size = datagrams_size(datagrams)
+    if not datagrams:
+        raise FrameError("a frame needs at least one datagram")
+    if size > MAX_PAYLOAD:
+        raise FrameTooLargeError(
+            f"{len(datagrams)} datagrams need {size} bytes, a frame holds {MAX_PAYLOAD}")
+    buf = bytearray(ECAT_HEADER_SIZE + size)
+    struct.pack_into("<H", buf, 0, ecat_header(size))
+    offset = ECAT_HEADER_SIZE
+    last = len(datagrams) - 1
+    for i, dgram in enumerate(datagrams):
+        offset = encode_datagram_into(buf, offset, dgram, i != last)
+    return bytes(buf)
+
+
+def encode_frame(datagrams: Sequence[Datagram], src: bytes = MASTER_MAC,
+                 dst: bytes = BROADCAST_MAC) -> bytes:
+    """A complete Ethernet frame (without FCS), zero-padded to 60 bytes."""
+    payload = encode_ecat_payload(datagrams)
+    return _ethernet(payload, src, dst)
+
+
+def encode_mailbox_frame(mailbox: bytes, src: bytes = MASTER_MAC,
+                         dst: bytes = BROADCAST_MAC) -> bytes:
+    """A type-5 (mailbox gateway) frame carrying one complete mailbox."""
+    if len(mailbox) > MAX_PAYLOAD:
+        raise FrameTooLargeError(f"mailbox of {len(mailbox)} bytes does not fit a frame")
+    payload = struct.pack("<H", ecat_header(len(mailbox), FrameType.MAILBOX)) + mailbox
+    return _ethernet(payload, src, dst)
+
+
+def _ethernet(payload: bytes, src: bytes, dst: bytes) -> bytes:
+    if len(src) != 6 or len(dst) != 6:
+        raise FrameError("MAC addresses are 6 bytes")
+    frame = dst + src + struct.pack(">H", ETHERTYPE_ETHERCAT) + payload
+    if len(frame) < MIN_FRAME_SIZE:
+        frame += bytes(MIN_FRAME_SIZE - len(frame))
+    return frame
+
+
+def is_ethercat(raw: bytes | bytearray | memoryview) -> bool:
+    """Whether an Ethernet frame carries EtherCAT (optionally VLAN-tagged)."""
+    if len(raw) < ETH_HEADER_SIZE:
+        return False
+    ethertype = (raw[12] << 8) | raw[13]
+    if ethertype == ETHERTYPE_VLAN and len(raw) >= ETH_HEADER_SIZE + 4:
+        ethertype = (raw[16] << 8) | raw[17]
+    return ethertype == ETHERTYPE_ETHERCAT
+
+
+def decode_frame(raw: bytes | bytearray | memoryview) -> EtherCATFrame:
+    """Decode an Ethernet frame holding EtherCAT.
+
+    Raises :class:`NotEtherCATError` for other EtherTypes and
+    :class:`FrameError` for malformed EtherCAT content.
+    """
+    view = memoryview(raw)
+    if len(view) < ETH_HEADER_SIZE:
+        raise FrameError(f"Ethernet frame of {len(view)} bytes is shorter than its 14-byte header", 0)
+    start = ETH_HEADER_SIZE
+    ethertype = (view[12] << 8) | view[13]
+    if ethertype == ETHERTYPE_VLAN:
+        if len(view) < ETH_HEADER_SIZE + 4:
+            raise FrameError("VLAN-tagged frame truncated", 12)
+        ethertype = (view[16] << 8) | view[17]
+        start += 4
+    if ethertype != ETHERTYPE_ETHERCAT:
+        raise NotEtherCATError(f"EtherType 0x{ethertype:04X} is not EtherCAT (0x88A4)", 12)
+    frame = decode_ecat_payload(view[start:], base_offset=start)
+    frame.dst = bytes(view[0:6])
+    frame.src = bytes(view[6:12])
+    return frame
+
+
+def decode_ecat_payload(payload: bytes | bytearray | memoryview, base_offset: int = 0) -> EtherCATFrame:
+    """Decode the EtherCAT part (header + body), e.g. a UDP payload."""
+    view = memoryview(payload)
+    if len(view) < ECAT_HEADER_SIZE:
+        raise FrameError("EtherCAT header truncated", base_offset)
+    (word,) = struct.unpack_from("<H", view, 0)
+    length = word & ECAT_LENGTH_MASK
+    frame_type = word >> ECAT_TYPE_SHIFT
+    if word & ECAT_RESERVED_BIT:
+        raise FrameError("reserved bit 11 of the EtherCAT header is set", base_offset)
+    body_end = ECAT_HEADER_SIZE + length
+    if body_end > len(view):
+        raise FrameError(
+            f"EtherCAT header says {length} bytes but only {len(view) - ECAT_HEADER_SIZE} follow",
+            base_offset)
+    body = view[ECAT_HEADER_SIZE:body_end]
+    frame = EtherCATFrame(frame_type, padding=len(view) - body_end)
+    if frame_type == FrameType.DATAGRAMS:
+        frame.datagrams = decode_datagrams(body, base_offset + ECAT_HEADER_SIZE)
+    elif frame_type == FrameType.MAILBOX:
+        frame.mailbox = bytes(body)
+    else:
+        try:
+            FrameType(frame_type)
+        except ValueError:
+            raise FrameError(f"unknown EtherCAT frame type {frame_type}", base_offset) from None
+        frame.body = bytes(body)
+    return frame
+
+
+def encode_udp_payload(datagrams: Sequence[Datagram]) -> bytes:
+    """EtherCAT over UDP: exactly the bytes after the EtherType, without padding."""
+    return encode_ecat_payload(datagrams)
+
+
+def decode_udp_payload(payload: bytes | bytearray | memoryview) -> EtherCATFrame:
+    """Decode an EtherCAT-over-UDP payload."""
+    return decode_ecat_payload(payload)
+
+
+class FrameBuilder:
+    """Collects datagrams for one frame and refuses what does not fit.
+
+    ``add`` raises :class:`FrameTooLargeError` instead of truncating; use
+    ``fits`` to decide when to start a new frame.
+    """
+
+    def __init__(self, capacity: int = MAX_PAYLOAD) -> None:
+        self.capacity = capacity
+        self.datagrams: list[Datagram] = []
+        self.used = 0
+
+    def fits(self, dgram: Datagram) -> bool:
+        return self.used + dgram.size <= self.capacity
+
+    @property
+    def free(self) -> int:
+        """Bytes still free for datagrams (header and WKC included)."""
+        return self.capacity - self.used
+
+    def add(self, dgram: Datagram) -> None:
+        if not self.fits(dgram):
+            raise FrameTooLargeError(
+                f"datagram of {dgram.size} bytes does not fit: {self.free} bytes free in the frame")
+        self.datagrams.append(dgram)
+        self.used += dgram.size
+
+    def __len__(self) -> int:
+        return len(self.datagrams)
+
+    def build(self, src: bytes = MASTER_MAC, dst: bytes = BROADCAST_MAC) -> bytes:
+        return encode_frame(self.datagrams, src, dst)
+
+
+def returned_source_mac(src: bytes) -> bytes:
+    """The source MAC a slave puts on a frame it returns (locally administered bit set)."""
+    return bytes([src[0] | LOCALLY_ADMINISTERED_BIT]) + src[1:]

@@ -1,0 +1,83 @@
+"""Fixtures shared by the whole suite: the shared corpus, root, tools, veth pairs.
+
+Tests that need something from outside the repository (../shared, root, tshark)
+skip with a reason on a developer machine, and fail under CI=true, where the
+brief says they must run.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import uuid
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+SHARED = REPO.parent / "shared"
+IN_CI = os.environ.get("CI", "").lower() in ("1", "true", "yes")
+
+
+def _unavailable(reason: str) -> None:
+    if IN_CI:
+        pytest.fail(f"required under CI=true: {reason}")
+    pytest.skip(reason)
+
+
+@pytest.fixture(scope="session")
+def shared_dir() -> Path:
+    if not SHARED.is_dir():
+        _unavailable(f"{SHARED} is absent")
+    return SHARED
+
+
+@pytest.fixture(scope="session")
+def corpus_dir(shared_dir: Path) -> Path:
+    corpus = shared_dir / "corpus"
+    if not corpus.is_dir():
+        _unavailable(f"{corpus} is absent")
+    return corpus
+
+
+@pytest.fixture(scope="session")
+def tshark() -> str:
+    path = shutil.which("tshark")
+    if path is None:
+        _unavailable("tshark is not installed (make test installs it when run as root)")
+    assert path is not None
+    return path
+
+
+@pytest.fixture(scope="session")
+def root() -> None:
+    if os.geteuid() != 0:
+        _unavailable("needs root (veth pairs / raw sockets)")
+
+
+def make_veth_pair() -> tuple[str, str]:
+    """Create a veth pair named pyecat-<random>a/b, both up. Caller deletes it."""
+    tag = uuid.uuid4().hex[:6]
+    a, b = f"pyecat-{tag}a", f"pyecat-{tag}b"
+    subprocess.run(["ip", "link", "add", a, "type", "veth", "peer", "name", b], check=True)
+    for name in (a, b):
+        # No IPv6 autoconf chatter on our test wire.
+        subprocess.run(["sysctl", "-qw", f"net.ipv6.conf.{name}.disable_ipv6=1"], check=False)
+        subprocess.run(["ip", "link", "set", name, "up"], check=True)
+    return a, b
+
+
+def delete_veth(name: str) -> None:
+    subprocess.run(["ip", "link", "del", name], check=False, capture_output=True)
+
+
+@pytest.fixture
+def veth_pair(root: None) -> Iterator[tuple[str, str]]:
+    """A fresh veth pair (pyecat- prefix), removed afterwards."""
+    a, b = make_veth_pair()
+    try:
+        yield a, b
+    finally:
+        delete_veth(a)
