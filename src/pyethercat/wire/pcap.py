@@ -328,7 +328,9 @@ def read_pcap(stream: BinaryIO) -> Iterator[CaptureRecord]:
         order, magic = ">", magic_be
     else:
         raise CaptureError(f"not a pcap file (magic {head[:4].hex()}) (at byte 0)")
-    major, _minor, _zone, _sigfigs, _snaplen, network = struct.unpack_from(order + "HHiIII", head, 4)
+    major, _minor, _zone, _sigfigs, _snaplen, network = struct.unpack_from(
+        order + "HHiIII", head, 4
+    )
     if major != 2:
         raise CaptureError(f"unsupported pcap version {major} (at byte 4)")
     linktype = network & 0xFFFF  # upper bits carry FCS information
@@ -343,7 +345,9 @@ def read_pcap(stream: BinaryIO) -> Iterator[CaptureRecord]:
         if incl > _MAX_RECORD:
             raise CaptureError(f"pcap record length {incl} is not plausible (at byte {where})")
         if frac * frac_ns >= 1_000_000_000:
-            raise CaptureError(f"pcap record fraction of second {frac} out of range (at byte {where})")
+            raise CaptureError(
+                f"pcap record fraction of second {frac} out of range (at byte {where})"
+            )
         data = src.need(incl, "pcap record data")
         yield CaptureRecord(
             timestamp_ns=sec * 1_000_000_000 + frac * frac_ns,
@@ -414,7 +418,9 @@ def read_pcapng(stream: BinaryIO) -> Iterator[CaptureRecord]:
                 )
             (total,) = struct.unpack_from(order + "I", head, 4)
             if total < 28 or total % 4 or total > _MAX_RECORD:
-                raise CaptureError(f"pcapng section header length {total} is invalid (at byte {where})")
+                raise CaptureError(
+                    f"pcapng section header length {total} is invalid (at byte {where})"
+                )
             body = bom_raw + src.need(total - 16, "pcapng section header")
             major = struct.unpack_from(order + "H", body, 4)[0]
             if major != 1:
@@ -422,7 +428,9 @@ def read_pcapng(stream: BinaryIO) -> Iterator[CaptureRecord]:
             interfaces = []
         else:
             if first:
-                raise CaptureError(f"pcapng file does not start with a section header (at byte {where})")
+                raise CaptureError(
+                    f"pcapng file does not start with a section header (at byte {where})"
+                )
             btype, total = struct.unpack(order + "II", head)
             if total < 12 or total % 4 or total > _MAX_RECORD:
                 raise CaptureError(f"pcapng block length {total} is invalid (at byte {where})")
