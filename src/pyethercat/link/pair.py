@@ -1,0 +1,139 @@
+"""In-process link pair: two ends joined by queues (no sockets, no threads).
+
+``PairLink.pair()`` gives two ends; a frame sent on one end is received on the
+other, in order. It is thread-safe (one lock and condition per end), so a
+simulator may serve one end from a thread, but it is also usable fully
+synchronously: give the far end a *responder* and every frame sent to it is
+handed to the responder inside ``send``; the frames the responder returns are
+queued for the sender at once. A master test then needs no thread and no
+timing at all::
+
+    master_end = PairLink.responder_link(segment.process)   # process(frame) -> reply
+    master_end.send(frame)
+    reply = master_end.recv(0)
+
+Frames are stored as ``bytes`` copies, so a caller may reuse its buffer.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Iterable
+
+from pyethercat.errors import LinkClosedError
+from pyethercat.link.base import Link
+
+__all__ = ["PairLink", "Responder"]
+
+#: Called with a frame sent to its end; returns nothing, one reply frame, or several.
+Responder = Callable[[bytes], "bytes | bytearray | Iterable[bytes | bytearray] | None"]
+
+
+class PairLink(Link):
+    """One end of an in-process link pair (create with :meth:`pair`)."""
+
+    def __init__(self, name: str, max_queue: int = 4096) -> None:
+        super().__init__(name)
+        self._queue: deque[bytes] = deque()
+        self._cond = threading.Condition()
+        self._peer: PairLink | None = None
+        self._peer_closed = False
+        self._responder: Responder | None = None
+        self.max_queue = max_queue
+        #: Frames dropped because the receiving queue was full (Ethernet drops too).
+        self.dropped = 0
+
+    @classmethod
+    def pair(cls, name_a: str = "pair-a", name_b: str = "pair-b") -> tuple[PairLink, PairLink]:
+        """Two joined ends."""
+        a, b = cls(name_a), cls(name_b)
+        a._peer, b._peer = b, a
+        return a, b
+
+    @classmethod
+    def responder_link(cls, responder: Responder, name: str = "pair") -> PairLink:
+        """One end whose peer answers every sent frame synchronously with ``responder``."""
+        a, b = cls.pair(name, name + "-peer")
+        b.set_responder(responder)
+        return a
+
+    @property
+    def peer(self) -> PairLink | None:
+        """The other end."""
+        return self._peer
+
+    def set_responder(self, responder: Responder | None) -> None:
+        """Answer frames arriving at this end synchronously (``None``: queue them again)."""
+        self._responder = responder
+
+    def _deliver(self, frame: bytes) -> None:
+        with self._cond:
+            if self._closed:
+                return  # like a cable to a switched-off device
+            if len(self._queue) >= self.max_queue:
+                self.dropped += 1
+                return
+            self._queue.append(frame)
+            self._cond.notify()
+
+    def send(self, frame: bytes) -> None:
+        self._check_open()
+        peer = self._peer
+        if peer is None:
+            raise LinkClosedError(f"link {self.name} has no peer")
+        if self._peer_closed:
+            raise LinkClosedError(f"peer of link {self.name} has closed")
+        data = bytes(frame)
+        responder = peer._responder
+        if responder is None:
+            peer._deliver(data)
+            return
+        # Called without holding any lock, so the responder may itself use the link.
+        replies = responder(data)
+        if replies is None:
+            return
+        if isinstance(replies, bytes | bytearray):
+            self._deliver(bytes(replies))
+        else:
+            for reply in replies:
+                self._deliver(bytes(reply))
+
+    def recv(self, timeout: float | None = None) -> bytes | None:
+        with self._cond:
+            self._check_open()
+            if self._queue:
+                return self._queue.popleft()
+            deadline = None if timeout is None else time.monotonic() + timeout
+            while not self._queue:
+                if self._closed:
+                    raise LinkClosedError(f"link {self.name} is closed")
+                if self._peer_closed:
+                    raise LinkClosedError(f"peer of link {self.name} has closed")
+                if deadline is None:
+                    self._cond.wait()
+                else:
+                    left = deadline - time.monotonic()
+                    if left <= 0:
+                        return None
+                    self._cond.wait(left)
+            return self._queue.popleft()
+
+    def pending(self) -> int:
+        """Number of frames waiting to be received."""
+        with self._cond:
+            return len(self._queue)
+
+    def close(self) -> None:
+        with self._cond:
+            if self._closed:
+                return
+            self._closed = True
+            self._queue.clear()
+            self._cond.notify_all()
+        peer = self._peer
+        if peer is not None:
+            with peer._cond:
+                peer._peer_closed = True
+                peer._cond.notify_all()

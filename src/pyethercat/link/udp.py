@@ -1,0 +1,186 @@
+"""EtherCAT over UDP (port 34980).
+
+On the wire each UDP datagram holds exactly what follows the EtherType in a
+raw Ethernet frame: the 2-byte EtherCAT header and its body, without padding
+(facts sheet 1.4). The :class:`~pyethercat.link.base.Link` API carries whole
+Ethernet frames, so this link converts at the edge:
+
+* ``send(frame)`` checks the EtherType (0x88A4, optionally behind a VLAN tag),
+  drops the 14-byte Ethernet header and the padding after the EtherCAT length,
+  and sends the rest to the peer;
+* ``recv()`` puts a synthetic Ethernet header in front of a received payload
+  (destination ``rx_dst``, default broadcast; source ``rx_src``, default
+  ``01:01:01:01:01:01``; EtherType 0x88A4) and zero-pads it to 60 bytes, so the
+  frame looks like one sent by a SOEM-style master on a raw interface.
+
+The MAC addresses of sent frames are therefore not transported.
+
+A master gives ``peer`` (the simulator's or gateway's address) and binds an
+ephemeral port on 127.0.0.1 by default; it then accepts datagrams from that
+peer only. A server gives no peer and a fixed ``bind``; it answers whoever
+sent the last datagram.
+"""
+
+from __future__ import annotations
+
+import select
+import socket
+import struct
+import time
+
+from pyethercat.errors import LinkError
+from pyethercat.link.base import Link
+from pyethercat.wire.frame import (
+    BROADCAST_MAC,
+    ECAT_HEADER_SIZE,
+    ECAT_LENGTH_MASK,
+    ETH_HEADER_SIZE,
+    ETHERTYPE_ETHERCAT,
+    ETHERTYPE_VLAN,
+    MASTER_MAC,
+    MIN_FRAME_SIZE,
+    UDP_PORT,
+)
+
+__all__ = ["UdpLink", "parse_hostport", "frame_to_udp_payload", "udp_payload_to_frame"]
+
+_MAX_UDP = 65535
+
+
+def parse_hostport(text: str, default_port: int = UDP_PORT) -> tuple[str, int]:
+    """Parse ``HOST[:PORT]`` (port defaults to 34980)."""
+    host, sep, port = text.rpartition(":")
+    if not sep:
+        return text, default_port
+    try:
+        number = int(port, 0)
+    except ValueError:
+        raise LinkError(f"bad UDP port in {text!r}") from None
+    if not 0 <= number <= 0xFFFF:
+        raise LinkError(f"UDP port {number} out of range in {text!r}")
+    return host or "127.0.0.1", number
+
+
+def frame_to_udp_payload(frame: bytes) -> bytes:
+    """The EtherCAT part of an Ethernet frame (header + body, padding dropped)."""
+    if len(frame) < ETH_HEADER_SIZE + ECAT_HEADER_SIZE:
+        raise LinkError(f"frame of {len(frame)} bytes is too short for EtherCAT")
+    start = ETH_HEADER_SIZE
+    ethertype = (frame[12] << 8) | frame[13]
+    if ethertype == ETHERTYPE_VLAN and len(frame) >= start + 4 + ECAT_HEADER_SIZE:
+        ethertype = (frame[16] << 8) | frame[17]
+        start += 4
+    if ethertype != ETHERTYPE_ETHERCAT:
+        raise LinkError(f"EtherType 0x{ethertype:04X} cannot travel as EtherCAT over UDP")
+    (word,) = struct.unpack_from("<H", frame, start)
+    end = start + ECAT_HEADER_SIZE + (word & ECAT_LENGTH_MASK)
+    # A lying length is passed on unchanged: the receiver is the one to judge it.
+    return bytes(frame[start : min(end, len(frame))])
+
+
+def udp_payload_to_frame(
+    payload: bytes, src: bytes = MASTER_MAC, dst: bytes = BROADCAST_MAC
+) -> bytes:
+    """An Ethernet frame around an EtherCAT-over-UDP payload, zero-padded to 60 bytes."""
+    frame = dst + src + struct.pack(">H", ETHERTYPE_ETHERCAT) + payload
+    if len(frame) < MIN_FRAME_SIZE:
+        frame += bytes(MIN_FRAME_SIZE - len(frame))
+    return frame
+
+
+def _resolve(host: str, port: int) -> tuple[str, int]:
+    try:
+        info = socket.getaddrinfo(host, port, socket.AF_INET, socket.SOCK_DGRAM)
+    except OSError as exc:
+        raise LinkError(f"cannot resolve UDP address {host}:{port}: {exc}") from exc
+    addr = info[0][4]
+    return str(addr[0]), int(addr[1])
+
+
+class UdpLink(Link):
+    """EtherCAT frames over a UDP socket (IPv4)."""
+
+    def __init__(
+        self,
+        peer: tuple[str, int] | str | None = None,
+        bind: tuple[str, int] | str = ("127.0.0.1", 0),
+        name: str | None = None,
+        rx_src: bytes = MASTER_MAC,
+        rx_dst: bytes = BROADCAST_MAC,
+    ) -> None:
+        bind_addr = parse_hostport(bind, 0) if isinstance(bind, str) else bind
+        self._peer: tuple[str, int] | None = None
+        self._fixed_peer = peer is not None
+        if peer is not None:
+            self._peer = _resolve(*(parse_hostport(peer) if isinstance(peer, str) else peer))
+        self.rx_src = rx_src
+        self.rx_dst = rx_dst
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            sock.bind(bind_addr)
+        except OSError as exc:
+            sock.close()
+            raise LinkError(f"cannot bind UDP {bind_addr[0]}:{bind_addr[1]}: {exc}") from exc
+        sock.setblocking(False)
+        self._sock = sock
+        here = sock.getsockname()
+        super().__init__(name or f"udp:{here[0]}:{here[1]}")
+
+    @property
+    def address(self) -> tuple[str, int]:
+        """The local (host, port) the socket is bound to."""
+        addr = self._sock.getsockname()
+        return str(addr[0]), int(addr[1])
+
+    @property
+    def peer(self) -> tuple[str, int] | None:
+        """Where frames are sent (fixed, or learned from the last received datagram)."""
+        return self._peer
+
+    def fileno(self) -> int | None:
+        return None if self._closed else self._sock.fileno()
+
+    def send(self, frame: bytes) -> None:
+        self._check_open()
+        if self._peer is None:
+            raise LinkError(f"link {self.name}: no peer to send to yet (nothing received)")
+        payload = frame_to_udp_payload(frame)
+        try:
+            self._sock.sendto(payload, self._peer)
+        except BlockingIOError:
+            pass  # socket buffer full: the frame is lost, as on Ethernet
+        except OSError as exc:
+            raise LinkError(f"link {self.name}: send to {self._peer} failed: {exc}") from exc
+
+    def recv(self, timeout: float | None = None) -> bytes | None:
+        self._check_open()
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            try:
+                payload, addr = self._sock.recvfrom(_MAX_UDP)
+            except (BlockingIOError, ConnectionRefusedError):
+                # ECONNREFUSED: an ICMP "port unreachable" for an earlier send.
+                pass
+            except OSError as exc:
+                raise LinkError(f"link {self.name}: receive failed: {exc}") from exc
+            else:
+                source = (str(addr[0]), int(addr[1]))
+                if self._fixed_peer and source != self._peer:
+                    continue  # not from our peer: ignore
+                if len(payload) < ECAT_HEADER_SIZE:
+                    continue  # cannot be EtherCAT
+                if not self._fixed_peer:
+                    self._peer = source
+                return udp_payload_to_frame(payload, self.rx_src, self.rx_dst)
+            if deadline is None:
+                select.select([self._sock], [], [])
+            else:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return None
+                select.select([self._sock], [], [], left)
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self._sock.close()

@@ -1,0 +1,98 @@
+"""Link over a Unix-domain socketpair (``SOCK_SEQPACKET``: one frame per message).
+
+Made for a simulator running in a child process: create the pair, hand one
+file descriptor to the child (``fork`` keeps it; with ``subprocess`` pass it in
+``pass_fds`` and rebuild the end there with :meth:`UnixLink.from_fd`).
+``SOCK_SEQPACKET`` keeps frame boundaries and reports the peer's close, so
+``recv`` raises :class:`~pyethercat.errors.LinkClosedError` when the other
+process has gone.
+"""
+
+from __future__ import annotations
+
+import select
+import socket
+import time
+
+from pyethercat.errors import LinkClosedError, LinkError
+from pyethercat.link.base import MAX_FRAME, Link
+
+__all__ = ["UnixLink"]
+
+
+class UnixLink(Link):
+    """One end of a Unix-domain socketpair carrying Ethernet frames."""
+
+    def __init__(self, sock: socket.socket, name: str = "unix") -> None:
+        super().__init__(name)
+        if sock.family != socket.AF_UNIX:
+            raise LinkError(f"link {name}: socket is not AF_UNIX")
+        self._sock = sock
+        # Sends block (a socketpair should not lose frames); receives are polled.
+        sock.setblocking(True)
+
+    @classmethod
+    def pair(
+        cls, name_a: str = "unix-a", name_b: str = "unix-b", inheritable: bool = False
+    ) -> tuple[UnixLink, UnixLink]:
+        """Two connected ends. ``inheritable=True`` lets the fds survive ``exec``."""
+        a, b = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+        if inheritable:
+            a.set_inheritable(True)
+            b.set_inheritable(True)
+        return cls(a, name_a), cls(b, name_b)
+
+    @classmethod
+    def from_fd(cls, fd: int, name: str = "unix") -> UnixLink:
+        """Wrap an inherited socket file descriptor (takes ownership of ``fd``)."""
+        try:
+            sock = socket.socket(fileno=fd)
+        except OSError as exc:
+            raise LinkError(f"link {name}: fd {fd} is not a usable socket: {exc}") from exc
+        return cls(sock, name)
+
+    def fileno(self) -> int | None:
+        return None if self._closed else self._sock.fileno()
+
+    def send(self, frame: bytes) -> None:
+        self._check_open()
+        try:
+            self._sock.send(frame)
+        except (BrokenPipeError, ConnectionResetError) as exc:
+            raise LinkClosedError(f"peer of link {self.name} has closed") from exc
+        except OSError as exc:
+            raise LinkError(f"link {self.name}: send failed: {exc}") from exc
+
+    def recv(self, timeout: float | None = None) -> bytes | None:
+        self._check_open()
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            try:
+                data = self._sock.recv(MAX_FRAME + 64, socket.MSG_DONTWAIT)
+            except BlockingIOError:
+                pass
+            except ConnectionResetError as exc:
+                raise LinkClosedError(f"peer of link {self.name} has closed") from exc
+            except OSError as exc:
+                raise LinkError(f"link {self.name}: receive failed: {exc}") from exc
+            else:
+                if not data:
+                    raise LinkClosedError(f"peer of link {self.name} has closed")
+                return data
+            if deadline is None:
+                select.select([self._sock], [], [])
+            else:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return None
+                select.select([self._sock], [], [], left)
+
+    def detach(self) -> int:
+        """Give up the file descriptor (e.g. to pass it to a child); the link is closed."""
+        self._closed = True
+        return self._sock.detach()
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self._sock.close()

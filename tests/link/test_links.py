@@ -1,0 +1,290 @@
+"""Link-specific behaviour: pair responder, socketpair across processes, UDP edge
+conversion, raw-socket filtering and errors, capture tee."""
+
+from __future__ import annotations
+
+import errno
+import io
+import os
+import socket
+import struct
+import subprocess
+import sys
+import textwrap
+import threading
+from pathlib import Path
+
+import pytest
+
+from pyethercat import errors
+from pyethercat.errors import LinkClosedError, LinkError
+from pyethercat.link import CaptureLink, PairLink, RawLink, UdpLink, UnixLink
+from pyethercat.link.udp import frame_to_udp_payload, parse_hostport, udp_payload_to_frame
+from pyethercat.wire.datagram import Command, Datagram
+from pyethercat.wire.frame import decode_frame, encode_frame, encode_udp_payload
+from pyethercat.wire.pcap import CaptureFormat, Direction, read_capture
+
+
+def _frame(index: int, size: int = 2) -> bytes:
+    return encode_frame([Datagram.device(Command.APRD, 0, 0x0000, size, index)])
+
+
+# --- pair ------------------------------------------------------------------------
+
+
+def test_pair_responder_answers_inside_send() -> None:
+    seen: list[bytes] = []
+
+    def respond(frame: bytes) -> bytes:
+        seen.append(frame)
+        decoded = decode_frame(frame)
+        for d in decoded.datagrams:
+            d.wkc = 1
+        return encode_frame(decoded.datagrams)
+
+    link = PairLink.responder_link(respond)
+    link.send(_frame(7))
+    assert seen == [_frame(7)]
+    assert link.pending() == 1
+    reply = link.recv(0)
+    assert reply is not None
+    assert decode_frame(reply).datagrams[0].wkc == 1
+
+
+def test_pair_responder_may_return_nothing_or_several() -> None:
+    replies: list[list[bytes]] = [[], [b"x" * 60, b"y" * 60]]
+    link = PairLink.responder_link(lambda f: replies.pop(0))
+    link.send(_frame(1))
+    assert link.recv(0) is None
+    link.send(_frame(2))
+    assert [link.recv(0), link.recv(0)] == [b"x" * 60, b"y" * 60]
+
+
+def test_pair_copies_the_buffer() -> None:
+    a, b = PairLink.pair()
+    buf = bytearray(_frame(1))
+    a.send(buf)
+    buf[20] ^= 0xFF
+    assert b.recv(0) == _frame(1)
+
+
+def test_pair_peer_close_is_reported() -> None:
+    a, b = PairLink.pair()
+    a.send(_frame(1))
+    b.close()
+    with pytest.raises(LinkClosedError, match="peer"):
+        a.send(_frame(2))
+    with pytest.raises(LinkClosedError, match="peer"):
+        a.recv(None)
+
+
+def test_pair_blocking_recv_wakes_on_send_from_other_thread() -> None:
+    a, b = PairLink.pair()
+    timer = threading.Timer(0.05, lambda: a.send(_frame(9)))
+    timer.start()
+    assert b.recv(None) == _frame(9)
+    timer.join()
+
+
+def test_pair_full_queue_drops() -> None:
+    a, b = PairLink.pair()
+    b.max_queue = 2
+    for i in range(5):
+        a.send(_frame(i))
+    assert b.dropped == 3
+    assert [b.recv(0), b.recv(0), b.recv(0)] == [_frame(0), _frame(1), None]
+
+
+# --- unix socketpair ------------------------------------------------------------------
+
+_CHILD = textwrap.dedent(
+    """
+    import sys
+    from pyethercat.link import UnixLink
+    from pyethercat.wire.frame import decode_frame, encode_frame
+    link = UnixLink.from_fd(int(sys.argv[1]), "child")
+    while True:
+        frame = link.recv(10)
+        if frame is None:
+            break
+        dgrams = decode_frame(frame).datagrams
+        for d in dgrams:
+            d.wkc += 1
+        link.send(encode_frame(dgrams))
+    """
+)
+
+
+def test_unix_link_across_a_child_process() -> None:
+    parent, child = UnixLink.pair()
+    fd = child.detach()
+    proc = subprocess.Popen([sys.executable, "-c", _CHILD, str(fd)], pass_fds=[fd])
+    os.close(fd)
+    try:
+        for i in range(5):
+            parent.send(_frame(i))
+            reply = parent.recv(10)
+            assert reply is not None
+            (d,) = decode_frame(reply).datagrams
+            assert (d.index, d.wkc) == (i, 1)
+    finally:
+        parent.close()  # the child sees the close and exits
+        assert proc.wait(10) in (0, 1)
+
+
+def test_unix_peer_close_raises_on_recv() -> None:
+    a, b = UnixLink.pair()
+    b.close()
+    with pytest.raises(LinkClosedError):
+        a.recv(1.0)
+    with pytest.raises(LinkClosedError):
+        a.send(_frame(1))
+    a.close()
+
+
+def test_unix_from_bad_fd() -> None:
+    with pytest.raises(LinkError, match="fd"):
+        UnixLink.from_fd(987654)
+
+
+# --- UDP ------------------------------------------------------------------------------
+
+
+def test_udp_wire_form_is_the_ecat_payload_without_padding() -> None:
+    dgrams = [Datagram.device(Command.FPRD, 0x1001, 0x0130, 2, 3)]
+    server = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    server.bind(("127.0.0.1", 0))
+    server.settimeout(2)
+    with UdpLink(peer=server.getsockname()) as link:
+        link.send(encode_frame(dgrams))
+        payload, addr = server.recvfrom(2000)
+        assert payload == encode_udp_payload(dgrams)
+        assert addr == link.address
+        # Answer from the right peer: delivered with a synthetic Ethernet header.
+        server.sendto(payload, addr)
+        assert link.recv(2) == encode_frame(dgrams)
+        # A datagram from another address is ignored.
+        other = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        other.sendto(payload, addr)
+        assert link.recv(0.1) is None
+        other.close()
+    server.close()
+
+
+def test_udp_server_answers_last_sender_and_refuses_early_send() -> None:
+    with UdpLink(bind="127.0.0.1:0") as server:
+        with pytest.raises(LinkError, match="no peer"):
+            server.send(_frame(1))
+        with UdpLink(peer=server.address) as client:
+            client.send(_frame(1))
+            assert server.recv(2) == _frame(1)
+            assert server.peer == client.address
+        assert server.peer is not None
+
+
+def test_udp_edge_conversion_helpers() -> None:
+    frame = _frame(1)
+    payload = frame_to_udp_payload(frame)
+    assert payload == frame[14 : 14 + 2 + 14]
+    assert udp_payload_to_frame(payload) == frame
+    vlan = frame[:12] + b"\x81\x00\x00\x05" + frame[12:]
+    assert frame_to_udp_payload(vlan) == payload
+    with pytest.raises(LinkError, match="0x0800"):
+        frame_to_udp_payload(frame[:12] + b"\x08\x00" + frame[14:])
+    with pytest.raises(LinkError, match="too short"):
+        frame_to_udp_payload(frame[:15])
+    assert parse_hostport("10.0.0.1") == ("10.0.0.1", 34980)
+    assert parse_hostport("host:0x88a4") == ("host", 34980)
+    with pytest.raises(LinkError, match="port"):
+        parse_hostport("host:nope")
+
+
+def test_udp_bind_failure_is_a_link_error() -> None:
+    with UdpLink() as first, pytest.raises(LinkError, match="cannot bind"):
+        UdpLink(bind=first.address)
+
+
+# --- raw --------------------------------------------------------------------------------
+
+
+def test_raw_missing_interface() -> None:
+    with pytest.raises(LinkError, match="no such network interface: pyecat-nonexistent"):
+        RawLink("pyecat-nonexistent")
+
+
+def test_raw_without_privilege(monkeypatch: pytest.MonkeyPatch) -> None:
+    def refuse(*args: object, **kwargs: object) -> socket.socket:
+        raise OSError(errno.EPERM, "Operation not permitted")
+
+    monkeypatch.setattr(socket, "if_nametoindex", lambda name: 1)
+    monkeypatch.setattr(socket, "socket", refuse)
+    with pytest.raises(errors.PermissionError) as info:
+        RawLink("eth-any")
+    message = str(info.value)
+    assert "run as root" in message
+    assert f"sudo setcap cap_net_raw+ep {os.path.realpath(sys.executable)}" in message
+    assert isinstance(info.value, PermissionError)  # also the builtin
+
+
+def test_raw_filters_non_ethercat_and_supports_promiscuous(veth_pair: tuple[str, str]) -> None:
+    a_name, b_name = veth_pair
+    with RawLink(b_name, promiscuous=True) as b:
+        sender = socket.socket(socket.AF_PACKET, socket.SOCK_RAW)
+        sender.bind((a_name, 0))
+        try:
+            ipv4 = b"\xff" * 6 + b"\x02\x00\x00\x00\x00\x01" + b"\x08\x00" + bytes(46)
+            other = (
+                b"\x02\x00\x00\x00\x00\x09"
+                + b"\x02\x00\x00\x00\x00\x01"
+                + b"\x88\xa4"
+                + _frame(1)[14:]
+            )
+            sender.send(ipv4)
+            sender.send(_frame(1))
+            sender.send(ipv4)
+            sender.send(other)  # unicast to another MAC: seen because promiscuous
+            assert b.recv(2) == _frame(1)
+            assert b.recv(2) == other
+            assert b.recv(0.05) is None
+        finally:
+            sender.close()
+
+
+def test_raw_interface_down(veth_pair: tuple[str, str]) -> None:
+    a_name, _ = veth_pair
+    subprocess.run(["ip", "link", "set", a_name, "down"], check=True)
+    with RawLink(a_name) as a, pytest.raises(LinkError, match="down"):
+        a.send(_frame(1))
+
+
+# --- capture ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("fmt", [CaptureFormat.PCAPNG, CaptureFormat.PCAP])
+def test_capture_tees_both_directions(fmt: CaptureFormat) -> None:
+    clock = iter(range(1000, 10**6, 1000))
+    link = PairLink.responder_link(lambda f: f[:6] + b"\x03" + f[7:])
+    out = io.BytesIO()
+    cap = CaptureLink(link, out, fmt=fmt, clock=lambda: next(clock))
+    cap.send(_frame(1))
+    reply = cap.recv(0)
+    assert cap.recv(0) is None
+    assert cap.count == 2
+    cap.close()
+    assert link.closed
+    recs = list(read_capture(io.BytesIO(out.getvalue())))
+    assert [r.data for r in recs] == [_frame(1), reply]
+    assert [r.timestamp_ns for r in recs] == [1000, 2000]
+    if fmt is CaptureFormat.PCAPNG:
+        assert [r.direction for r in recs] == [Direction.OUTBOUND, Direction.INBOUND]
+
+
+def test_capture_to_path_by_suffix(tmp_path: Path) -> None:
+    a, b = PairLink.pair()
+    path = tmp_path / "x.pcap"
+    with CaptureLink(a, path, flush=True) as cap:
+        cap.send(_frame(1))
+        assert path.read_bytes()[:4] == struct.pack("<I", 0xA1B23C4D)
+    with path.open("rb") as f:
+        assert [r.data for r in read_capture(f)] == [_frame(1)]
+    assert b.recv(0) == _frame(1)
