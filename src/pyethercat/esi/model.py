@@ -18,21 +18,22 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from pyethercat.errors import EsiError
+from pyethercat.wire.registers import (
+    SM_CONTROL_DIRECTION_MASK,
+    SM_CONTROL_DIRECTION_SHIFT,
+    SM_CONTROL_MODE_MASK,
+    SmDirection,
+    SmMode,
+)
 
 #: LcId of US English, the language ESI tools fall back to.
 LCID_ENGLISH = 1033
 #: LcId of German, the other language common in vendor files.
 LCID_GERMAN = 1031
 
-# Sync manager control byte (ESC register 0x0804, SM "Control"): bits 0-1 are
-# the operation mode, bits 2-3 the direction. The ESI ControlByte attribute is
-# this byte verbatim; we only need the two fields to tell an SM's role when its
-# name is not one of the four standard ones (e.g. "OrbitaIn").
-# TODO(lead): import these from wire/registers.py once it defines them.
-_SM_MODE_MASK = 0x03
-_SM_MODE_MAILBOX = 0x02
-_SM_DIR_MASK = 0x0C
-_SM_DIR_WRITE = 0x04  # the master writes (outputs, MBoxOut)
+# The ESI ControlByte attribute is the SM control register byte verbatim; its
+# mode and direction fields tell an SM's role when its name is not one of the
+# four standard ones (e.g. "OrbitaIn").
 
 SmKind = Literal["MBoxOut", "MBoxIn", "Outputs", "Inputs"]
 PdoDirection = Literal["rx", "tx"]
@@ -146,7 +147,9 @@ _STRING_CODES: Mapping[str, tuple[int, int]] = {
 }
 _DOMAIN_CODE = 0x000F
 _STRING_RE = re.compile(r"^\s*(\w+)\s*\(\s*(\d+)\s*\)\s*$")
-_ARRAY_RE = re.compile(r"^\s*ARRAY\s*\[\s*(-?\d+)\s*\.\.\s*(-?\d+)\s*\]\s*OF\s+(.+?)\s*$", re.IGNORECASE)
+_ARRAY_RE = re.compile(
+    r"^\s*ARRAY\s*\[\s*(-?\d+)\s*\.\.\s*(-?\d+)\s*\]\s*OF\s+(.+?)\s*$", re.IGNORECASE
+)
 
 
 def type_info(name: str) -> TypeInfo | None:
@@ -233,8 +236,10 @@ class EsiSm:
             return self.name  # type: ignore[return-value]
         if self.control_byte is None:
             return None
-        mailbox = (self.control_byte & _SM_MODE_MASK) == _SM_MODE_MAILBOX
-        write = (self.control_byte & _SM_DIR_MASK) == _SM_DIR_WRITE
+        mode = self.control_byte & SM_CONTROL_MODE_MASK
+        direction = (self.control_byte & SM_CONTROL_DIRECTION_MASK) >> SM_CONTROL_DIRECTION_SHIFT
+        mailbox = mode == SmMode.MAILBOX
+        write = direction == SmDirection.WRITE
         if mailbox:
             return "MBoxOut" if write else "MBoxIn"
         return "Outputs" if write else "Inputs"
@@ -851,7 +856,9 @@ class EsiDevice:
             for idx in indices:
                 found = self.pdo(idx)
                 if found is None:
-                    raise EsiError(f"{self}: PDO assignment names PDO 0x{idx:04X}, which does not exist")
+                    raise EsiError(
+                        f"{self}: PDO assignment names PDO 0x{idx:04X}, which does not exist"
+                    )
                 chosen.append(found)
             per_sm[sm_index] = chosen
         sm_by_index = {s.index: s for s in self.sms}

@@ -55,7 +55,14 @@ from pyethercat.esi.model import (
     Text,
 )
 
-__all__ = ["DEFAULT_MAX_BYTES", "load_esi", "parse_bool", "parse_esi", "parse_hex_bytes", "parse_int"]
+__all__ = [
+    "DEFAULT_MAX_BYTES",
+    "load_esi",
+    "parse_bool",
+    "parse_esi",
+    "parse_hex_bytes",
+    "parse_int",
+]
 
 #: Largest input accepted unless the caller says otherwise. Real catalogues are
 #: a few MB; this leaves room and still bounds memory (lxml needs ~10x input).
@@ -122,7 +129,10 @@ def parse_hex_bytes(text: str | None) -> bytes:
 def _check_prolog(data: bytes, source: str) -> None:
     """Refuse DTDs before libxml2 parses them (entity bombs, XXE)."""
     head = data
-    if data[:2] in (b"\xff\xfe", b"\xfe\xff") or data[:4] in (b"\x00\x00\xfe\xff", b"\xff\xfe\x00\x00"):
+    if data[:2] in (b"\xff\xfe", b"\xfe\xff") or data[:4] in (
+        b"\x00\x00\xfe\xff",
+        b"\xff\xfe\x00\x00",
+    ):
         # UTF-16/32: look at the prolog as text.
         for enc in ("utf-32", "utf-16"):
             try:
@@ -170,10 +180,11 @@ def _local(tag: object) -> str | None:
 
 
 def _kids(el: _Element) -> Iterator[tuple[str, _Element]]:
-    for c in el:
-        name = _local(c.tag)
-        if name is not None:
-            yield name, c
+    # iterchildren(Element) skips comments, PIs and entity nodes in C.
+    for c in el.iterchildren(etree.Element):
+        tag = c.tag
+        assert isinstance(tag, str)
+        yield (tag.rpartition("}")[2] if tag[0] == "{" else tag), c
 
 
 def _line(el: _Element) -> int | None:
@@ -199,7 +210,9 @@ class _Parser:
         line = _line(el) if el is not None else None
         return EsiError(message, self.source, line)
 
-    def _convert(self, el: _Element, what: str, raw: str | None, fn: Callable[[str | None], object]) -> object:
+    def _convert(
+        self, el: _Element, what: str, raw: str | None, fn: Callable[[str | None], object]
+    ) -> object:
         try:
             return fn(raw)
         except ValueError as exc:
@@ -530,7 +543,8 @@ class _Parser:
             raise self.error(el, f"{what}/Entry: missing <BitLen>")
         if not (0 <= index <= 0xFFFF and 0 <= subindex <= 0xFF and 0 <= bit_len <= 0xFFFF):
             raise self.error(
-                el, f"{what}/Entry: index 0x{index:X}, subindex {subindex} or bit length {bit_len} out of range"
+                el,
+                f"{what}/Entry: index 0x{index:X}, subindex {subindex} or bit length {bit_len} out of range",
             )
         return EsiPdoEntry(
             index=index,
@@ -654,7 +668,9 @@ class _Parser:
                 no = self.int_attr(c, "No")
                 if no is None:
                     raise self.error(c, "Dc/OpMode/Sm: missing No attribute")
-                pdos = tuple(self.int_text(p, "Dc/OpMode/Sm/Pdo") for n, p in _kids(c) if n == "Pdo")
+                pdos = tuple(
+                    self.int_text(p, "Dc/OpMode/Sm/Pdo") for n, p in _kids(c) if n == "Pdo"
+                )
                 sm_pdos.append((no, pdos))
         return EsiDcOpMode(name=name, sm_pdos=tuple(sm_pdos), **kw)  # type: ignore[arg-type]
 
@@ -673,7 +689,9 @@ class _Parser:
             elif name == "Category":
                 no = self.child_int(c, "CatNo", "Eeprom/Category")
                 data_el = self.child(c, "Data")
-                data = self.hex_text(data_el, "Eeprom/Category/Data") if data_el is not None else b""
+                data = (
+                    self.hex_text(data_el, "Eeprom/Category/Data") if data_el is not None else b""
+                )
                 cats.append((no, data))
         return EsiEeprom(categories=tuple(cats), **kw)  # type: ignore[arg-type]
 
@@ -773,7 +791,9 @@ class _Parser:
             flags=self.flags(self.child(el, "Flags")),
         )
 
-    def value_info(self, el: _Element | None, what: str) -> tuple[EsiValueInfo, tuple[EsiObjectSubItem, ...]]:
+    def value_info(
+        self, el: _Element | None, what: str
+    ) -> tuple[EsiValueInfo, tuple[EsiObjectSubItem, ...]]:
         if el is None:
             return EsiValueInfo(), ()
         kw: dict[str, object] = {}
@@ -834,7 +854,9 @@ class _Parser:
 # --- entry points --------------------------------------------------------------
 
 
-def parse_esi(data: bytes, source: str = "<bytes>", *, max_bytes: int = DEFAULT_MAX_BYTES) -> EsiFile:
+def parse_esi(
+    data: bytes, source: str = "<bytes>", *, max_bytes: int = DEFAULT_MAX_BYTES
+) -> EsiFile:
     """Parse an ESI document given as bytes.
 
     ``source`` names the document in error messages. Raises
