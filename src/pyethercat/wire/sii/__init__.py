@@ -12,6 +12,7 @@
 from pyethercat.wire.sii.codec import (
     SII_DEFAULT_MAX_BYTES,
     build_sii,
+    category_body,
     parse_sii,
     sii_bytes_needed,
     sii_crc,
@@ -71,6 +72,7 @@ __all__ = [
     "SyncManagerEnable",
     "SyncManagerType",
     "build_sii",
+    "category_body",
     "category_name",
     "format_sii",
     "parse_sii",

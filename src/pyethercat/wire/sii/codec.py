@@ -503,6 +503,14 @@ def _category_body(cat: SiiCategory) -> tuple[int, bytes]:
     return cat.type, bytes(cat.data)
 
 
+def category_body(cat: SiiCategory) -> bytes:
+    """Encoded body of one category (without its 2-word header), padded to whole words."""
+    try:
+        return _pad_word(_category_body(cat)[1])
+    except struct.error as exc:
+        raise SiiError(f"{category_name(int(cat.type))} field out of range: {exc}") from exc
+
+
 def build_sii(info: SiiInfo, *, pad: bool = True, fix_checksum: bool = True) -> bytes:
     """Build the image bytes of ``info``.
 

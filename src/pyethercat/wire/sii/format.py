@@ -6,7 +6,7 @@ from collections.abc import Callable
 from enum import IntFlag
 
 from pyethercat.errors import SiiError
-from pyethercat.wire.sii.codec import _category_body, _pad_word
+from pyethercat.wire.sii.codec import category_body
 from pyethercat.wire.sii.model import (
     WORD_FIRST_CATEGORY,
     CategoryType,
@@ -85,10 +85,10 @@ def format_sii(info: SiiInfo) -> str:
     word = WORD_FIRST_CATEGORY
     for cat in info.categories:
         try:
-            ctype, body = _category_body(cat)
-            size = len(_pad_word(body)) // 2
+            size = len(category_body(cat)) // 2
         except SiiError:
-            ctype, size = int(cat.type), -1
+            size = -1
+        ctype = int(cat.type)
         lines.append(
             f"Category {category_name(ctype)} ({ctype}) at word 0x{word:04X}, {size} words"
         )
