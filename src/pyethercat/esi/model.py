@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from pyethercat.errors import EsiError
+from pyethercat.wire.mailbox.datatypes import DATA_TYPE_BITS, DataType
 from pyethercat.wire.registers import (
     SM_CONTROL_DIRECTION_MASK,
     SM_CONTROL_DIRECTION_SHIFT,
@@ -82,70 +83,76 @@ class Text:
 class TypeInfo:
     """CANopen view of an ESI data type name.
 
-    ``code`` is the CANopen/ETG data type code (0x0007 for UDINT); ``bit_size``
+    ``code`` is the CANopen data type (``DataType.UNSIGNED32`` for UDINT); ``bit_size``
     is the size of one value (for arrays: of the whole array); ``element`` is
     set for ``ARRAY [..] OF X`` and ``STRING(n)`` with ``count`` elements.
     """
 
     name: str
-    code: int
+    code: DataType
     bit_size: int
     count: int = 1
     element: TypeInfo | None = None
 
 
-# ESI base type name -> (CANopen data type code, bit size). Codes follow
-# ETG.1000.6 / ETG.1020 (the same numbers CoE SDO information reports).
-BASE_TYPES: Mapping[str, tuple[int, int]] = {
-    "BOOL": (0x0001, 1),
-    "BOOLEAN": (0x0001, 1),
-    "BIT": (0x0001, 1),
-    "SINT": (0x0002, 8),
-    "INT8": (0x0002, 8),
-    "INT": (0x0003, 16),
-    "INT16": (0x0003, 16),
-    "DINT": (0x0004, 32),
-    "INT32": (0x0004, 32),
-    "USINT": (0x0005, 8),
-    "UINT8": (0x0005, 8),
-    "UINT": (0x0006, 16),
-    "UINT16": (0x0006, 16),
-    "UDINT": (0x0007, 32),
-    "UINT32": (0x0007, 32),
-    "REAL": (0x0008, 32),
-    "REAL32": (0x0008, 32),
-    "TIME_OF_DAY": (0x000C, 48),
-    "TIME_DIFFERENCE": (0x000D, 48),
-    "INT24": (0x0010, 24),
-    "LREAL": (0x0011, 64),
-    "REAL64": (0x0011, 64),
-    "INT40": (0x0012, 40),
-    "INT48": (0x0013, 48),
-    "INT56": (0x0014, 56),
-    "LINT": (0x0015, 64),
-    "INT64": (0x0015, 64),
-    "UINT24": (0x0016, 24),
-    "UINT40": (0x0018, 40),
-    "UINT48": (0x0019, 48),
-    "UINT56": (0x001A, 56),
-    "ULINT": (0x001B, 64),
-    "UINT64": (0x001B, 64),
-    "BYTE": (0x001E, 8),
-    "WORD": (0x001F, 16),
-    "DWORD": (0x0020, 32),
-    "BITARR8": (0x002D, 8),
-    "BITARR16": (0x002E, 16),
-    "BITARR32": (0x002F, 32),
-    **{f"BIT{n}": (0x0030 + n - 1, n) for n in range(1, 9)},
+# ESI base type name -> CANopen data type (codes and sizes live in
+# wire/mailbox/datatypes.py, shared with the CoE codec). ESI spells types the
+# IEC 61131 way (UDINT) and, in some files, the C way (UINT16).
+_DT = DataType
+BASE_TYPES: Mapping[str, DataType] = {
+    "BOOL": _DT.BOOLEAN,
+    "BOOLEAN": _DT.BOOLEAN,
+    "BIT": _DT.BOOLEAN,
+    "SINT": _DT.INTEGER8,
+    "INT8": _DT.INTEGER8,
+    "INT": _DT.INTEGER16,
+    "INT16": _DT.INTEGER16,
+    "INT24": _DT.INTEGER24,
+    "DINT": _DT.INTEGER32,
+    "INT32": _DT.INTEGER32,
+    "INT40": _DT.INTEGER40,
+    "INT48": _DT.INTEGER48,
+    "INT56": _DT.INTEGER56,
+    "LINT": _DT.INTEGER64,
+    "INT64": _DT.INTEGER64,
+    "USINT": _DT.UNSIGNED8,
+    "UINT8": _DT.UNSIGNED8,
+    "UINT": _DT.UNSIGNED16,
+    "UINT16": _DT.UNSIGNED16,
+    "UINT24": _DT.UNSIGNED24,
+    "UDINT": _DT.UNSIGNED32,
+    "UINT32": _DT.UNSIGNED32,
+    "UINT40": _DT.UNSIGNED40,
+    "UINT48": _DT.UNSIGNED48,
+    "UINT56": _DT.UNSIGNED56,
+    "ULINT": _DT.UNSIGNED64,
+    "UINT64": _DT.UNSIGNED64,
+    "REAL": _DT.REAL32,
+    "REAL32": _DT.REAL32,
+    "FLOAT": _DT.REAL32,
+    "LREAL": _DT.REAL64,
+    "REAL64": _DT.REAL64,
+    "DOUBLE": _DT.REAL64,
+    "TIME_OF_DAY": _DT.TIME_OF_DAY,
+    "TIME_DIFFERENCE": _DT.TIME_DIFFERENCE,
+    "GUID": _DT.GUID,
+    "BYTE": _DT.BYTE,
+    # WORD/DWORD have no code of their own in the shared table; they carry
+    # the same bits as the unsigned types.
+    "WORD": _DT.UNSIGNED16,
+    "DWORD": _DT.UNSIGNED32,
+    "BITARR8": _DT.BITARR8,
+    "BITARR16": _DT.BITARR16,
+    "BITARR32": _DT.BITARR32,
+    **{f"BIT{n}": DataType(_DT.BIT1 + n - 1) for n in range(1, 9)},
 }
 # Variable-length types: the size comes with the name (STRING(n)) or the object.
-_STRING_CODES: Mapping[str, tuple[int, int]] = {
-    "STRING": (0x0009, 8),
-    "VISIBLE_STRING": (0x0009, 8),
-    "OCTET_STRING": (0x000A, 8),
-    "UNICODE_STRING": (0x000B, 16),
+_STRING_CODES: Mapping[str, tuple[DataType, int]] = {
+    "STRING": (_DT.VISIBLE_STRING, 8),
+    "VISIBLE_STRING": (_DT.VISIBLE_STRING, 8),
+    "OCTET_STRING": (_DT.OCTET_STRING, 8),
+    "UNICODE_STRING": (_DT.UNICODE_STRING, 16),
 }
-_DOMAIN_CODE = 0x000F
 _STRING_RE = re.compile(r"^\s*(\w+)\s*\(\s*(\d+)\s*\)\s*$")
 _ARRAY_RE = re.compile(
     r"^\s*ARRAY\s*\[\s*(-?\d+)\s*\.\.\s*(-?\d+)\s*\]\s*OF\s+(.+?)\s*$", re.IGNORECASE
@@ -164,9 +171,9 @@ def type_info(name: str) -> TypeInfo | None:
     upper = key.upper()
     base = BASE_TYPES.get(upper)
     if base is not None:
-        return TypeInfo(key, base[0], base[1])
+        return TypeInfo(key, base, DATA_TYPE_BITS[base])
     if upper == "DOMAIN":
-        return TypeInfo(key, _DOMAIN_CODE, 0)
+        return TypeInfo(key, DataType.DOMAIN, 0)
     if upper in _STRING_CODES:
         code, unit = _STRING_CODES[upper]
         return TypeInfo(key, code, 0, 0, TypeInfo(upper, code, unit))
@@ -561,7 +568,7 @@ class EsiOdEntry:
     subindex: int
     name: str
     type: str
-    code: int | None
+    code: DataType | None
     bit_size: int
     flags: EsiFlags
     default: bytes | None
