@@ -22,6 +22,7 @@ from __future__ import annotations
 import os
 import re
 from collections.abc import Callable, Iterator
+from typing import Any
 
 from lxml import etree
 
@@ -876,7 +877,10 @@ def parse_esi(
     except etree.XMLSyntaxError as exc:
         line = exc.lineno if exc.lineno else None
         raise EsiError(f"malformed XML: {exc.msg}", source, line) from None
-    if root.getroottree().docinfo.internalDTD is not None:  # belt and braces
+    # Belt and braces: the prolog check should already have refused these.
+    docinfo: Any = root.getroottree().docinfo  # lxml-stubs lacks system_url / iterentities
+    dtd = docinfo.internalDTD
+    if docinfo.system_url or docinfo.public_id or (dtd is not None and any(dtd.iterentities())):
         raise EsiError("document type declaration with a DTD is not allowed", source, 1)
     return _Parser(source).file(root)
 
