@@ -305,7 +305,9 @@ class _SdoInitiateWithData:
             if self.size_indicated and not 1 <= n <= 4:
                 raise MailboxError(f"expedited SDO carries 1..4 bytes, got {n}")
             if not self.size_indicated and n != 4:
-                raise MailboxError(f"expedited SDO without size indication carries 4 bytes, got {n}")
+                raise MailboxError(
+                    f"expedited SDO without size indication carries 4 bytes, got {n}"
+                )
             if self.complete_size not in (None, n):
                 raise MailboxError("expedited SDO: complete_size must equal len(data)")
             object.__setattr__(self, "complete_size", n)
@@ -313,7 +315,9 @@ class _SdoInitiateWithData:
             size = n if self.complete_size is None else self.complete_size
             _check("SDO complete size", size, 0xFFFFFFFF)
             if not self.size_indicated and size != n:
-                raise MailboxError("SDO without size indication: complete_size must equal len(data)")
+                raise MailboxError(
+                    "SDO without size indication: complete_size must equal len(data)"
+                )
             if n > size:
                 raise MailboxError(f"SDO frame carries {n} bytes, more than complete size {size}")
             object.__setattr__(self, "complete_size", size)
@@ -340,7 +344,11 @@ class _SdoInitiateWithData:
                 + field4
             )
         size = self.total_size if self.size_indicated else 0
-        return CoeHeader(self.SERVICE).encode() + _SDO.pack(cs, self.index, self.subindex, size) + self.data
+        return (
+            CoeHeader(self.SERVICE).encode()
+            + _SDO.pack(cs, self.index, self.subindex, size)
+            + self.data
+        )
 
     @classmethod
     def _decode(cls, body: bytes) -> Self:
@@ -1604,4 +1612,3 @@ class SdoDownloadServer:
                 return self._abort(SdoAbortCode.LENGTH_TOO_LOW)
             return SdoDownloadEvent(reply, bytes(self._buffer))
         return SdoDownloadEvent(reply)
-

@@ -229,7 +229,12 @@ def parse_type_name(name: str) -> DataType:
         return DataType(int(key, 0))
     except ValueError:
         pass
-    known = ", ".join(sorted({k for k in TYPE_NAMES if "_" in k or k[-1].isdigit()} | {"float", "double", "string", "bool"}))
+    known = ", ".join(
+        sorted(
+            {k for k in TYPE_NAMES if "_" in k or k[-1].isdigit()}
+            | {"float", "double", "string", "bool"}
+        )
+    )
     raise ConfigError(f"unknown data type {name!r} (known: {known})")
 
 
@@ -346,7 +351,11 @@ def parse_value(dtype: DataType, text: str) -> Value:
             return value
         if dtype in (DataType.REAL32, DataType.REAL64):
             number = float(t)
-            if dtype is DataType.REAL32 and math.isfinite(number) and abs(number) > 3.4028234663852886e38:
+            if (
+                dtype is DataType.REAL32
+                and math.isfinite(number)
+                and abs(number) > 3.4028234663852886e38
+            ):
                 raise ConfigError(f"value {t} does not fit REAL32")
             return number
         if dtype in (DataType.VISIBLE_STRING, DataType.UNICODE_STRING):

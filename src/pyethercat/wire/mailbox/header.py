@@ -136,9 +136,7 @@ class MailboxHeader:
     def decode(cls, data: bytes | bytearray | memoryview) -> MailboxHeader:
         """Parse the first 6 bytes of ``data``; raises :class:`MailboxError` if short."""
         if len(data) < MAILBOX_HEADER_SIZE:
-            raise MailboxError(
-                f"mailbox header needs {MAILBOX_HEADER_SIZE} bytes, got {len(data)}"
-            )
+            raise MailboxError(f"mailbox header needs {MAILBOX_HEADER_SIZE} bytes, got {len(data)}")
         length, address, b4, b5 = _HDR.unpack_from(data, 0)
         raw_type = b5 & 0x0F
         mtype: MailboxType | int
@@ -168,7 +166,9 @@ def pad_mailbox(frame: bytes | bytearray, size: int) -> bytes:
     Raises :class:`MailboxError` if the frame does not fit.
     """
     if len(frame) > size:
-        raise MailboxError(f"mailbox of {len(frame)} bytes does not fit the {size}-byte SyncManager")
+        raise MailboxError(
+            f"mailbox of {len(frame)} bytes does not fit the {size}-byte SyncManager"
+        )
     return bytes(frame) + bytes(size - len(frame))
 
 
