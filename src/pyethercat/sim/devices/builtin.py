@@ -1,0 +1,384 @@
+"""Built-in simulated devices: a coupler and four small IO terminals.
+
+Each built-in is described by a :class:`BuiltinDevice` (identity, ports, sync
+managers, FMMUs, PDOs) from which a complete SII EEPROM image is generated
+with :func:`pyethercat.wire.sii.build_sii`. A master reading that EEPROM sees
+an ordinary EtherCAT slave: strings, General, FMMU, SyncM and TxPDO/RxPDO
+categories, a correct header checksum.
+
+Identity. The built-ins carry the vendor id :data:`VENDOR_ID` (0x00504543, the
+ASCII letters "PEC"), a number chosen here because it is far above the range
+the EtherCAT Technology Group hands out; it belongs to nobody, so no master
+mistakes a simulated terminal for a real product.
+
+Layout, modelled on Beckhoff's mailbox-less EL1xxx/EL2xxx terminals: the
+digital terminals have no mailbox, and their only process-data sync manager
+is SM0 (inputs: 0x1000, buffered, ECAT reads; outputs: buffered, ECAT writes,
+watchdog on). A real EL2004 places its outputs at 0x0F00 (the ESC's digital
+output register); the built-in ``do8`` uses process RAM at 0x1000 instead, so
+it works on every ESC profile; the EL2004 built from its corpus SII dump keeps
+0x0F00. ``ai2`` is modelled on an EL31xx: it has a standard mailbox (SM0/SM1,
+no mailbox protocol yet, so masters read its PDOs from the SII), SM2 for
+outputs (none) and SM3 for its two 16-bit inputs.
+
+Device application. Plain IO terminals need no Python per frame: inputs are
+set by the segment's wiring (:meth:`Segment.wire`) or by test code through the
+PDI, outputs are read from the SM buffer. :class:`IoTerminal` only fills in the
+configured initial inputs at power-on.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from pyethercat.errors import ConfigError
+from pyethercat.wire.sii import (
+    CoeDetails,
+    FmmuUsage,
+    MailboxProtocol,
+    PortType,
+    SiiFmmus,
+    SiiGeneral,
+    SiiInfo,
+    SiiPdo,
+    SiiPdoEntry,
+    SiiPdos,
+    SiiStrings,
+    SiiSyncManager,
+    SiiSyncManagers,
+    SyncManagerType,
+    build_sii,
+)
+from pyethercat.wire.sii.model import CategoryType
+
+__all__ = [
+    "BUILTINS",
+    "VENDOR_ID",
+    "BuiltinDevice",
+    "PdoEntry",
+    "Pdo",
+    "SyncManager",
+    "builtin_names",
+    "get_builtin",
+]
+
+#: Vendor id of every built-in device ("PEC" in ASCII; not an assigned ETG id).
+VENDOR_ID = 0x00504543
+#: Revision number of the current built-in device generation.
+REVISION = 0x00010000
+
+# CoE basic data type codes (facts 7.10) used by the built-in PDO entries.
+_BOOL = 0x0001
+_INT16 = 0x0003
+
+# Sync manager control bytes (facts 3.13): mode bits 1:0 (0 = buffered,
+# 2 = mailbox), direction bits 3:2 (0 = ECAT reads, 1 = ECAT writes), bit 5 AL
+# event (PDI interrupt), bit 6 watchdog.
+_SM_CTRL_INPUTS_IO = 0x00  # EL1xxx: buffered, ECAT reads, no PDI event
+_SM_CTRL_OUTPUTS_IO = 0x44  # EL2xxx: buffered, ECAT writes, watchdog
+_SM_CTRL_MBX_OUT = 0x26
+_SM_CTRL_MBX_IN = 0x22
+_SM_CTRL_OUTPUTS = 0x64
+_SM_CTRL_INPUTS = 0x20
+
+# SII fixed-area word 0: low byte PDI type, high byte ESC configuration
+# (0x0141). Built-ins run a state machine of their own (no device emulation);
+# bits 2/3 ask for enhanced link detection like Beckhoff's images do.
+_PDI_CONTROL_IO = 0x0C04  # PDI type 4: digital I/O
+_PDI_CONTROL_NONE = 0x0C00
+
+
+@dataclass(frozen=True)
+class PdoEntry:
+    """One PDO entry: object index/subindex, bit length, name, CoE type code."""
+
+    index: int
+    subindex: int
+    bits: int
+    name: str
+    data_type: int = _BOOL
+
+
+@dataclass(frozen=True)
+class Pdo:
+    """One fixed PDO assigned to sync manager ``sm``."""
+
+    index: int
+    sm: int
+    name: str
+    entries: tuple[PdoEntry, ...]
+
+    @property
+    def bits(self) -> int:
+        """Sum of the entries' bit lengths."""
+        return sum(e.bits for e in self.entries)
+
+
+@dataclass(frozen=True)
+class SyncManager:
+    """One sync manager as the SII describes it (start, length, control, type)."""
+
+    start: int
+    length: int
+    control: int
+    sm_type: SyncManagerType
+    enable: int = 0x01
+
+
+@dataclass(frozen=True)
+class BuiltinDevice:
+    """Static description of one built-in device type."""
+
+    key: str  # "di8": the name after "builtin:" in a topology file
+    product_code: int
+    order: str  # order number string, e.g. "PEC-DI8"
+    name: str  # device name string (what SOEM shows as the slave name)
+    group: str
+    profile: str  # default ESC profile (sim.esc.PROFILES key)
+    ports: tuple[PortType, PortType, PortType, PortType]
+    sync_managers: tuple[SyncManager, ...]
+    fmmus: tuple[FmmuUsage, ...]
+    tx_pdos: tuple[Pdo, ...] = ()
+    rx_pdos: tuple[Pdo, ...] = ()
+    mailbox: tuple[int, int, int, int] | None = None  # rx offset/size, tx offset/size
+    ebus_current_ma: int = 0
+    pdi_control: int = _PDI_CONTROL_IO
+    description: str = ""
+
+    @property
+    def input_bits(self) -> int:
+        """Bits of input process data (TxPDOs, slave -> master)."""
+        return sum(p.bits for p in self.tx_pdos)
+
+    @property
+    def output_bits(self) -> int:
+        """Bits of output process data (RxPDOs, master -> slave)."""
+        return sum(p.bits for p in self.rx_pdos)
+
+    @property
+    def input_bytes(self) -> int:
+        """Bytes of the input sync manager buffer."""
+        return (self.input_bits + 7) // 8
+
+    @property
+    def output_bytes(self) -> int:
+        """Bytes of the output sync manager buffer."""
+        return (self.output_bits + 7) // 8
+
+    def sii_info(self, serial: int = 0, alias: int = 0) -> SiiInfo:
+        """The SII content of this device as a typed model."""
+        strings: list[bytes] = []
+
+        def intern(text: str) -> int:
+            raw = text.encode("latin-1")
+            if raw not in strings:
+                strings.append(raw)
+            return strings.index(raw) + 1
+
+        group_i = intern(self.group)
+        order_i = intern(self.order)
+        name_i = intern(self.name)
+
+        def sii_pdos(ctype: int, pdos: tuple[Pdo, ...]) -> SiiPdos:
+            out = SiiPdos(type=ctype)
+            for pdo in pdos:
+                entries = [
+                    SiiPdoEntry(
+                        index=e.index,
+                        subindex=e.subindex,
+                        name_index=intern(e.name),
+                        data_type=e.data_type,
+                        bit_length=e.bits,
+                    )
+                    for e in pdo.entries
+                ]
+                # flags 0x0011: mandatory + fixed content, as Beckhoff images carry.
+                out.pdos.append(
+                    SiiPdo(
+                        index=pdo.index,
+                        sync_manager=pdo.sm,
+                        name_index=intern(pdo.name),
+                        flags=0x0011,
+                        entries=entries,
+                    )
+                )
+            return out
+
+        tx = sii_pdos(CategoryType.TXPDO, self.tx_pdos)
+        rx = sii_pdos(CategoryType.RXPDO, self.rx_pdos)
+        physical_ports = 0
+        for i, p in enumerate(self.ports):
+            physical_ports |= int(p) << (4 * i)
+        general = SiiGeneral(
+            group_index=group_i,
+            order_index=order_i,
+            name_index=name_i,
+            coe_details=CoeDetails.NONE,
+            ebus_current_ma=self.ebus_current_ma,
+            physical_ports=physical_ports,
+        )
+        sms = SiiSyncManagers(
+            sync_managers=[
+                SiiSyncManager(
+                    start=s.start,
+                    length=s.length,
+                    control=s.control,
+                    enable=s.enable,
+                    sm_type=s.sm_type,
+                )
+                for s in self.sync_managers
+            ]
+        )
+        categories: list[object] = [SiiStrings(strings=strings), general]
+        if self.fmmus:
+            categories.append(SiiFmmus(usages=[int(u) for u in self.fmmus]))
+        if self.sync_managers:
+            categories.append(sms)
+        if self.tx_pdos:
+            categories.append(tx)
+        if self.rx_pdos:
+            categories.append(rx)
+        info = SiiInfo(
+            pdi_control=self.pdi_control,
+            station_alias=alias,
+            vendor_id=VENDOR_ID,
+            product_code=self.product_code,
+            revision=REVISION,
+            serial=serial,
+            eeprom_size_code=0x000F,  # 2 KiB (16 Kbit), like EL/EK terminals
+            version=1,
+        )
+        if self.mailbox is not None:
+            rx_off, rx_size, tx_off, tx_size = self.mailbox
+            info.rx_mailbox_offset, info.rx_mailbox_size = rx_off, rx_size
+            info.tx_mailbox_offset, info.tx_mailbox_size = tx_off, tx_size
+            info.boot_rx_mailbox_offset, info.boot_rx_mailbox_size = rx_off, rx_size
+            info.boot_tx_mailbox_offset, info.boot_tx_mailbox_size = tx_off, tx_size
+            info.mailbox_protocols = MailboxProtocol.NONE
+        info.categories = categories  # type: ignore[assignment]
+        return info
+
+    def sii_image(self, serial: int = 0, alias: int = 0) -> bytes:
+        """The EEPROM image bytes (checksum set, padded with 0xFF to 2 KiB)."""
+        return build_sii(self.sii_info(serial=serial, alias=alias))
+
+
+def _bits(prefix: int, count: int, name: str, sm: int, obj_base: int) -> tuple[Pdo, ...]:
+    """``count`` one-bit channel PDOs (Beckhoff style: one PDO per channel)."""
+    return tuple(
+        Pdo(
+            index=prefix + ch,
+            sm=sm,
+            name=f"Channel {ch + 1}",
+            entries=(PdoEntry(obj_base + 0x10 * ch, 1, 1, name),),
+        )
+        for ch in range(count)
+    )
+
+
+_EBUS2 = (PortType.EBUS, PortType.EBUS, PortType.NOT_USED, PortType.NOT_USED)
+
+COUPLER = BuiltinDevice(
+    key="coupler",
+    product_code=0x00010004,
+    order="PEC-CU4",
+    name="PEC-CU4 EtherCAT coupler, 4 ports",
+    group="Coupler",
+    profile="ET1100",
+    # Port 0 in (MII), port 1 to the terminals (E-Bus), ports 2 and 3 out
+    # (MII): a branch can hang off port 3 or port 2.
+    ports=(PortType.MII, PortType.EBUS, PortType.MII, PortType.MII),
+    sync_managers=(),
+    fmmus=(),
+    ebus_current_ma=-2000,  # feeds the E-Bus
+    pdi_control=_PDI_CONTROL_NONE,
+    description="coupler without process data, 4 ports (0 in, 1 E-Bus, 2 and 3 out)",
+)
+
+DI8 = BuiltinDevice(
+    key="di8",
+    product_code=0x00020008,
+    order="PEC-DI8",
+    name="PEC-DI8 8Ch. digital input",
+    group="DigIn",
+    profile="ET1200",
+    ports=_EBUS2,
+    sync_managers=(SyncManager(0x1000, 1, _SM_CTRL_INPUTS_IO, SyncManagerType.INPUTS),),
+    fmmus=(FmmuUsage.INPUTS, FmmuUsage.NOT_USED),
+    tx_pdos=_bits(0x1A00, 8, "Input", 0, 0x6000),
+    ebus_current_ma=90,
+    description="8 digital inputs, 1 byte, TxPDOs 0x1A00-0x1A07 (0x6000+0x10*ch:01, BOOL)",
+)
+
+DO8 = BuiltinDevice(
+    key="do8",
+    product_code=0x00030008,
+    order="PEC-DO8",
+    name="PEC-DO8 8Ch. digital output",
+    group="DigOut",
+    profile="ET1200",
+    ports=_EBUS2,
+    sync_managers=(SyncManager(0x1000, 1, _SM_CTRL_OUTPUTS_IO, SyncManagerType.OUTPUTS),),
+    fmmus=(FmmuUsage.OUTPUTS, FmmuUsage.NOT_USED),
+    rx_pdos=_bits(0x1600, 8, "Output", 0, 0x7000),
+    ebus_current_ma=110,
+    description="8 digital outputs, 1 byte, RxPDOs 0x1600-0x1607 (0x7000+0x10*ch:01, BOOL)",
+)
+
+DI2 = BuiltinDevice(
+    key="di2",
+    product_code=0x00020002,
+    order="PEC-DI2",
+    name="PEC-DI2 2Ch. digital input",
+    group="DigIn",
+    profile="ET1200",
+    ports=_EBUS2,
+    sync_managers=(SyncManager(0x1000, 1, _SM_CTRL_INPUTS_IO, SyncManagerType.INPUTS),),
+    fmmus=(FmmuUsage.INPUTS, FmmuUsage.NOT_USED),
+    tx_pdos=_bits(0x1A00, 2, "Input", 0, 0x6000),
+    ebus_current_ma=90,
+    description="2 digital inputs (2 bits: masters map it with a bit-wise FMMU)",
+)
+
+AI2 = BuiltinDevice(
+    key="ai2",
+    product_code=0x00040002,
+    order="PEC-AI2",
+    name="PEC-AI2 2Ch. analog input 16 bit",
+    group="AnaIn",
+    profile="ET1200",
+    ports=_EBUS2,
+    sync_managers=(
+        SyncManager(0x1000, 128, _SM_CTRL_MBX_OUT, SyncManagerType.MAILBOX_OUT),
+        SyncManager(0x1080, 128, _SM_CTRL_MBX_IN, SyncManagerType.MAILBOX_IN),
+        SyncManager(0x1100, 0, _SM_CTRL_OUTPUTS, SyncManagerType.OUTPUTS, enable=0x00),
+        SyncManager(0x1180, 4, _SM_CTRL_INPUTS, SyncManagerType.INPUTS),
+    ),
+    fmmus=(FmmuUsage.OUTPUTS, FmmuUsage.INPUTS, FmmuUsage.MAILBOX_STATE),
+    tx_pdos=(
+        Pdo(0x1A00, 3, "AI Channel 1", (PdoEntry(0x6000, 0x11, 16, "Value", _INT16),)),
+        Pdo(0x1A01, 3, "AI Channel 2", (PdoEntry(0x6010, 0x11, 16, "Value", _INT16),)),
+    ),
+    mailbox=(0x1000, 128, 0x1080, 128),
+    ebus_current_ma=130,
+    description="2 analog inputs, INT16 each (4 bytes), standard mailbox SM0/SM1, inputs on SM3",
+)
+
+#: Every built-in device by its topology name (``device = "builtin:<key>"``).
+BUILTINS: dict[str, BuiltinDevice] = {d.key: d for d in (COUPLER, DI8, DO8, DI2, AI2)}
+
+
+def builtin_names() -> list[str]:
+    """Names accepted after ``builtin:``."""
+    return sorted(BUILTINS)
+
+
+def get_builtin(key: str) -> BuiltinDevice:
+    """The built-in device ``key``; :class:`ConfigError` naming the choices if unknown."""
+    try:
+        return BUILTINS[key]
+    except KeyError:
+        raise ConfigError(
+            f"unknown built-in device {key!r}: choose one of {', '.join(builtin_names())}"
+        ) from None
+

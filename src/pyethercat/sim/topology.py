@@ -1,0 +1,553 @@
+"""Topology files: a TOML description of a simulated segment, and building it.
+
+The format (documented with examples in ``docs/simulator.md``)::
+
+    [segment]                       # optional
+    drop_probability = 0.0          # frames lost on the wire, 0..1
+    seed = 1                        # random seed for the drops
+
+    [[slave]]
+    name = "coupler"                # unique; used by parent/wire/fault
+    device = "builtin:coupler"      # or sii = "dump.bin" (relative to this file)
+                                    # or esi = "dev.xml" with product/revision
+    alias = 0x1234                  # optional, overrides SII word 4
+    profile = "ET1100"              # optional ESC profile (sim.esc.PROFILES)
+    drift_ppm = 20.0                # optional DC clock drift
+    forwarding_delay_ns = 500       # optional; default from the port types
+    cable_delay_ns = 5              # optional delay of the cable into port 0
+    inputs = "00ff"                 # optional initial input image (hex)
+    parent = "coupler"              # optional: hang on a port of another slave
+    port = 3                        #   (1, 2 or 3) instead of following the
+                                    #   previous slave of the file
+
+    [[wire]]                        # an output drives an input
+    from = "do8:0"                  # slave:bit in its output image (SM outputs)
+    to = "di8:0"                    # slave:bit in its input image (SM inputs)
+    bits = 8                        # default: as many as both sides have
+
+    [[fault]]                       # applied when the segment is built
+    kind = "break_link"             # break_link | power_off | corrupt
+    slave = "di8"
+    port = 1                        # break_link, corrupt
+    count = 3                       # corrupt: frames to damage
+
+Slaves form a line in file order: a slave without ``parent`` joins the
+previous slave of the file, on that slave's first free port of 1, 2, 3 (in
+that order; port 0 always faces the master). A slave with ``parent``/``port``
+is placed on that port of an earlier slave (a tree branch).
+
+Every error raises :class:`~pyethercat.errors.ConfigError` naming the file and
+the slave (or wire/fault) it concerns.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from pyethercat.errors import ConfigError, SiiError
+from pyethercat.sim.devices.builtin import BuiltinDevice, get_builtin
+from pyethercat.sim.profiles import PROFILES, EscProfile
+from pyethercat.wire.registers import PortType as RegPortType
+from pyethercat.wire.sii import PortType, SiiInfo, parse_sii
+
+__all__ = [
+    "FaultConfig",
+    "SlaveConfig",
+    "Topology",
+    "WireConfig",
+    "build_segment",
+    "load_topology",
+    "parse_topology",
+]
+
+_SLAVE_KEYS = {
+    "name",
+    "device",
+    "sii",
+    "esi",
+    "product",
+    "revision",
+    "alias",
+    "profile",
+    "drift_ppm",
+    "forwarding_delay_ns",
+    "cable_delay_ns",
+    "inputs",
+    "parent",
+    "port",
+    "serial",
+}
+_WIRE_KEYS = {"from", "to", "bits"}
+_FAULT_KEYS = {"kind", "slave", "port", "count"}
+_FAULT_KINDS = ("break_link", "power_off", "corrupt")
+_SEGMENT_KEYS = {"drop_probability", "seed"}
+_TOP_KEYS = {"slave", "wire", "fault", "segment"}
+
+
+@dataclass
+class SlaveConfig:
+    """One ``[[slave]]`` table, checked and resolved."""
+
+    name: str
+    source: str  # "builtin:di8", or the SII/ESI path as written
+    sii: bytes  # the EEPROM image the slave will carry
+    info: SiiInfo  # the parsed image (identity, PDOs)
+    profile: EscProfile  # resolved ESC profile (ports adjusted to the SII)
+    builtin: BuiltinDevice | None = None
+    sii_path: Path | None = None
+    alias: int | None = None
+    drift_ppm: float = 0.0
+    forwarding_delay_ns: int | None = None
+    cable_delay_ns: int = 5
+    inputs: bytes | None = None
+    parent: str | None = None  # resolved: every slave but the first has one
+    port: int | None = None
+
+    @property
+    def input_bits(self) -> int:
+        """Input process data bits (TxPDOs with a sync manager)."""
+        return self.info.input_bits
+
+    @property
+    def output_bits(self) -> int:
+        """Output process data bits (RxPDOs with a sync manager)."""
+        return self.info.output_bits
+
+    @property
+    def ports(self) -> tuple[int, ...]:
+        """Port numbers this slave has (from its resolved ESC profile)."""
+        return self.profile.implemented_ports
+
+
+@dataclass(frozen=True)
+class WireConfig:
+    """One ``[[wire]]``: ``bits`` output bits of ``src`` drive input bits of ``dst``."""
+
+    src: str
+    src_bit: int
+    dst: str
+    dst_bit: int
+    bits: int
+
+
+@dataclass(frozen=True)
+class FaultConfig:
+    """One ``[[fault]]`` applied at build time."""
+
+    kind: str
+    slave: str
+    port: int = 0
+    count: int = 1
+
+
+@dataclass
+class Topology:
+    """A parsed topology file. :meth:`build` makes the :class:`Segment`."""
+
+    source: str  # file name (for messages)
+    slaves: list[SlaveConfig] = field(default_factory=list)
+    wires: list[WireConfig] = field(default_factory=list)
+    faults: list[FaultConfig] = field(default_factory=list)
+    drop_probability: float = 0.0
+    seed: int | None = None
+
+    def index(self, name: str) -> int:
+        """Position of slave ``name`` (0 = first slave)."""
+        for i, s in enumerate(self.slaves):
+            if s.name == name:
+                return i
+        raise ConfigError(f"{self.source}: no slave named {name!r}")
+
+    def build(self, clock: Any = None) -> Any:
+        """Build the segment (see :func:`build_segment`)."""
+        return build_segment(self, clock=clock)
+
+
+# --- parsing -------------------------------------------------------------------
+
+
+def load_topology(path: str | Path) -> Topology:
+    """Read and check a topology file; relative SII/ESI paths are taken from its folder."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"cannot read topology file {p}: {exc.strerror or exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{p}: not UTF-8 text ({exc.reason})") from exc
+    return parse_topology(text, base_dir=p.parent, source=str(p))
+
+
+def parse_topology(
+    text: str | dict[str, Any], base_dir: str | Path = ".", source: str = "<topology>"
+) -> Topology:
+    """Parse topology TOML text (or an already-parsed dict)."""
+    if isinstance(text, str):
+        try:
+            doc = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
+            raise ConfigError(f"{source}: not valid TOML: {exc}") from exc
+    else:
+        doc = text
+    unknown = set(doc) - _TOP_KEYS
+    if unknown:
+        raise ConfigError(
+            f"{source}: unknown top-level key(s) {', '.join(sorted(unknown))} "
+            f"(expected [[slave]], [[wire]], [[fault]], [segment])"
+        )
+    topo = Topology(source=source)
+    seg = doc.get("segment", {})
+    if not isinstance(seg, dict):
+        raise ConfigError(f"{source}: [segment] must be a table")
+    _check_keys(seg, _SEGMENT_KEYS, f"{source}: [segment]")
+    if "drop_probability" in seg:
+        p = _number(seg["drop_probability"], f"{source}: [segment] drop_probability")
+        if not 0.0 <= p <= 1.0:
+            raise ConfigError(f"{source}: [segment] drop_probability {p} is not within 0..1")
+        topo.drop_probability = p
+    if "seed" in seg:
+        topo.seed = _int(seg["seed"], f"{source}: [segment] seed")
+
+    slaves = _table_list(doc, "slave", source)
+    if not slaves:
+        raise ConfigError(f"{source}: no [[slave]] tables: a segment needs at least one slave")
+    base = Path(base_dir)
+    for i, raw in enumerate(slaves):
+        topo.slaves.append(_parse_slave(raw, i, topo, base))
+    _place(topo)
+    for i, raw in enumerate(_table_list(doc, "wire", source)):
+        topo.wires.append(_parse_wire(raw, i, topo))
+    for i, raw in enumerate(_table_list(doc, "fault", source)):
+        topo.faults.append(_parse_fault(raw, i, topo))
+    return topo
+
+
+def _table_list(doc: dict[str, Any], key: str, source: str) -> list[dict[str, Any]]:
+    value = doc.get(key, [])
+    if not isinstance(value, list) or not all(isinstance(v, dict) for v in value):
+        raise ConfigError(f"{source}: {key!r} must be an array of tables ([[{key}]])")
+    return value
+
+
+def _check_keys(raw: dict[str, Any], allowed: set[str], where: str) -> None:
+    unknown = set(raw) - allowed
+    if unknown:
+        raise ConfigError(
+            f"{where}: unknown key(s) {', '.join(sorted(unknown))} "
+            f"(allowed: {', '.join(sorted(allowed))})"
+        )
+
+
+def _int(value: Any, where: str, lo: int | None = None, hi: int | None = None) -> int:
+    if isinstance(value, str):
+        try:
+            value = int(value, 0)
+        except ValueError:
+            raise ConfigError(f"{where}: {value!r} is not a number") from None
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ConfigError(f"{where}: expected an integer, got {value!r}")
+    if (lo is not None and value < lo) or (hi is not None and value > hi):
+        raise ConfigError(f"{where}: {value} is out of range {lo}..{hi}")
+    return value
+
+
+def _number(value: Any, where: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ConfigError(f"{where}: expected a number, got {value!r}")
+    return float(value)
+
+
+def _str(value: Any, where: str) -> str:
+    if not isinstance(value, str) or not value:
+        raise ConfigError(f"{where}: expected a non-empty string, got {value!r}")
+    return value
+
+
+def _parse_slave(raw: dict[str, Any], i: int, topo: Topology, base: Path) -> SlaveConfig:
+    src = topo.source
+    label = f"{src}: slave #{i + 1}"
+    name = _str(raw.get("name", ""), f"{label}: name") if "name" in raw else ""
+    if not name:
+        raise ConfigError(f"{label}: every [[slave]] needs a name")
+    where = f"{src}: slave {name!r}"
+    _check_keys(raw, _SLAVE_KEYS, where)
+    if any(s.name == name for s in topo.slaves):
+        raise ConfigError(f"{where}: the name is used twice")
+    kinds = [k for k in ("device", "sii", "esi") if k in raw]
+    if len(kinds) != 1:
+        raise ConfigError(f"{where}: give exactly one of device = \"builtin:...\", sii = ..., esi = ...")
+    kind = kinds[0]
+    serial = _int(raw.get("serial", i + 1), f"{where}: serial", 0, 0xFFFFFFFF)
+    builtin: BuiltinDevice | None = None
+    sii_path: Path | None = None
+    if kind == "device":
+        dev = _str(raw["device"], f"{where}: device")
+        if not dev.startswith("builtin:"):
+            raise ConfigError(f"{where}: device {dev!r} must be \"builtin:<name>\"")
+        try:
+            builtin = get_builtin(dev.removeprefix("builtin:"))
+        except ConfigError as exc:
+            raise ConfigError(f"{where}: {exc}") from None
+        source = dev
+        image = builtin.sii_image(serial=serial)
+    elif kind == "sii":
+        source = _str(raw["sii"], f"{where}: sii")
+        sii_path = (base / source) if not Path(source).is_absolute() else Path(source)
+        try:
+            image = sii_path.read_bytes()
+        except OSError as exc:
+            raise ConfigError(
+                f"{where}: cannot read SII file {sii_path}: {exc.strerror or exc}"
+            ) from exc
+    else:
+        source = _str(raw["esi"], f"{where}: esi")
+        image = _sii_from_esi(raw, base / source, where)
+    if "product" in raw and kind != "esi":
+        raise ConfigError(f"{where}: product/revision only go with esi = ...")
+    try:
+        info = parse_sii(image)
+    except SiiError as exc:
+        raise ConfigError(f"{where}: SII image {source} is unusable: {exc}") from exc
+    profile_name = (
+        _str(raw["profile"], f"{where}: profile")
+        if "profile" in raw
+        else default_profile(builtin, info)
+    )
+    if profile_name.upper() not in PROFILES:
+        raise ConfigError(
+            f"{where}: unknown ESC profile {profile_name!r}: "
+            f"choose one of {', '.join(sorted(PROFILES))}"
+        )
+    profile = profile_for(PROFILES[profile_name.upper()], info)
+    cfg = SlaveConfig(
+        name=name, source=source, sii=image, info=info, profile=profile, builtin=builtin
+    )
+    cfg.sii_path = sii_path
+    if "alias" in raw:
+        cfg.alias = _int(raw["alias"], f"{where}: alias", 0, 0xFFFF)
+    if "drift_ppm" in raw:
+        cfg.drift_ppm = _number(raw["drift_ppm"], f"{where}: drift_ppm")
+    if "forwarding_delay_ns" in raw:
+        cfg.forwarding_delay_ns = _int(raw["forwarding_delay_ns"], f"{where}: forwarding_delay_ns", 0)
+    if "cable_delay_ns" in raw:
+        cfg.cable_delay_ns = _int(raw["cable_delay_ns"], f"{where}: cable_delay_ns", 0)
+    if "inputs" in raw:
+        text = _str(raw["inputs"], f"{where}: inputs").replace(" ", "")
+        try:
+            cfg.inputs = bytes.fromhex(text.removeprefix("0x"))
+        except ValueError:
+            raise ConfigError(f"{where}: inputs {raw['inputs']!r} is not hex bytes") from None
+        limit = (cfg.input_bits + 7) // 8
+        if len(cfg.inputs) > limit:
+            raise ConfigError(
+                f"{where}: inputs has {len(cfg.inputs)} bytes, the device has {limit} input bytes"
+            )
+    if "parent" in raw:
+        cfg.parent = _str(raw["parent"], f"{where}: parent")
+        if "port" not in raw:
+            raise ConfigError(f"{where}: parent needs a port (1, 2 or 3)")
+    if "port" in raw:
+        if "parent" not in raw:
+            raise ConfigError(f"{where}: port needs a parent")
+        cfg.port = _int(raw["port"], f"{where}: port", 1, 3)
+    return cfg
+
+
+def _sii_from_esi(raw: dict[str, Any], path: Path, where: str) -> bytes:
+    """SII image of an ESI device, when pyethercat.esi can make one."""
+    try:
+        from pyethercat.esi import sii_from_esi  # type: ignore[attr-defined]
+    except ImportError:
+        raise ConfigError(f"{where}: ESI devices not supported yet (use sii = or device =)") from None
+    make = getattr(sii_from_esi, "sii_image_from_file", None)
+    if make is None:
+        raise ConfigError(f"{where}: ESI devices not supported yet (use sii = or device =)")
+    product = _int(raw["product"], f"{where}: product") if "product" in raw else None
+    revision = _int(raw["revision"], f"{where}: revision") if "revision" in raw else None
+    try:
+        image = make(path, product=product, revision=revision)
+    except Exception as exc:  # the ESI layer raises EsiError; say where it came from
+        raise ConfigError(f"{where}: ESI {path}: {exc}") from exc
+    if not isinstance(image, bytes | bytearray):
+        raise ConfigError(f"{where}: ESI {path}: no SII image produced")
+    return bytes(image)
+
+
+def _place(topo: Topology) -> None:
+    """Resolve parent/port of every slave; check ports exist and are free."""
+    used: dict[str, set[int]] = {s.name: {0} for s in topo.slaves}
+    names = [s.name for s in topo.slaves]
+    for i, s in enumerate(topo.slaves):
+        where = f"{topo.source}: slave {s.name!r}"
+        if i == 0:
+            if s.parent is not None:
+                raise ConfigError(f"{where}: the first slave is connected to the master, it has no parent")
+            continue
+        if s.parent is None:
+            prev = topo.slaves[i - 1]
+            free = [p for p in (1, 2, 3) if p not in used[prev.name] and p in prev.ports]
+            if not free:
+                raise ConfigError(
+                    f"{where}: the previous slave {prev.name!r} has no free port; "
+                    f"give parent/port"
+                )
+            s.parent, s.port = prev.name, free[0]
+        else:
+            if s.parent not in names[:i]:
+                if s.parent in names:
+                    raise ConfigError(f"{where}: parent {s.parent!r} must come earlier in the file")
+                raise ConfigError(f"{where}: parent {s.parent!r} is not a slave of this file")
+            parent = topo.slaves[names.index(s.parent)]
+            assert s.port is not None
+            if s.port not in parent.ports:
+                raise ConfigError(f"{where}: slave {parent.name!r} has no port {s.port}")
+            if s.port in used[parent.name]:
+                raise ConfigError(f"{where}: port {s.port} of {parent.name!r} is already in use")
+        assert s.parent is not None and s.port is not None
+        used[s.parent].add(s.port)
+
+
+def _endpoint(text: Any, where: str, topo: Topology) -> tuple[str, int]:
+    value = _str(text, where)
+    name, _, bit = value.partition(":")
+    if name not in (s.name for s in topo.slaves):
+        raise ConfigError(f"{where}: no slave named {name!r}")
+    return name, (_int(bit, where, 0) if bit else 0)
+
+
+def _parse_wire(raw: dict[str, Any], i: int, topo: Topology) -> WireConfig:
+    where = f"{topo.source}: wire #{i + 1}"
+    _check_keys(raw, _WIRE_KEYS, where)
+    if "from" not in raw or "to" not in raw:
+        raise ConfigError(f"{where}: needs from = \"slave:bit\" and to = \"slave:bit\"")
+    src, sbit = _endpoint(raw["from"], f"{where}: from", topo)
+    dst, dbit = _endpoint(raw["to"], f"{where}: to", topo)
+    out_bits = topo.slaves[topo.index(src)].output_bits
+    in_bits = topo.slaves[topo.index(dst)].input_bits
+    if out_bits == 0:
+        raise ConfigError(f"{where}: slave {src!r} has no outputs to wire from")
+    if in_bits == 0:
+        raise ConfigError(f"{where}: slave {dst!r} has no inputs to wire to")
+    bits = (
+        _int(raw["bits"], f"{where}: bits", 1)
+        if "bits" in raw
+        else min(out_bits - sbit, in_bits - dbit)
+    )
+    if bits < 1 or sbit + bits > out_bits:
+        raise ConfigError(f"{where}: {src!r} has {out_bits} output bits, bits {sbit}+{bits} do not fit")
+    if dbit + bits > in_bits:
+        raise ConfigError(f"{where}: {dst!r} has {in_bits} input bits, bits {dbit}+{bits} do not fit")
+    return WireConfig(src, sbit, dst, dbit, bits)
+
+
+def _parse_fault(raw: dict[str, Any], i: int, topo: Topology) -> FaultConfig:
+    where = f"{topo.source}: fault #{i + 1}"
+    _check_keys(raw, _FAULT_KEYS, where)
+    kind = _str(raw.get("kind", ""), f"{where}: kind") if "kind" in raw else ""
+    if kind not in _FAULT_KINDS:
+        raise ConfigError(f"{where}: kind must be one of {', '.join(_FAULT_KINDS)}")
+    if "slave" not in raw:
+        raise ConfigError(f"{where}: needs slave = \"name\"")
+    slave = _str(raw["slave"], f"{where}: slave")
+    topo.index(slave)
+    port = 0
+    if kind in ("break_link", "corrupt"):
+        if "port" not in raw:
+            raise ConfigError(f"{where}: {kind} needs a port (0-3)")
+        port = _int(raw["port"], f"{where}: port", 0, 3)
+    count = _int(raw.get("count", 1), f"{where}: count", 1)
+    return FaultConfig(kind, slave, port, count)
+
+
+# --- building ------------------------------------------------------------------------
+
+
+def build_segment(topo: Topology, clock: Any = None) -> Any:
+    """Make a :class:`pyethercat.sim.segment.Segment` from a parsed topology."""
+    from pyethercat.sim.devices import make_app
+    from pyethercat.sim.segment import Segment, SlaveSpec
+
+    seg = Segment(clock=clock)
+    index: dict[str, int] = {}
+    for s in topo.slaves:
+        where = f"{topo.source}: slave {s.name!r}"
+        spec = SlaveSpec(
+            name=s.name,
+            sii=s.sii,
+            profile=s.profile,
+            app=make_app(s.builtin, s.info),
+            alias=s.alias,
+            drift_ppm=s.drift_ppm,
+            forwarding_delay_ns=s.forwarding_delay_ns,
+            initial_inputs=s.inputs,
+        )
+        try:
+            if s.parent is None:
+                idx = seg.add_slave(spec, cable_delay_ns=s.cable_delay_ns)
+            else:
+                idx = seg.add_slave(
+                    spec, parent=index[s.parent], port=s.port, cable_delay_ns=s.cable_delay_ns
+                )
+        except ConfigError as exc:
+            raise ConfigError(f"{where}: {exc}") from None
+        index[s.name] = idx
+    for w in topo.wires:
+        seg.wire(index[w.src], w.src_bit, index[w.dst], w.dst_bit, w.bits)
+    if topo.drop_probability:
+        seg.drop_probability(topo.drop_probability, seed=topo.seed)
+    for f in topo.faults:
+        i = index[f.slave]
+        if f.kind == "break_link":
+            seg.break_link(i, f.port)
+        elif f.kind == "power_off":
+            seg.power_off(i)
+        else:
+            seg.corrupt_frames(i, f.port, f.count)
+    return seg
+
+
+def default_profile(builtin: BuiltinDevice | None, info: SiiInfo) -> str:
+    """ESC profile name for a slave whose topology entry names none.
+
+    Built-ins carry their own. For an SII image the ports decide: at most two
+    ports, all E-Bus, is an ET1200-class chip (Beckhoff terminals); more ports
+    or MII ports an ET1100 (couplers, junctions, MII devices).
+    """
+    if builtin is not None:
+        return builtin.profile
+    gen = info.general
+    if gen is None or gen.physical_ports == 0:
+        return "ET1100"
+    used = [p for p in gen.ports if p != PortType.NOT_USED]
+    if len(used) <= 2 and all(p == PortType.EBUS for p in used):
+        return "ET1200"
+    return "ET1100"
+
+
+_SII_TO_REG_PORT = {
+    PortType.MII: RegPortType.MII,
+    PortType.EBUS: RegPortType.EBUS,
+}
+
+
+def profile_for(profile: EscProfile, info: SiiInfo) -> EscProfile:
+    """``profile`` with its ports set as the SII's General category describes them.
+
+    The chip decides which ports exist; the board (as its SII says) decides
+    which of them are wired and whether as MII or E-Bus, so the SII wins: a
+    port it marks unused becomes "not implemented", a port it wires exists.
+    An SII without port information keeps the chip's ports.
+    """
+    gen = info.general
+    if gen is None or gen.physical_ports == 0:
+        return profile
+    ports = list(profile.ports)
+    for n, sii_type in enumerate(gen.ports):
+        reg = _SII_TO_REG_PORT.get(sii_type) if isinstance(sii_type, PortType) else None
+        ports[n] = RegPortType.NOT_IMPLEMENTED if reg is None else reg
+    if tuple(ports) == profile.ports:
+        return profile
+    return profile.replace(ports=tuple(ports))
