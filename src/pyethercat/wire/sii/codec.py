@@ -500,6 +500,9 @@ def _category_body(cat: SiiCategory) -> tuple[int, bytes]:
         return CategoryType.DC, _build_dc(cat)
     if cat.type == END_MARKER:
         raise SiiError("a raw category cannot have the end-marker type 0xFFFF")
+    if cat.type == CategoryType.NOP and not cat.data:
+        # A zero header reads back as a blank EEPROM (end of the chain).
+        raise SiiError("an empty NOP category would read back as a blank EEPROM")
     return cat.type, bytes(cat.data)
 
 
