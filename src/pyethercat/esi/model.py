@@ -594,8 +594,10 @@ class EsiDictionary:
         if dt is None:
             return None
         if dt.base_type:
-            base = type_info(dt.base_type)
+            base = self.type_info(dt.base_type) if dt.base_type != name else None
             if base is not None:
+                if dt.array_elements is not None:
+                    return TypeInfo(name, base.code, dt.bit_size, dt.array_elements, base)
                 return TypeInfo(name, base.code, dt.bit_size, base.count, base.element)
         if dt.array_elements is not None and dt.sub_items:
             elem = self.type_info(dt.sub_items[0].type)
