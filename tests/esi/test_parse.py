@@ -408,3 +408,15 @@ def test_type_info_unknown() -> None:
     assert type_info("DT1018") is None
     assert type_info("ARRAY [3..1] OF UINT") is None
     assert type_info("ARRAY [0..1] OF NOPE") is None
+
+
+def test_type_cycle_in_dictionary_does_not_recurse_forever() -> None:
+    from pyethercat.esi import EsiDataType, EsiDictionary
+
+    d = EsiDictionary(
+        data_types={
+            "A": EsiDataType(name="A", bit_size=8, base_type="B"),
+            "B": EsiDataType(name="B", bit_size=8, base_type="A"),
+        }
+    )
+    assert d.type_info("A") is None

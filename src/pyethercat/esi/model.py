@@ -585,8 +585,10 @@ class EsiDictionary:
         """The object at ``index``, if defined."""
         return next((o for o in self.objects if o.index == index), None)
 
-    def type_info(self, name: str) -> TypeInfo | None:
+    def type_info(self, name: str, _depth: int = 0) -> TypeInfo | None:
         """Like :func:`type_info`, also resolving the file's own type names."""
+        if _depth > 16:  # a type cycle in a broken file: give up, do not recurse forever
+            return None
         known = type_info(name)
         if known is not None:
             return known
@@ -594,13 +596,13 @@ class EsiDictionary:
         if dt is None:
             return None
         if dt.base_type:
-            base = self.type_info(dt.base_type) if dt.base_type != name else None
+            base = self.type_info(dt.base_type, _depth + 1)
             if base is not None:
                 if dt.array_elements is not None:
                     return TypeInfo(name, base.code, dt.bit_size, dt.array_elements, base)
                 return TypeInfo(name, base.code, dt.bit_size, base.count, base.element)
         if dt.array_elements is not None and dt.sub_items:
-            elem = self.type_info(dt.sub_items[0].type)
+            elem = self.type_info(dt.sub_items[0].type, _depth + 1)
             if elem is not None:
                 return TypeInfo(name, elem.code, dt.bit_size, dt.array_elements, elem)
         return None
