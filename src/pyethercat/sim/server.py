@@ -1,0 +1,567 @@
+"""Serving a simulated segment on a link, in this process or in a child process.
+
+:class:`SimServer` takes frames from a :class:`~pyethercat.link.base.Link`,
+passes each EtherCAT frame to :meth:`Segment.process` and sends the reply
+back. Frames that are not EtherCAT are ignored. Between frames it runs
+periodic work (:meth:`Segment.tick` when the segment has one, for watchdogs
+and SYNC events) and the commands of a control channel.
+
+Control channel: with ``control=PATH`` the server listens on a Unix stream
+socket; each line a client writes is one JSON object, answered by one JSON
+line (``{"ok": true, ...}`` or ``{"ok": false, "error": "..."}``)::
+
+    {"cmd": "ping"}
+    {"cmd": "slaves"}                                 -> {"slaves": [{"index", "name", ...}]}
+    {"cmd": "break_link", "slave": "di8", "port": 1}  (slave by name or index)
+    {"cmd": "restore_link", "slave": "di8", "port": 1}
+    {"cmd": "power_off", "slave": "do8"}      {"cmd": "power_on", "slave": "do8"}
+    {"cmd": "corrupt", "slave": "di8", "port": 0, "count": 1}
+    {"cmd": "drop", "probability": 0.1, "seed": 1}
+    {"cmd": "set_inputs", "slave": "di8", "data": "ff"}
+    {"cmd": "outputs", "slave": "do8"}                -> {"data": "hex"}
+    {"cmd": "stats"}                                  -> {"frames": n, "replies": n, ...}
+
+Commands run in the server's thread between two frames, so they never race
+with frame processing.
+
+:func:`start_sim_process` runs ``pyethercat sim`` in a child process (for
+tests and for a master that wants a private simulator) and returns a
+:class:`SimProcess` handle: ``control(...)`` sends commands, ``stop()``
+ends the child. With ``link="unix"`` the child serves one end of a Unix
+socketpair and ``handle.link`` is the master's end.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import select
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import FrameType, TracebackType
+from typing import Any, Self
+
+from pyethercat.errors import ConfigError, EtherCATError, LinkClosedError, LinkError
+from pyethercat.link.base import Link
+from pyethercat.wire.frame import is_ethercat
+
+__all__ = ["ServerStats", "SimProcess", "SimServer", "open_link", "start_sim_process"]
+
+#: Default period of the segment's periodic work (watchdogs, SYNC), seconds.
+DEFAULT_TICK_S = 0.001
+
+
+@dataclass
+class ServerStats:
+    """Counters of a running server (also returned by the ``stats`` command)."""
+
+    frames: int = 0  # EtherCAT frames received
+    replies: int = 0  # frames sent back
+    lost: int = 0  # frames the segment did not return (dropped, destroyed)
+    ignored: int = 0  # non-EtherCAT frames
+    errors: int = 0  # frames the segment raised on (malformed)
+    max_process_us: float = 0.0
+    total_process_us: float = 0.0
+    last_error: str = ""
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain dict (JSON-ready), with the mean processing time."""
+        mean = self.total_process_us / self.frames if self.frames else 0.0
+        return {
+            "frames": self.frames,
+            "replies": self.replies,
+            "lost": self.lost,
+            "ignored": self.ignored,
+            "errors": self.errors,
+            "mean_process_us": round(mean, 1),
+            "max_process_us": round(self.max_process_us, 1),
+            "last_error": self.last_error,
+        }
+
+
+class SimServer:
+    """Answers the frames arriving on ``link`` with ``segment``.
+
+    ``run()`` blocks until :meth:`stop` is called (from another thread or a
+    signal handler) or the link closes. ``control`` is an optional Unix socket
+    path for the JSON control channel. ``tick_s`` is the period of the
+    segment's periodic work.
+    """
+
+    def __init__(
+        self,
+        segment: Any,
+        link: Link,
+        control: str | os.PathLike[str] | None = None,
+        tick_s: float = DEFAULT_TICK_S,
+        log: Callable[[str], None] | None = None,
+    ) -> None:
+        self.segment = segment
+        self.link = link
+        self.tick_s = tick_s
+        self.stats = ServerStats()
+        self._log = log or (lambda _msg: None)
+        self._stop = threading.Event()
+        # A pipe wakes the select loop when stop() or call() is used from elsewhere.
+        self._wake_r, self._wake_w = os.pipe()
+        os.set_blocking(self._wake_r, False)
+        os.set_blocking(self._wake_w, False)
+        self._calls: deque[tuple[Callable[[], Any], list[Any], threading.Event]] = deque()
+        self._control_path = os.fspath(control) if control is not None else None
+        self._control: socket.socket | None = None
+        self._clients: dict[int, tuple[socket.socket, bytearray]] = {}
+        self._tick = getattr(segment, "tick", None)
+        if self._control_path is not None:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(self._control_path)
+            sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            sock.bind(self._control_path)
+            sock.listen(4)
+            sock.setblocking(False)
+            self._control = sock
+
+    # --- control from other threads ---------------------------------------------
+
+    def stop(self) -> None:
+        """Ask :meth:`run` to return (safe from any thread and from signal handlers)."""
+        self._stop.set()
+        with contextlib.suppress(OSError):
+            os.write(self._wake_w, b"x")
+
+    def call(self, fn: Callable[[], Any], timeout: float = 5.0) -> Any:
+        """Run ``fn()`` in the server thread between frames and return its result."""
+        done = threading.Event()
+        box: list[Any] = []
+        self._calls.append((fn, box, done))
+        with contextlib.suppress(OSError):
+            os.write(self._wake_w, b"c")
+        if not done.wait(timeout):
+            raise TimeoutError("the simulator server did not run the call in time")
+        if box and isinstance(box[0], BaseException):
+            raise box[0]
+        return box[0] if box else None
+
+    # --- the loop ----------------------------------------------------------------
+
+    def run(self) -> None:
+        """Serve until stopped or the link closes."""
+        fd = self.link.fileno()
+        next_tick = time.monotonic() + self.tick_s
+        try:
+            while not self._stop.is_set():
+                if fd is None:
+                    # No descriptor (in-process pair link): poll in short steps.
+                    self._serve_frames(self.link.recv(min(self.tick_s, 0.0005)))
+                    self._run_calls()
+                else:
+                    rlist = [fd, self._wake_r]
+                    if self._control is not None:
+                        rlist.append(self._control.fileno())
+                    rlist.extend(self._clients)
+                    wait = max(0.0, next_tick - time.monotonic())
+                    ready, _, _ = select.select(rlist, [], [], wait)
+                    if fd in ready:
+                        # Drain every frame that is waiting before anything else.
+                        frame = self.link.recv(0)
+                        while frame is not None:
+                            self._serve_frames(frame)
+                            frame = self.link.recv(0)
+                    if self._wake_r in ready:
+                        with contextlib.suppress(OSError):
+                            os.read(self._wake_r, 4096)
+                    self._run_calls()
+                    self._serve_control(ready)
+                now = time.monotonic()
+                if now >= next_tick:
+                    if self._tick is not None:
+                        self._tick()
+                    next_tick = now + self.tick_s
+        except LinkClosedError:
+            self._log("link closed by the peer; stopping")
+        finally:
+            self._close_control()
+
+    def _serve_frames(self, frame: bytes | None) -> None:
+        if frame is None:
+            return
+        if not is_ethercat(frame):
+            self.stats.ignored += 1
+            return
+        self.stats.frames += 1
+        t0 = time.perf_counter()
+        try:
+            reply = self.segment.process(frame)
+        except EtherCATError as exc:
+            # A malformed frame dies in the first slave, as on a real wire.
+            self.stats.errors += 1
+            self.stats.last_error = str(exc)
+            reply = None
+        dt = (time.perf_counter() - t0) * 1e6
+        self.stats.total_process_us += dt
+        if dt > self.stats.max_process_us:
+            self.stats.max_process_us = dt
+        if reply is None:
+            self.stats.lost += 1
+            return
+        try:
+            self.link.send(reply)
+        except LinkClosedError:
+            raise
+        except LinkError as exc:
+            self.stats.errors += 1
+            self.stats.last_error = str(exc)
+            return
+        self.stats.replies += 1
+
+    def _run_calls(self) -> None:
+        while self._calls:
+            fn, box, done = self._calls.popleft()
+            try:
+                box.append(fn())
+            except BaseException as exc:  # handed back to the caller's thread
+                box.append(exc)
+            done.set()
+
+    # --- control channel -----------------------------------------------------------
+
+    def _serve_control(self, ready: list[int]) -> None:
+        if self._control is None:
+            return
+        if self._control.fileno() in ready:
+            with contextlib.suppress(BlockingIOError):
+                conn, _ = self._control.accept()
+                conn.setblocking(False)
+                self._clients[conn.fileno()] = (conn, bytearray())
+        for cfd in [c for c in ready if c in self._clients]:
+            conn, buf = self._clients[cfd]
+            try:
+                data = conn.recv(65536)
+            except BlockingIOError:
+                continue
+            except OSError:
+                data = b""
+            if not data:
+                del self._clients[cfd]
+                conn.close()
+                continue
+            buf += data
+            while b"\n" in buf:
+                line, _, rest = bytes(buf).partition(b"\n")
+                buf[:] = rest
+                answer = self.command_line(line)
+                with contextlib.suppress(OSError):
+                    conn.setblocking(True)
+                    conn.sendall(answer + b"\n")
+                    conn.setblocking(False)
+
+    def command_line(self, line: bytes) -> bytes:
+        """Run one JSON command line, return the JSON answer line (no newline)."""
+        try:
+            request = json.loads(line)
+            if not isinstance(request, dict):
+                raise ValueError("a command is a JSON object")
+            result = self.command(request)
+            answer: dict[str, Any] = {"ok": True, **result}
+        except (ValueError, KeyError, TypeError, EtherCATError) as exc:
+            answer = {"ok": False, "error": str(exc) or type(exc).__name__}
+        return json.dumps(answer).encode()
+
+    def _slave(self, request: dict[str, Any]) -> int:
+        ref = request["slave"]
+        slaves = self.segment.slaves
+        if isinstance(ref, int) and not isinstance(ref, bool):
+            if not 0 <= ref < len(slaves):
+                raise ValueError(f"no slave {ref} (the segment has {len(slaves)})")
+            return ref
+        for s in slaves:
+            if s.name == ref:
+                return int(s.index)
+        raise ValueError(f"no slave named {ref!r}")
+
+    def command(self, request: dict[str, Any]) -> dict[str, Any]:
+        """Run one control command (a dict, see the module text); returns the answer fields."""
+        cmd = request.get("cmd")
+        seg = self.segment
+        if cmd == "ping":
+            return {}
+        if cmd == "slaves":
+            return {"slaves": [{"index": s.index, "name": s.name} for s in seg.slaves]}
+        if cmd == "stats":
+            return self.stats.as_dict()
+        if cmd in ("break_link", "restore_link"):
+            getattr(seg, cmd)(self._slave(request), int(request["port"]))
+            return {}
+        if cmd in ("power_off", "power_on"):
+            getattr(seg, cmd)(self._slave(request))
+            return {}
+        if cmd == "corrupt":
+            seg.corrupt_frames(
+                self._slave(request), int(request["port"]), int(request.get("count", 1))
+            )
+            return {}
+        if cmd == "drop":
+            seed = request.get("seed")
+            seg.drop_probability(float(request["probability"]), None if seed is None else int(seed))
+            return {}
+        if cmd == "set_inputs":
+            _pdi(seg.slaves[self._slave(request)]).set_inputs(bytes.fromhex(str(request["data"])))
+            return {}
+        if cmd == "outputs":
+            return {"data": _pdi(seg.slaves[self._slave(request)]).outputs().hex()}
+        raise ValueError(f"unknown command {cmd!r}")
+
+    def _close_control(self) -> None:
+        for conn, _ in self._clients.values():
+            conn.close()
+        self._clients.clear()
+        if self._control is not None:
+            self._control.close()
+            self._control = None
+            if self._control_path is not None:
+                with contextlib.suppress(OSError):
+                    os.unlink(self._control_path)
+
+    def close(self) -> None:
+        """Release the wake-up pipe and the control socket (the link is the caller's)."""
+        self._close_control()
+        for fd in (self._wake_r, self._wake_w):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+
+
+def _pdi(slave: Any) -> Any:
+    """The PDI side of a segment slave (its application's, else a fresh one)."""
+    app = getattr(slave.spec, "app", None)
+    if app is not None and getattr(app, "pdi", None) is not None:
+        return app.pdi
+    from pyethercat.sim.device import Pdi
+
+    return Pdi(slave.esc)
+
+
+# --- links from a command-line spec ---------------------------------------------------
+
+
+def open_link(
+    iface: str | None = None,
+    udp: str | None = None,
+    fd: int | None = None,
+    pcap: str | os.PathLike[str] | None = None,
+) -> Link:
+    """The serving link: a raw interface, a UDP address to bind, or an inherited fd.
+
+    With ``pcap`` every frame in and out is recorded to that file.
+    """
+    given = [x for x in (iface, udp, fd) if x is not None]
+    if len(given) != 1:
+        raise ConfigError("serve on exactly one of an interface, a UDP address or a socket fd")
+    link: Link
+    if iface is not None:
+        from pyethercat.link.raw import RawLink
+
+        link = RawLink(iface)
+    elif udp is not None:
+        from pyethercat.link.udp import UdpLink, parse_hostport
+
+        link = UdpLink(bind=parse_hostport(udp))
+    else:
+        from pyethercat.link.unix import UnixLink
+
+        assert fd is not None
+        link = UnixLink.from_fd(fd, name=f"unix-fd{fd}")
+    if pcap is not None:
+        from pyethercat.link.capture import CaptureLink
+
+        link = CaptureLink(link, pcap, flush=True)
+    return link
+
+
+def serve(
+    topology: str | os.PathLike[str],
+    link: Link,
+    control: str | os.PathLike[str] | None = None,
+    log: Callable[[str], None] | None = None,
+    install_signals: bool = True,
+) -> ServerStats:
+    """Load ``topology``, serve it on ``link`` with a wall clock until SIGINT/SIGTERM."""
+    from pyethercat.sim.clock import WallClock
+    from pyethercat.sim.topology import load_topology
+
+    segment = load_topology(os.fspath(topology)).build(clock=WallClock())
+    server = SimServer(segment, link, control=control, log=log)
+    previous: dict[int, Any] = {}
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        server.stop()
+
+    if install_signals and threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            previous[int(sig)] = signal.signal(sig, on_signal)
+    try:
+        if log is not None:
+            log(
+                f"serving {len(segment.slaves)} simulated slaves from {topology} "
+                f"on {link.name}"
+            )
+        server.run()
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+        server.close()
+    return server.stats
+
+
+# --- child process ------------------------------------------------------------------
+
+
+@dataclass
+class SimProcess:
+    """Handle of a simulator running in a child process (see :func:`start_sim_process`)."""
+
+    process: subprocess.Popen[bytes]
+    control_path: str
+    link: Link | None = None  # the master's end, for link="unix"
+    _tmpdir: tempfile.TemporaryDirectory[str] | None = None
+    _sock: socket.socket | None = None
+    _buf: bytearray = field(default_factory=bytearray)
+
+    def control(self, cmd: str, **args: Any) -> dict[str, Any]:
+        """Send one control command; returns the answer, raises ConfigError on failure."""
+        if self._sock is None:
+            sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            sock.settimeout(5.0)
+            sock.connect(self.control_path)
+            self._sock = sock
+        self._sock.sendall(json.dumps({"cmd": cmd, **args}).encode() + b"\n")
+        while b"\n" not in self._buf:
+            chunk = self._sock.recv(65536)
+            if not chunk:
+                raise LinkClosedError("the simulator process closed its control channel")
+            self._buf += chunk
+        line, _, rest = bytes(self._buf).partition(b"\n")
+        self._buf[:] = rest
+        answer: dict[str, Any] = json.loads(line)
+        if not answer.get("ok"):
+            raise ConfigError(f"simulator command {cmd!r} failed: {answer.get('error')}")
+        return answer
+
+    def stderr(self) -> str:
+        """What the child wrote to stderr so far."""
+        if self._tmpdir is None:
+            return ""
+        try:
+            return (Path(self._tmpdir.name) / "stderr.log").read_text(errors="replace")
+        except OSError:
+            return ""
+
+    def wait_ready(self, timeout: float = 20.0) -> None:
+        """Wait until the child answers on its control channel."""
+        deadline = time.monotonic() + timeout
+        while True:
+            if self.process.poll() is not None:
+                raise LinkError(
+                    f"the simulator process exited with status {self.process.returncode}: "
+                    f"{self.stderr().strip()}"
+                )
+            try:
+                self.control("ping")
+                return
+            except (OSError, LinkClosedError):
+                if self._sock is not None:
+                    self._sock.close()
+                    self._sock = None
+                if time.monotonic() > deadline:
+                    raise LinkError("the simulator process did not start in time") from None
+                time.sleep(0.05)
+
+    def stop(self, timeout: float = 10.0) -> int:
+        """End the child (SIGTERM, then SIGKILL after ``timeout``); returns its exit status."""
+        if self._sock is not None:
+            self._sock.close()
+            self._sock = None
+        if self.process.poll() is None:
+            self.process.send_signal(signal.SIGTERM)
+            try:
+                self.process.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait()
+        if self.link is not None:
+            self.link.close()
+        if self._tmpdir is not None:
+            self._tmpdir.cleanup()
+            self._tmpdir = None
+        return int(self.process.returncode)
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.stop()
+
+
+def start_sim_process(
+    topology: str | os.PathLike[str],
+    link: str = "unix",
+    pcap: str | os.PathLike[str] | None = None,
+    ready_timeout: float = 20.0,
+) -> SimProcess:
+    """Run ``pyethercat sim TOPOLOGY`` in a child process and wait until it serves.
+
+    ``link`` is ``"unix"`` (a socketpair; the handle's ``link`` is the master's
+    end), ``"iface:NAME"`` (raw interface) or ``"udp:HOST:PORT"``.
+    """
+    tmpdir = tempfile.TemporaryDirectory(prefix="pyecat-sim-")
+    control_path = str(Path(tmpdir.name) / "control.sock")
+    args = [sys.executable, "-m", "pyethercat", "sim", os.fspath(topology), "--control", control_path]
+    if pcap is not None:
+        args += ["--pcap", os.fspath(pcap)]
+    pass_fds: tuple[int, ...] = ()
+    master_end: Link | None = None
+    child_fd: int | None = None
+    if link == "unix":
+        from pyethercat.link.unix import UnixLink
+
+        master_end, child = UnixLink.pair("sim-master", "sim-child", inheritable=True)
+        child_fd = child.detach()
+        args += ["--fd", str(child_fd)]
+        pass_fds = (child_fd,)
+    elif link.startswith("iface:"):
+        args += ["--iface", link.removeprefix("iface:")]
+    elif link.startswith("udp:"):
+        args += ["--udp", link.removeprefix("udp:")]
+    else:
+        tmpdir.cleanup()
+        raise ConfigError(f"link spec {link!r}: use 'unix', 'iface:NAME' or 'udp:HOST:PORT'")
+    # stderr goes to a file: a pipe nobody reads could fill up and stall the child.
+    log_path = Path(tmpdir.name) / "stderr.log"
+    try:
+        with open(log_path, "wb") as log:
+            process = subprocess.Popen(
+                args, pass_fds=pass_fds, stdout=subprocess.DEVNULL, stderr=log
+            )
+    finally:
+        if child_fd is not None:
+            os.close(child_fd)
+    handle = SimProcess(process, control_path, link=master_end, _tmpdir=tmpdir)
+    try:
+        handle.wait_ready(ready_timeout)
+    except BaseException:
+        handle.stop()
+        raise
+    return handle
