@@ -127,8 +127,10 @@ def test_undeclared_entity_reference_is_malformed() -> None:
 
 def test_utf16_doctype_rejected() -> None:
     doc = _xxe("file:///etc/passwd").replace('version="1.0"', 'version="1.0" encoding="UTF-16"')
-    with pytest.raises(EsiError, match="DTD"):
-        parse_esi(doc.encode("utf-16"), "u16.xml")
+    # Refused by the up-front prolog check (its message), not only after libxml2.
+    for enc in ("utf-16", "utf-32"):
+        with pytest.raises(EsiError, match=r"u16\.xml:2: .*entities or an external reference"):
+            parse_esi(doc.encode(enc), "u16.xml")
 
 
 def test_bare_doctype_is_harmless() -> None:

@@ -130,17 +130,17 @@ def parse_hex_bytes(text: str | None) -> bytes:
 def _check_prolog(data: bytes, source: str) -> None:
     """Refuse DTDs before libxml2 parses them (entity bombs, XXE)."""
     head = data
-    if data[:2] in (b"\xff\xfe", b"\xfe\xff") or data[:4] in (
-        b"\x00\x00\xfe\xff",
-        b"\xff\xfe\x00\x00",
+    # UTF-32 BOMs first: the UTF-32-LE BOM starts with the UTF-16-LE one.
+    for bom, codec in (
+        (b"\x00\x00\xfe\xff", "utf-32-be"),
+        (b"\xff\xfe\x00\x00", "utf-32-le"),
+        (b"\xfe\xff", "utf-16-be"),
+        (b"\xff\xfe", "utf-16-le"),
     ):
-        # UTF-16/32: look at the prolog as text.
-        for enc in ("utf-32", "utf-16"):
-            try:
-                head = data[: 1 << 20].decode(enc, errors="ignore").encode("utf-8")
-                break
-            except UnicodeError:  # pragma: no cover - decode with ignore rarely fails
-                continue
+        if data.startswith(bom):
+            # Look at the prolog as text; a cut character at the end is harmless.
+            head = data[len(bom) : 1 << 20].decode(codec, errors="ignore").encode("utf-8")
+            break
     root = _ROOT_START.search(head)
     prolog = head if root is None else head[: root.start()]
     m = _DOCTYPE.search(prolog)
