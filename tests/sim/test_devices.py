@@ -1,0 +1,169 @@
+"""Built-in simulated devices: their generated SII images, read back with the SII codec."""
+
+from __future__ import annotations
+
+import struct
+
+import pytest
+
+from pyethercat.errors import ConfigError
+from pyethercat.sim.device import DeviceApp
+from pyethercat.sim.devices import (
+    BUILTINS,
+    VENDOR_ID,
+    IoTerminal,
+    MailboxErrorApp,
+    get_builtin,
+    make_app,
+)
+from pyethercat.wire.mailbox.header import (
+    MailboxErrorCode,
+    MailboxType,
+    decode_mailbox,
+    decode_mailbox_error,
+    encode_mailbox,
+)
+from pyethercat.wire.sii import (
+    FmmuUsage,
+    PortType,
+    SyncManagerType,
+    parse_sii,
+    sii_crc,
+)
+
+
+@pytest.mark.parametrize("key", sorted(BUILTINS))
+def test_image_parses_strictly_with_identity(key: str) -> None:
+    dev = BUILTINS[key]
+    image = dev.sii_image(serial=7)
+    assert len(image) == 2048  # word 0x3E = 15 -> 16 Kbit
+    info = parse_sii(image, strict=True)
+    assert info.checksum_ok and info.end_marker and not info.warnings
+    assert image[14] == sii_crc(image[:14]) and image[15] == 0
+    assert (info.vendor_id, info.product_code, info.revision, info.serial) == (
+        VENDOR_ID,
+        dev.product_code,
+        0x00010000,
+        7,
+    )
+    assert info.device_name == dev.name
+    assert info.order_number == dev.order
+    assert info.input_bits == dev.input_bits
+    assert info.output_bits == dev.output_bits
+    # Image bytes 0x10/0x14 hold vendor id/product code, little endian.
+    assert struct.unpack_from("<II", image, 0x10) == (VENDOR_ID, dev.product_code)
+
+
+def test_vendor_id_is_pec_ascii() -> None:
+    assert VENDOR_ID.to_bytes(4, "big")[1:] == b"PEC"
+
+
+def test_process_data_sizes() -> None:
+    assert {k: (d.input_bits, d.output_bits) for k, d in BUILTINS.items()} == {
+        "coupler": (0, 0),
+        "di8": (8, 0),
+        "do8": (0, 8),
+        "di2": (2, 0),
+        "ai2": (32, 0),
+    }
+
+
+def test_coupler_has_four_ports_and_no_process_data() -> None:
+    info = parse_sii(BUILTINS["coupler"].sii_image())
+    assert info.general is not None
+    assert info.general.ports == (PortType.MII, PortType.EBUS, PortType.MII, PortType.MII)
+    assert info.sync_managers == [] and info.fmmus == []
+    assert info.general.ebus_current_ma < 0  # it feeds the E-Bus
+
+
+def test_digital_terminals_are_mailbox_less_like_el1xxx_el2xxx() -> None:
+    for key, sm_type, usage in (
+        ("di8", SyncManagerType.INPUTS, FmmuUsage.INPUTS),
+        ("di2", SyncManagerType.INPUTS, FmmuUsage.INPUTS),
+        ("do8", SyncManagerType.OUTPUTS, FmmuUsage.OUTPUTS),
+    ):
+        info = parse_sii(BUILTINS[key].sii_image())
+        assert info.rx_mailbox_size == 0 and info.tx_mailbox_size == 0
+        (sm0,) = info.sync_managers
+        assert sm0.sm_type == sm_type and sm0.start == 0x1000 and sm0.length == 1
+        assert sm0.enabled
+        assert info.fmmus[0] == usage
+        # one PDO per channel on SM0, as Beckhoff's images have
+        pdos = info.tx_pdos if sm_type == SyncManagerType.INPUTS else info.rx_pdos
+        assert all(p.sync_manager == 0 and len(p.entries) == 1 for p in pdos)
+
+
+def test_di2_is_two_bits() -> None:
+    info = parse_sii(BUILTINS["di2"].sii_image())
+    assert [p.index for p in info.tx_pdos] == [0x1A00, 0x1A01]
+    assert [e.bit_length for p in info.tx_pdos for e in p.entries] == [1, 1]
+    assert [(e.index, e.subindex) for p in info.tx_pdos for e in p.entries] == [
+        (0x6000, 1),
+        (0x6010, 1),
+    ]
+
+
+def test_ai2_has_standard_mailbox_and_inputs_on_sm3() -> None:
+    info = parse_sii(BUILTINS["ai2"].sii_image())
+    assert (info.rx_mailbox_offset, info.rx_mailbox_size) == (0x1000, 128)
+    assert (info.tx_mailbox_offset, info.tx_mailbox_size) == (0x1080, 128)
+    types = [s.sm_type for s in info.sync_managers]
+    assert types == [
+        SyncManagerType.MAILBOX_OUT,
+        SyncManagerType.MAILBOX_IN,
+        SyncManagerType.OUTPUTS,
+        SyncManagerType.INPUTS,
+    ]
+    sm0, sm1, sm2, sm3 = info.sync_managers
+    assert (sm0.control, sm1.control) == (0x26, 0x22)
+    assert sm2.length == 0 and not sm2.enabled
+    assert sm3.length == 4 and sm3.start == 0x1180
+    assert [e.bit_length for p in info.tx_pdos for e in p.entries] == [16, 16]
+    assert all(p.sync_manager == 3 for p in info.tx_pdos)
+    # SM buffers fit the ET1200's 1 KiB of process RAM (3 buffers for SM3).
+    assert sm3.start + 3 * sm3.length <= 0x1000 + 1024
+
+
+def test_strings_are_shared_not_repeated() -> None:
+    info = parse_sii(BUILTINS["di8"].sii_image())
+    assert info.strings.count(b"Input") == 1
+
+
+def test_unknown_builtin_names_the_choices() -> None:
+    with pytest.raises(ConfigError, match="ai2, coupler, di2, di8, do8"):
+        get_builtin("di16")
+
+
+class _FakePdi:
+    def __init__(self) -> None:
+        self.posted: list[bytes] = []
+
+    def post_mailbox(self, data: bytes) -> bool:
+        self.posted.append(data)
+        return True
+
+
+def test_make_app_kinds() -> None:
+    assert type(make_app(BUILTINS["di8"], parse_sii(BUILTINS["di8"].sii_image()))) is IoTerminal
+    ai2 = BUILTINS["ai2"]
+    assert isinstance(make_app(ai2, parse_sii(ai2.sii_image())), MailboxErrorApp)
+    # an SII dump with a mailbox gets the mailbox-error responder too
+    assert isinstance(make_app(None, parse_sii(ai2.sii_image())), MailboxErrorApp)
+    for app in (IoTerminal(), MailboxErrorApp()):
+        assert isinstance(app, DeviceApp) and not app.wants_output_events
+
+
+def test_mailbox_error_app_answers_unsupported_protocol() -> None:
+    app = MailboxErrorApp()
+    pdi = _FakePdi()
+    app.pdi = pdi  # type: ignore[assignment]
+    request = encode_mailbox(MailboxType.COE, b"\x00\x20\x40\x00\x10\x00\x00\x00\x00\x00",
+                             counter=3, size=128)
+    app.on_mailbox(request)
+    (reply,) = pdi.posted
+    header, payload = decode_mailbox(reply)
+    assert header.type == MailboxType.ERR and header.counter == 3
+    assert decode_mailbox_error(payload).code == MailboxErrorCode.UNSUPPORTED_PROTOCOL
+    app.on_mailbox(b"\x01")  # not even a header
+    header, payload = decode_mailbox(pdi.posted[-1])
+    assert decode_mailbox_error(payload).code == MailboxErrorCode.SYNTAX
