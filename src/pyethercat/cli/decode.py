@@ -34,7 +34,9 @@ frames were malformed (everything else was printed).
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
 import struct
 import sys
 from collections.abc import Iterable, Iterator
@@ -157,9 +159,10 @@ def _decode_datagram_frame(ecat: bytes, base: int, stats: DecodeStats) -> list[D
         return decode_ecat_payload(ecat, base_offset=base).datagrams
     except FrameError:
         (word,) = struct.unpack_from("<H", ecat)
-        body = ecat[ECAT_HEADER_SIZE : ECAT_HEADER_SIZE + (word & ECAT_LENGTH_MASK)]
+        length = word & ECAT_LENGTH_MASK
+        body = ecat[ECAT_HEADER_SIZE : ECAT_HEADER_SIZE + length]
         end = _chain_end(body)
-        if word & ECAT_RESERVED_BIT or end is None or end >= len(body):
+        if word & ECAT_RESERVED_BIT or len(body) < length or end is None or end >= length:
             raise
         datagrams = decode_datagrams(body[:end], base + ECAT_HEADER_SIZE)
         stats.trailing += 1
@@ -289,6 +292,11 @@ def decode_cmd(capture: str, as_json: bool) -> None:
     except CaptureError as exc:
         out.flush()
         raise CaptureError(f"{capture}: {exc}") from None
+    except BrokenPipeError:
+        # The reader went away (``| head``): stop quietly, without a traceback at exit.
+        with contextlib.suppress(OSError, ValueError):
+            os.dup2(os.open(os.devnull, os.O_WRONLY), out.fileno())
+        sys.exit(0)
     finally:
         stream.close()
     out.flush()
