@@ -72,9 +72,7 @@ def test_constructed_example_response() -> None:
 # --- command specifier byte values (facts 7.3) ----------------------------------
 
 
-@pytest.mark.parametrize(
-    ("size", "cs"), [(4, 0x23), (3, 0x27), (2, 0x2B), (1, 0x2F)]
-)
+@pytest.mark.parametrize(("size", "cs"), [(4, 0x23), (3, 0x27), (2, 0x2B), (1, 0x2F)])
 def test_expedited_download_command_bytes(size: int, cs: int) -> None:
     data = bytes(range(1, size + 1))
     raw = SdoInitiateDownloadRequest(0x6040, 0, data).encode()
@@ -82,9 +80,7 @@ def test_expedited_download_command_bytes(size: int, cs: int) -> None:
     assert decode_coe(raw) == SdoInitiateDownloadRequest(0x6040, 0, data)
 
 
-@pytest.mark.parametrize(
-    ("size", "cs"), [(4, 0x43), (3, 0x47), (2, 0x4B), (1, 0x4F)]
-)
+@pytest.mark.parametrize(("size", "cs"), [(4, 0x43), (3, 0x47), (2, 0x4B), (1, 0x4F)])
 def test_expedited_upload_response_command_bytes(size: int, cs: int) -> None:
     data = b"\xaa" * size
     raw = SdoInitiateUploadResponse(0x1000, 0, data).encode()
@@ -93,8 +89,9 @@ def test_expedited_upload_response_command_bytes(size: int, cs: int) -> None:
 
 
 def test_normal_download_and_complete_access() -> None:
-    req = SdoInitiateDownloadRequest(0x1C12, 0, b"\x01\x00\x00\x16", expedited=False,
-                                     complete_access=True)
+    req = SdoInitiateDownloadRequest(
+        0x1C12, 0, b"\x01\x00\x00\x16", expedited=False, complete_access=True
+    )
     raw = req.encode()
     assert raw == h("0020 31 121C 00 04000000 01000016")
     assert decode_coe(raw) == req
@@ -148,11 +145,41 @@ def test_abort() -> None:
 
 def test_abort_table() -> None:
     for code in (
-        0x05030000, 0x05040000, 0x05040001, 0x05040002, 0x05040003, 0x05040004, 0x05040005,
-        0x06010000, 0x06010001, 0x06010002, 0x06010003, 0x06010004, 0x06010005, 0x06010006,
-        0x06020000, 0x06040041, 0x06040042, 0x06040043, 0x06040047, 0x06060000, 0x06070010,
-        0x06070012, 0x06070013, 0x06090011, 0x06090030, 0x06090031, 0x06090032, 0x06090033,
-        0x06090036, 0x060A0023, 0x08000000, 0x08000020, 0x08000021, 0x08000022, 0x08000023,
+        0x05030000,
+        0x05040000,
+        0x05040001,
+        0x05040002,
+        0x05040003,
+        0x05040004,
+        0x05040005,
+        0x06010000,
+        0x06010001,
+        0x06010002,
+        0x06010003,
+        0x06010004,
+        0x06010005,
+        0x06010006,
+        0x06020000,
+        0x06040041,
+        0x06040042,
+        0x06040043,
+        0x06040047,
+        0x06060000,
+        0x06070010,
+        0x06070012,
+        0x06070013,
+        0x06090011,
+        0x06090030,
+        0x06090031,
+        0x06090032,
+        0x06090033,
+        0x06090036,
+        0x060A0023,
+        0x08000000,
+        0x08000020,
+        0x08000021,
+        0x08000022,
+        0x08000023,
         0x08000024,
     ):
         assert code in SDO_ABORT_CODES
@@ -203,15 +230,24 @@ def test_object_description_bytes() -> None:
     raw = resp.encode()
     assert raw == h("0080 04 00 0000 1810 2300 04 09") + b"Identity"
     assert decode_coe(raw) == resp
-    assert decode_coe(SdoInfoGetObjectDescriptionRequest(0x1018).encode()) == \
-        SdoInfoGetObjectDescriptionRequest(0x1018)
+    assert decode_coe(
+        SdoInfoGetObjectDescriptionRequest(0x1018).encode()
+    ) == SdoInfoGetObjectDescriptionRequest(0x1018)
 
 
 def test_entry_description_optional_fields() -> None:
     vi = ValueInfo.UNIT_TYPE | ValueInfo.DEFAULT_VALUE | ValueInfo.MAXIMUM_VALUE
     resp = SdoInfoGetEntryDescriptionResponse(
-        0x6040, 0, int(vi), 0x0006, 16, int(ObjectAccess.READ_WRITE | ObjectAccess.RXPDO_MAPPABLE),
-        "Controlword", unit_type=0, default_value=b"\x00\x00", maximum_value=b"\xff\xff",
+        0x6040,
+        0,
+        int(vi),
+        0x0006,
+        16,
+        int(ObjectAccess.READ_WRITE | ObjectAccess.RXPDO_MAPPABLE),
+        "Controlword",
+        unit_type=0,
+        default_value=b"\x00\x00",
+        maximum_value=b"\xff\xff",
     )
     raw = resp.encode()
     assert raw[6:16] == h("4060 00 58 0600 1000 7F00")
@@ -299,9 +335,17 @@ def _value_info_entry(draw: st.DrawFn) -> SdoInfoGetEntryDescriptionResponse:
         return draw(st.binary(min_size=size, max_size=size)) if vi & bit else None
 
     return SdoInfoGetEntryDescriptionResponse(
-        draw(u16), draw(u8), vi, draw(u16), bitlen, draw(u16), draw(text),
+        draw(u16),
+        draw(u8),
+        vi,
+        draw(u16),
+        bitlen,
+        draw(u16),
+        draw(text),
         draw(u16) if vi & ValueInfo.UNIT_TYPE else None,
-        opt(ValueInfo.DEFAULT_VALUE), opt(ValueInfo.MINIMUM_VALUE), opt(ValueInfo.MAXIMUM_VALUE),
+        opt(ValueInfo.DEFAULT_VALUE),
+        opt(ValueInfo.MINIMUM_VALUE),
+        opt(ValueInfo.MAXIMUM_VALUE),
     )
 
 
@@ -314,11 +358,20 @@ coe_messages = st.one_of(
     st.builds(SdoUploadSegmentResponse, st.booleans(), st.booleans(), st.binary(max_size=50)),
     st.builds(SdoUploadSegmentRequest, st.booleans()),
     st.builds(SdoDownloadSegmentResponse, st.booleans()),
-    st.builds(SdoAbortTransfer, u16, u8, st.integers(0, 0xFFFFFFFF),
-              st.sampled_from([CoeService.SDO_REQUEST, CoeService.SDO_RESPONSE])),
+    st.builds(
+        SdoAbortTransfer,
+        u16,
+        u8,
+        st.integers(0, 0xFFFFFFFF),
+        st.sampled_from([CoeService.SDO_REQUEST, CoeService.SDO_RESPONSE]),
+    ),
     st.builds(Emergency, u16, u8, st.binary(min_size=5, max_size=5)),
-    st.builds(CoePdo, st.sampled_from([CoeService(s) for s in (4, 5, 6, 7)]),
-              st.integers(0, 0x1FF), st.binary(max_size=20)),
+    st.builds(
+        CoePdo,
+        st.sampled_from([CoeService(s) for s in (4, 5, 6, 7)]),
+        st.integers(0, 0x1FF),
+        st.binary(max_size=20),
+    ),
     st.builds(SdoInfoGetOdListRequest, u16),
     st.builds(SdoInfoGetOdListResponse, u16, st.lists(u16, max_size=40).map(tuple)),
     st.builds(SdoInfoGetObjectDescriptionRequest, u16),

@@ -38,14 +38,23 @@ def test_codes_match_facts_table() -> None:
 @pytest.mark.parametrize(
     ("name", "dtype"),
     [
-        ("bool", DataType.BOOLEAN), ("int8", DataType.INTEGER8), ("int16", DataType.INTEGER16),
-        ("int32", DataType.INTEGER32), ("int64", DataType.INTEGER64),
-        ("uint8", DataType.UNSIGNED8), ("uint16", DataType.UNSIGNED16),
-        ("uint32", DataType.UNSIGNED32), ("uint64", DataType.UNSIGNED64),
-        ("float", DataType.REAL32), ("double", DataType.REAL64),
-        ("string", DataType.VISIBLE_STRING), ("octet_string", DataType.OCTET_STRING),
-        ("unicode_string", DataType.UNICODE_STRING), ("UNSIGNED24", DataType.UNSIGNED24),
-        ("Uint16", DataType.UNSIGNED16), ("0x0007", DataType.UNSIGNED32),
+        ("bool", DataType.BOOLEAN),
+        ("int8", DataType.INTEGER8),
+        ("int16", DataType.INTEGER16),
+        ("int32", DataType.INTEGER32),
+        ("int64", DataType.INTEGER64),
+        ("uint8", DataType.UNSIGNED8),
+        ("uint16", DataType.UNSIGNED16),
+        ("uint32", DataType.UNSIGNED32),
+        ("uint64", DataType.UNSIGNED64),
+        ("float", DataType.REAL32),
+        ("double", DataType.REAL64),
+        ("string", DataType.VISIBLE_STRING),
+        ("octet_string", DataType.OCTET_STRING),
+        ("unicode_string", DataType.UNICODE_STRING),
+        ("UNSIGNED24", DataType.UNSIGNED24),
+        ("Uint16", DataType.UNSIGNED16),
+        ("0x0007", DataType.UNSIGNED32),
     ],
 )
 def test_type_names(name: str, dtype: DataType) -> None:
@@ -104,16 +113,30 @@ def test_parse_and_format() -> None:
     assert format_value(DataType.OCTET_STRING, b"\x01\x02") == "01 02"
 
 
-INT_TYPES = [t for t in DataType if t.name.startswith(("INTEGER", "UNSIGNED", "BIT"))
-             or t in (DataType.BYTE,)]
+INT_TYPES = [
+    t
+    for t in DataType
+    if t.name.startswith(("INTEGER", "UNSIGNED", "BIT")) or t in (DataType.BYTE,)
+]
 
 
 @st.composite
 def typed_values(draw: st.DrawFn) -> tuple[DataType, object]:
-    dtype = draw(st.sampled_from([*INT_TYPES, DataType.BOOLEAN, DataType.REAL32,
-                                  DataType.REAL64, DataType.VISIBLE_STRING,
-                                  DataType.UNICODE_STRING, DataType.OCTET_STRING,
-                                  DataType.DOMAIN, DataType.GUID]))
+    dtype = draw(
+        st.sampled_from(
+            [
+                *INT_TYPES,
+                DataType.BOOLEAN,
+                DataType.REAL32,
+                DataType.REAL64,
+                DataType.VISIBLE_STRING,
+                DataType.UNICODE_STRING,
+                DataType.OCTET_STRING,
+                DataType.DOMAIN,
+                DataType.GUID,
+            ]
+        )
+    )
     if dtype in INT_TYPES:
         bits = DATA_TYPE_BITS[dtype]
         if dtype.name.startswith("INTEGER"):
@@ -126,8 +149,11 @@ def typed_values(draw: st.DrawFn) -> tuple[DataType, object]:
     if dtype is DataType.REAL64:
         return dtype, draw(st.floats(allow_nan=False))
     if dtype in (DataType.VISIBLE_STRING, DataType.UNICODE_STRING):
-        return dtype, draw(st.text().filter(lambda s: not s.endswith("\x00")).filter(
-            lambda s: all(not 0xD800 <= ord(c) <= 0xDFFF for c in s)))
+        return dtype, draw(
+            st.text()
+            .filter(lambda s: not s.endswith("\x00"))
+            .filter(lambda s: all(not 0xD800 <= ord(c) <= 0xDFFF for c in s))
+        )
     if dtype is DataType.GUID:
         return dtype, draw(st.binary(min_size=16, max_size=16))
     return dtype, draw(st.binary())

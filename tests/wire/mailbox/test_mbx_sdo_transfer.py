@@ -43,8 +43,13 @@ def run_upload(data: bytes, mailbox_size: int, ca: bool = False) -> tuple[bytes,
     client = SdoUploadClient(0x2000, 1, complete_access=ca)
     req = wire(client.start(), mailbox_size, 1)
     assert isinstance(req, SdoInitiateUploadRequest)
-    server = SdoUploadServer(req.index, req.subindex, data, mailbox_size=mailbox_size,
-                             complete_access=req.complete_access)
+    server = SdoUploadServer(
+        req.index,
+        req.subindex,
+        data,
+        mailbox_size=mailbox_size,
+        complete_access=req.complete_access,
+    )
     reply: CoeMessage = server.start()
     frames, counter = 1, 1
     while True:
@@ -125,8 +130,9 @@ def test_slave_abort_raises() -> None:
 def test_client_detects_toggle_error() -> None:
     client = SdoUploadClient(0x1008, 0)
     client.start()
-    nxt = client.receive(SdoInitiateUploadResponse(0x1008, 0, b"", expedited=False,
-                                                   complete_size=20))
+    nxt = client.receive(
+        SdoInitiateUploadResponse(0x1008, 0, b"", expedited=False, complete_size=20)
+    )
     assert nxt == SdoUploadSegmentRequest(False)
     with pytest.raises(SdoAbort) as exc:
         client.receive(SdoUploadSegmentResponse(True, False, b"x" * 7))

@@ -146,7 +146,11 @@ class EoeIpParameters:
             if len(self.mac) != 6:
                 raise MailboxError(f"EoE MAC address needs 6 bytes, got {len(self.mac)}")
         if self.dns_name is not None:
-            raw = self.dns_name.encode("utf-8")
+            # latin-1 maps bytes 1:1, so any name a slave sends decodes and re-encodes
+            try:
+                raw = self.dns_name.encode("latin-1")
+            except UnicodeEncodeError:
+                raise MailboxError(f"EoE DNS name {self.dns_name!r} is not latin-1") from None
             if len(raw) > _DNS_NAME_SIZE or b"\x00" in raw:
                 raise MailboxError(
                     f"EoE DNS name {self.dns_name!r} longer than 32 bytes or has NUL"
@@ -241,7 +245,7 @@ def _field_bytes(flag: EoeIpFlags, value: object) -> bytes:
     if isinstance(value, IPv4Address):
         return value.packed  # network byte order
     if isinstance(value, str):
-        return value.encode("utf-8").ljust(size, b"\x00")
+        return value.encode("latin-1").ljust(size, b"\x00")
     assert isinstance(value, bytes)
     return value
 
@@ -250,7 +254,7 @@ def _field_value(flag: EoeIpFlags, raw: bytes) -> object:
     if flag is EoeIpFlags.MAC:
         return raw
     if flag is EoeIpFlags.DNS_NAME:
-        return raw.split(b"\x00", 1)[0].decode("utf-8", errors="replace")
+        return raw.split(b"\x00", 1)[0].decode("latin-1")
     return IPv4Address(raw)
 
 
