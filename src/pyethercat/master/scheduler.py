@@ -1,0 +1,650 @@
+"""The PDU loop: one scheduler owns the link and turns datagrams into frames.
+
+Callers queue datagrams (``submit`` gives small futures, ``transact`` a whole
+batch at once). The scheduler packs queued datagrams into frames in queue
+order (many per frame, up to 1498 bytes of datagrams), gives every frame its
+own index (all datagrams of a frame carry it), keeps several frames in flight,
+and matches replies by that index. A reply must have the same datagrams as
+the frame that was sent (command, address, length; the ADP of auto-increment
+and broadcast commands is allowed to grow), otherwise the requests of that
+frame fail with :class:`~pyethercat.errors.FrameError`. Frames that get no
+reply are retried (new index) up to ``retries`` times, then their requests
+fail with :class:`~pyethercat.errors.TimeoutError`. Replies to retired frames
+(stale or duplicate) and our own frames seen again on the wire (a returned
+frame has the locally administered bit in its source MAC, facts 1.1) are
+counted and dropped.
+
+There is no I/O thread: whichever caller waits for a result receives frames
+for everybody (leader/follower), so a test over an in-process pair link with
+a synchronous responder runs without threads and without timing
+(``deterministic=True``: a frame whose reply is not already queued counts as
+lost at once instead of after a real timeout).
+
+The cyclic path (``send_cyclic``) sends its own frame, lets queued acyclic
+datagrams ride in the spare room and is never retried: the next cycle is the
+retry. ``acyclic_hold`` makes acyclic requests wait that long for a cyclic
+frame before they get frames of their own.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+
+from pyethercat.errors import EtherCATError, FrameError, FrameTooLargeError, LinkError
+from pyethercat.errors import TimeoutError as EcTimeoutError
+from pyethercat.link.base import Link
+from pyethercat.wire.datagram import (
+    MAX_DATA,
+    MAX_PAYLOAD,
+    Command,
+    Datagram,
+    command_name,
+)
+from pyethercat.wire.frame import (
+    ECAT_HEADER_SIZE,
+    ETH_HEADER_SIZE,
+    ETHERTYPE_ETHERCAT,
+    ETHERTYPE_VLAN,
+    LOCALLY_ADMINISTERED_BIT,
+    MASTER_MAC,
+    FrameType,
+    NotEtherCATError,
+    decode_frame,
+    encode_frame,
+)
+
+__all__ = ["Request", "CyclicFrame", "Scheduler", "SchedulerStats", "describe_datagram"]
+
+#: Default time to wait for the reply of one frame, seconds.
+DEFAULT_TIMEOUT = 0.05
+#: Default number of re-sends after the first attempt.
+DEFAULT_RETRIES = 3
+#: Default number of frames in flight at once.
+DEFAULT_MAX_IN_FLIGHT = 8
+
+_INDEX_COUNT = 256
+
+
+def describe_datagram(d: Datagram) -> str:
+    """Short text naming a datagram's command and address, for messages."""
+    name = command_name(int(d.command))
+    if d.is_logical:
+        return f"{name} 0x{d.logical_address:08X} ({len(d.data)} bytes)"
+    return f"{name} adp=0x{d.adp:04X} ado=0x{d.ado:04X} ({len(d.data)} bytes)"
+
+
+class Request:
+    """One queued datagram and its outcome: a small future.
+
+    ``result()`` waits (driving the scheduler's receive loop when no other
+    thread does) and returns the reply datagram (data and working counter as
+    they came back), or raises the error the request failed with.
+    """
+
+    __slots__ = ("datagram", "reply", "error", "attempts", "retries", "queued_at", "_scheduler")
+
+    def __init__(self, scheduler: Scheduler, datagram: Datagram, retries: int) -> None:
+        self._scheduler = scheduler
+        self.datagram = datagram
+        self.reply: Datagram | None = None
+        self.error: EtherCATError | None = None
+        #: Number of frames this datagram was sent in so far.
+        self.attempts = 0
+        self.retries = retries
+        self.queued_at = 0.0
+
+    def done(self) -> bool:
+        """Whether the request has a reply or an error."""
+        return self.reply is not None or self.error is not None
+
+    def result(self, timeout: float | None = None) -> Datagram:
+        """The reply datagram; raises the request's error."""
+        self._scheduler.wait([self], timeout)
+        if self.error is not None:
+            raise self.error
+        assert self.reply is not None
+        return self.reply
+
+    def __repr__(self) -> str:
+        state = "done" if self.reply is not None else ("failed" if self.error else "pending")
+        return f"<Request {describe_datagram(self.datagram)} {state}>"
+
+
+class CyclicFrame:
+    """Ticket for a frame sent with :meth:`Scheduler.send_cyclic`.
+
+    ``wait`` returns the reply datagrams of the cyclic part (in the order
+    given), or ``None`` when the frame was lost (no reply in time, or a
+    malformed reply). Acyclic datagrams that rode along are handled by the
+    scheduler and never show up here.
+    """
+
+    __slots__ = ("_scheduler", "count", "replies", "lost", "error", "sent_at", "received_at",
+                 "carried")
+
+    def __init__(self, scheduler: Scheduler, count: int) -> None:
+        self._scheduler = scheduler
+        self.count = count
+        self.replies: list[Datagram] | None = None
+        self.lost = False
+        #: Why the frame counts as lost when it came back malformed.
+        self.error: EtherCATError | None = None
+        self.sent_at = 0.0
+        self.received_at = 0.0
+        #: Number of acyclic datagrams that rode in this frame.
+        self.carried = 0
+
+    def done(self) -> bool:
+        return self.replies is not None or self.lost
+
+    def wait(self, timeout: float | None = None) -> list[Datagram] | None:
+        """Reply datagrams of the cyclic part, or ``None`` if the frame was lost."""
+        self._scheduler._wait_until(self.done, timeout)
+        return self.replies
+
+    @property
+    def round_trip(self) -> float | None:
+        """Seconds between send and receive, when the reply arrived."""
+        return self.received_at - self.sent_at if self.replies is not None else None
+
+
+@dataclass
+class SchedulerStats:
+    """Counters of the PDU loop (monotonic, never reset by the scheduler)."""
+
+    frames_sent: int = 0
+    frames_received: int = 0
+    datagrams_sent: int = 0
+    #: Frames that got no reply in time (each lost frame counts once).
+    frames_lost: int = 0
+    #: Datagrams sent again after a lost frame.
+    retries: int = 0
+    #: Requests that failed after their last retry.
+    timeouts: int = 0
+    #: Replies whose index belongs to no frame in flight (late, duplicate, foreign).
+    stale: int = 0
+    #: Replies to a frame that was already answered.
+    duplicates: int = 0
+    #: Our own frames seen again on the receive side.
+    looped_back: int = 0
+    #: Replies that could not be decoded or did not match their frame.
+    malformed: int = 0
+    #: Frames that were not EtherCAT datagram frames.
+    foreign: int = 0
+    #: Acyclic datagrams carried in cyclic frames.
+    carried: int = 0
+
+
+class _InFlight:
+    """A frame on the wire: its index, requests and deadline."""
+
+    __slots__ = ("index", "datagrams", "requests", "cyclic", "deadline", "sent_at")
+
+    def __init__(self, index: int, datagrams: list[Datagram], requests: list[Request],
+                 cyclic: CyclicFrame | None, deadline: float, sent_at: float) -> None:
+        self.index = index
+        #: Exactly what was sent (cyclic part first, then the requests' datagrams).
+        self.datagrams = datagrams
+        self.requests = requests
+        self.cyclic = cyclic
+        self.deadline = deadline
+        self.sent_at = sent_at
+
+
+def _reply_matches(sent: Datagram, got: Datagram) -> str | None:
+    """Why ``got`` is not the reply to ``sent`` (None when it is)."""
+    if int(got.command) != int(sent.command):
+        return f"command {command_name(int(got.command))}, sent {command_name(int(sent.command))}"
+    if len(got.data) != len(sent.data):
+        return f"{len(got.data)} data bytes, sent {len(sent.data)}"
+    cmd = int(sent.command)
+    if cmd in _ADP_GROWS:
+        # Every slave increments ADP of auto-increment and broadcast commands.
+        if got.ado != sent.ado:
+            return f"ADO 0x{got.ado:04X}, sent 0x{sent.ado:04X}"
+    elif got.address != sent.address:
+        return f"address 0x{got.address:08X}, sent 0x{sent.address:08X}"
+    return None
+
+
+_ADP_GROWS = frozenset({Command.APRD, Command.APWR, Command.APRW, Command.ARMW,
+                        Command.BRD, Command.BWR, Command.BRW})
+
+
+def _peek_index(raw: bytes) -> int | None:
+    """Index of the first datagram of a raw Ethernet frame, if there is one."""
+    start = ETH_HEADER_SIZE
+    if len(raw) < start + ECAT_HEADER_SIZE + 2:
+        return None
+    ethertype = (raw[12] << 8) | raw[13]
+    if ethertype == ETHERTYPE_VLAN:
+        start += 4
+        if len(raw) < start + ECAT_HEADER_SIZE + 2:
+            return None
+        ethertype = (raw[16] << 8) | raw[17]
+    if ethertype != ETHERTYPE_ETHERCAT:
+        return None
+    return raw[start + ECAT_HEADER_SIZE + 1]
+
+
+class Scheduler:
+    """Packs queued datagrams into frames, sends them and matches the replies.
+
+    Thread-safe: any thread may submit and wait. ``timeout`` is the time one
+    frame has to come back, ``retries`` how often a lost datagram is sent
+    again, ``max_in_flight`` how many frames may be on the wire at once.
+    ``src`` is the source MAC of our frames. With ``deterministic=True`` the
+    link must answer synchronously inside ``send`` (the in-process pair link
+    with a responder): a missing reply is then a lost frame at once.
+    """
+
+    def __init__(self, link: Link, *, timeout: float = DEFAULT_TIMEOUT,
+                 retries: int = DEFAULT_RETRIES, max_in_flight: int = DEFAULT_MAX_IN_FLIGHT,
+                 src: bytes = MASTER_MAC, deterministic: bool = False,
+                 capacity: int = MAX_PAYLOAD,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        if not 1 <= max_in_flight < _INDEX_COUNT:
+            raise ValueError(f"max_in_flight must be 1..{_INDEX_COUNT - 1}, got {max_in_flight}")
+        if timeout <= 0:
+            raise ValueError(f"timeout must be positive, got {timeout}")
+        if retries < 0:
+            raise ValueError(f"retries must be >= 0, got {retries}")
+        self.link = link
+        self.timeout = timeout
+        self.retries = retries
+        self.max_in_flight = max_in_flight
+        self.src = bytes(src)
+        self.deterministic = deterministic
+        self.capacity = min(capacity, MAX_PAYLOAD)
+        self.clock = clock
+        #: Seconds an acyclic request waits for a cyclic frame to carry it (0: never).
+        self.acyclic_hold = 0.0
+        self.stats = SchedulerStats()
+        self._lock = threading.Lock()
+        self._cond = threading.Condition(self._lock)
+        self._queue: deque[Request] = deque()
+        self._in_flight: dict[int, _InFlight] = {}
+        self._next_index = 0
+        #: Indices answered recently (duplicates are told apart from stale replies).
+        self._answered: deque[int] = deque(maxlen=64)
+        self._receiving = False
+        self._closed = False
+
+    # -- submitting ----------------------------------------------------------------
+
+    def submit(self, datagrams: Iterable[Datagram], *, retries: int | None = None,
+               flush: bool = True) -> list[Request]:
+        """Queue datagrams (sent in this order); returns one request per datagram.
+
+        The datagrams' ``index`` fields are ignored (the scheduler assigns
+        frame indices). ``flush=False`` only queues: the next flush, wait or
+        cyclic frame sends them, so several callers' datagrams share frames.
+        """
+        reqs: list[Request] = []
+        tries = self.retries if retries is None else retries
+        for d in datagrams:
+            if len(d.data) > MAX_DATA:
+                raise FrameTooLargeError(
+                    f"{describe_datagram(d)}: {len(d.data)} data bytes, one frame holds {MAX_DATA}")
+            reqs.append(Request(self, d, tries))
+        with self._cond:
+            self._check_open()
+            now = self.clock()
+            for r in reqs:
+                r.queued_at = now
+                self._queue.append(r)
+            if flush:
+                self._flush_locked(now)
+        return reqs
+
+    def submit_one(self, datagram: Datagram, *, retries: int | None = None) -> Request:
+        """Queue one datagram and send it."""
+        return self.submit([datagram], retries=retries)[0]
+
+    def flush(self) -> None:
+        """Send queued datagrams now (as far as the in-flight budget allows)."""
+        with self._cond:
+            self._check_open()
+            self._flush_locked(self.clock(), force=True)
+
+    def transact(self, datagrams: Sequence[Datagram], *, retries: int | None = None,
+                 timeout: float | None = None) -> list[Datagram]:
+        """Send a batch and return the replies in order; raises the first failure.
+
+        All datagrams of the batch are queued before anything is sent, so
+        they share as few frames as possible.
+        """
+        if not datagrams:
+            return []
+        reqs = self.submit(datagrams, retries=retries)
+        self.wait(reqs, timeout)
+        for r in reqs:
+            if r.error is not None:
+                raise r.error
+        return [r.reply for r in reqs if r.reply is not None]
+
+    def transact_one(self, datagram: Datagram, *, retries: int | None = None) -> Datagram:
+        """Send one datagram and return its reply."""
+        return self.transact([datagram], retries=retries)[0]
+
+    def wait(self, requests: Sequence[Request], timeout: float | None = None) -> None:
+        """Wait until every request is done (replied or failed); errors stay in them.
+
+        ``timeout`` bounds the whole wait (the requests' own retries and
+        timeouts end every wait anyway); when it runs out, the requests not
+        yet done fail with :class:`TimeoutError`.
+        """
+        if not self._wait_until(lambda: all(r.done() for r in requests), timeout):
+            with self._cond:
+                for r in requests:
+                    if not r.done():
+                        r.error = EcTimeoutError(
+                            f"no reply to {describe_datagram(r.datagram)} within {timeout} s")
+                        self._forget_locked(r)
+
+    # -- the cyclic hook -----------------------------------------------------------
+
+    def send_cyclic(self, datagrams: Sequence[Datagram], *, carry_acyclic: bool = True,
+                    timeout: float | None = None) -> CyclicFrame:
+        """Send ``datagrams`` as one frame now; queued acyclic datagrams fill the spare room.
+
+        Raises :class:`FrameTooLargeError` if the cyclic datagrams alone do
+        not fit one frame. The frame is never retried; ``timeout`` (default:
+        the scheduler's) is how long it may take to come back.
+        """
+        size = sum(d.size for d in datagrams)
+        if not datagrams or size > self.capacity:
+            raise FrameTooLargeError(
+                f"cyclic frame of {len(datagrams)} datagrams needs {size} bytes, "
+                f"a frame holds {self.capacity}")
+        ticket = CyclicFrame(self, len(datagrams))
+        with self._cond:
+            self._check_open()
+            now = self.clock()
+            carried: list[Request] = []
+            if carry_acyclic:
+                free = self.capacity - size
+                while self._queue and self._queue[0].datagram.size <= free:
+                    r = self._queue.popleft()
+                    free -= r.datagram.size
+                    carried.append(r)
+            ticket.carried = len(carried)
+            self.stats.carried += len(carried)
+            self._send_frame_locked(list(datagrams), carried, ticket, now,
+                                    self.timeout if timeout is None else timeout)
+        return ticket
+
+    def exchange_cyclic(self, datagrams: Sequence[Datagram], *, carry_acyclic: bool = True,
+                        timeout: float | None = None) -> list[Datagram] | None:
+        """``send_cyclic`` and wait: the replies, or ``None`` when the frame was lost."""
+        return self.send_cyclic(datagrams, carry_acyclic=carry_acyclic, timeout=timeout).wait()
+
+    # -- state -----------------------------------------------------------------------
+
+    @property
+    def in_flight(self) -> int:
+        """Frames on the wire now."""
+        with self._lock:
+            return len(self._in_flight)
+
+    @property
+    def queued(self) -> int:
+        """Datagrams waiting to be sent."""
+        with self._lock:
+            return len(self._queue)
+
+    def close(self) -> None:
+        """Fail everything pending; further use raises :class:`LinkError`. Idempotent."""
+        with self._cond:
+            if self._closed:
+                return
+            self._closed = True
+            err = LinkError(f"scheduler on {self.link.name} closed")
+            for r in self._queue:
+                r.error = err
+            self._queue.clear()
+            for f in self._in_flight.values():
+                for r in f.requests:
+                    r.error = err
+                if f.cyclic is not None:
+                    f.cyclic.lost = True
+                    f.cyclic.error = err
+            self._in_flight.clear()
+            self._cond.notify_all()
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise LinkError(f"scheduler on {self.link.name} is closed")
+
+    # -- internals (hold self._lock) --------------------------------------------------
+
+    def _alloc_index(self) -> int:
+        for _ in range(_INDEX_COUNT):
+            idx = self._next_index
+            self._next_index = (idx + 1) % _INDEX_COUNT
+            if idx not in self._in_flight:
+                return idx
+        raise FrameError("no free frame index (256 frames in flight)")  # pragma: no cover
+
+    def _flush_locked(self, now: float, force: bool = False) -> None:
+        """Pack queued requests into frames while the in-flight budget allows."""
+        hold = 0.0 if force else self.acyclic_hold
+        while self._queue and len(self._in_flight) < self.max_in_flight:
+            if hold and self._queue[0].queued_at + hold > now:
+                return  # waiting for a cyclic frame to carry them
+            batch: list[Request] = []
+            free = self.capacity
+            while self._queue and self._queue[0].datagram.size <= free:
+                r = self._queue.popleft()
+                free -= r.datagram.size
+                batch.append(r)
+            self._send_frame_locked([], batch, None, now, self.timeout)
+
+    def _send_frame_locked(self, cyclic_part: list[Datagram], requests: list[Request],
+                           cyclic: CyclicFrame | None, now: float, timeout: float) -> None:
+        idx = self._alloc_index()
+        sent: list[Datagram] = []
+        for d in cyclic_part:
+            sent.append(Datagram(d.command, idx, d.address, d.data, d.irq))
+        for r in requests:
+            d = r.datagram
+            sent.append(Datagram(d.command, idx, d.address, d.data, d.irq))
+            r.attempts += 1
+        raw = encode_frame(sent, src=self.src)
+        entry = _InFlight(idx, sent, requests, cyclic, now + timeout, now)
+        self._in_flight[idx] = entry
+        if cyclic is not None:
+            cyclic.sent_at = now
+        try:
+            self.link.send(raw)
+        except EtherCATError as exc:
+            del self._in_flight[idx]
+            for r in requests:
+                r.error = exc
+            if cyclic is not None:
+                cyclic.lost = True
+                cyclic.error = exc
+            self._cond.notify_all()
+            raise
+        self.stats.frames_sent += 1
+        self.stats.datagrams_sent += len(sent)
+
+    def _forget_locked(self, req: Request) -> None:
+        with contextlib.suppress(ValueError):
+            self._queue.remove(req)
+
+    def _expire_locked(self, now: float, everything: bool = False) -> None:
+        """Handle frames whose deadline passed: retry their requests or fail them."""
+        expired = [f for f in self._in_flight.values() if everything or f.deadline <= now]
+        if not expired:
+            return
+        requeue: list[Request] = []
+        for f in expired:
+            del self._in_flight[f.index]
+            self.stats.frames_lost += 1
+            if f.cyclic is not None:
+                f.cyclic.lost = True
+            for r in f.requests:
+                if r.done():
+                    continue
+                if r.attempts <= r.retries:
+                    self.stats.retries += 1
+                    requeue.append(r)
+                else:
+                    self.stats.timeouts += 1
+                    r.error = EcTimeoutError(
+                        f"no reply to {describe_datagram(r.datagram)} after {r.attempts} "
+                        f"attempt{'s' if r.attempts != 1 else ''} "
+                        f"({f.deadline - f.sent_at:.3g} s each) on {self.link.name}")
+        # Retried requests go first, in their original order.
+        for r in reversed(requeue):
+            r.queued_at = now - self.acyclic_hold
+            self._queue.appendleft(r)
+        self._cond.notify_all()
+
+    def _handle_frame_locked(self, raw: bytes, now: float) -> None:
+        if len(raw) >= 12 and raw[6:12] == self.src and not (
+                self.src[0] & LOCALLY_ADMINISTERED_BIT):
+            # A slave sets the locally administered bit in what it returns.
+            self.stats.looped_back += 1
+            return
+        try:
+            frame = decode_frame(raw)
+        except NotEtherCATError:
+            self.stats.foreign += 1
+            return
+        except FrameError as exc:
+            self.stats.malformed += 1
+            idx = _peek_index(raw)
+            entry = self._in_flight.pop(idx, None) if idx is not None else None
+            if entry is not None:
+                self._fail_entry_locked(entry, FrameError(
+                    f"malformed reply to frame {idx} on {self.link.name}: {exc}"), now)
+            return
+        if frame.frame_type != FrameType.DATAGRAMS or not frame.datagrams:
+            self.stats.foreign += 1
+            return
+        idx = frame.datagrams[0].index
+        entry = self._in_flight.get(idx)
+        if entry is None:
+            if idx in self._answered:
+                self.stats.duplicates += 1
+            else:
+                self.stats.stale += 1
+            return
+        problem = self._mismatch(entry, frame.datagrams)
+        if problem is not None:
+            if problem[0]:
+                # Another frame's reply that happens to carry this index: not ours.
+                self.stats.stale += 1
+                return
+            del self._in_flight[idx]
+            self.stats.malformed += 1
+            self._fail_entry_locked(entry, FrameError(
+                f"reply to frame {idx} on {self.link.name} does not match: {problem[1]}"), now)
+            return
+        del self._in_flight[idx]
+        self._answered.append(idx)
+        self.stats.frames_received += 1
+        ncyc = entry.cyclic.count if entry.cyclic is not None else 0
+        got = frame.datagrams
+        for r, d in zip(entry.requests, got[ncyc:], strict=True):
+            if not r.done():
+                r.reply = d
+        if entry.cyclic is not None:
+            entry.cyclic.replies = got[:ncyc]
+            entry.cyclic.received_at = now
+        self._cond.notify_all()
+
+    @staticmethod
+    def _mismatch(entry: _InFlight, got: list[Datagram]) -> tuple[bool, str] | None:
+        """None if ``got`` answers ``entry``; else (looks foreign, reason)."""
+        if len(got) != len(entry.datagrams):
+            return (False, f"{len(got)} datagrams, sent {len(entry.datagrams)}")
+        for n, (s, g) in enumerate(zip(entry.datagrams, got, strict=True)):
+            if g.index != s.index:
+                return (False, f"datagram {n} has index {g.index}, sent {s.index}")
+            why = _reply_matches(s, g)
+            if why is not None:
+                # A wrong first datagram means the index was a coincidence.
+                return (n == 0 and int(g.command) != int(s.command),
+                        f"datagram {n} ({describe_datagram(s)}): {why}")
+        return None
+
+    def _fail_entry_locked(self, entry: _InFlight, err: EtherCATError, now: float) -> None:
+        for r in entry.requests:
+            if not r.done():
+                r.error = err
+        if entry.cyclic is not None:
+            entry.cyclic.lost = True
+            entry.cyclic.error = err
+            entry.cyclic.received_at = now
+        self._cond.notify_all()
+
+    # -- the receive loop ---------------------------------------------------------------
+
+    def _wait_until(self, done: Callable[[], bool], timeout: float | None) -> bool:
+        """Drive or await the receive loop until ``done()``; False on ``timeout``."""
+        limit = None if timeout is None else self.clock() + timeout
+        with self._cond:
+            while not done():
+                now = self.clock()
+                if limit is not None and now >= limit:
+                    return False
+                if self._closed:
+                    return done()
+                self._flush_locked(now)
+                if self._receiving:
+                    # Another thread receives for us; it notifies on every change.
+                    wait = 0.05 if limit is None else min(0.05, max(0.0, limit - now))
+                    self._cond.wait(wait)
+                    continue
+                if not self._in_flight and not self._queue:
+                    # Nothing can finish what we wait for.
+                    return done()
+                self._receive_once_locked(now, limit)
+        return True
+
+    def _receive_once_locked(self, now: float, limit: float | None) -> None:
+        """Receive one frame (lock released while blocking) and handle timeouts."""
+        if self.deterministic:
+            raw = self.link.recv(0)
+            if raw is None:
+                # The responder already answered everything it will ever answer.
+                self._expire_locked(now, everything=True)
+                self._flush_locked(now, force=True)
+                return
+            self._handle_frame_locked(raw, now)
+            self._flush_locked(now)
+            return
+        wake = [f.deadline for f in self._in_flight.values()]
+        if self._queue and self.acyclic_hold:
+            wake.append(self._queue[0].queued_at + self.acyclic_hold)
+        if limit is not None:
+            wake.append(limit)
+        wait = max(0.0, min(wake) - now) if wake else self.timeout
+        self._receiving = True
+        self._lock.release()
+        got: bytes | None = None
+        error: EtherCATError | None = None
+        try:
+            got = self.link.recv(wait)
+        except EtherCATError as exc:
+            error = exc
+        finally:
+            self._lock.acquire()
+            self._receiving = False
+        now = self.clock()
+        if error is not None:
+            self._cond.notify_all()
+            raise error
+        if got is not None:
+            self._handle_frame_locked(got, now)
+        self._expire_locked(now)
+        self._flush_locked(now)
+        self._cond.notify_all()
