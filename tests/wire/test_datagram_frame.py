@@ -128,3 +128,12 @@ def test_mutated_frames_only_raise_frame_error(dgrams: list[Datagram], pos: int,
             decode_frame(bytes(raw[:cut]))
         except FrameError:
             pass
+
+
+def test_non_strict_decode_tolerates_trailing_byte_inside_length() -> None:
+    # TwinCAT declares an EtherCAT length one byte longer than its datagrams.
+    body = bytes([7, 0, 0, 0, 0, 0, 2, 0, 0, 0]) + bytes(4) + b"\x00"
+    raw = b"\xff" * 12 + b"\x88\xa4" + struct.pack("<H", 0x1000 | len(body)) + body + bytes(40)
+    with pytest.raises(FrameError, match="after the last datagram"):
+        decode_frame(raw)
+    assert len(decode_frame(raw, strict=False).datagrams) == 1

@@ -207,12 +207,14 @@ def encode_datagrams(datagrams: Sequence[Datagram]) -> bytes:
     return bytes(buf)
 
 
-def decode_datagrams(payload: bytes | bytearray | memoryview, base_offset: int = 0) -> list[Datagram]:
+def decode_datagrams(payload: bytes | bytearray | memoryview, base_offset: int = 0,
+                     strict: bool = True) -> list[Datagram]:
     """Decode the datagrams of an EtherCAT payload (the bytes the header length covers).
 
     Raises :class:`FrameError` when a datagram header or its data runs past
     the payload, or when bytes remain after the last datagram (M = 0) that are
-    not accounted for. ``base_offset`` only shifts the offsets in messages.
+    not accounted for (unless ``strict`` is false). ``base_offset`` only
+    shifts the offsets in messages.
     """
     view = memoryview(payload)
     end = len(view)
@@ -245,7 +247,7 @@ def decode_datagrams(payload: bytes | bytearray | memoryview, base_offset: int =
         if offset >= end:
             raise FrameError(f"datagram {len(out) - 1} says another follows but the frame ends",
                              base_offset + offset)
-    if offset != end:
+    if offset != end and strict:
         raise FrameError(f"{end - offset} bytes after the last datagram inside the EtherCAT length",
                          base_offset + offset)
     return out

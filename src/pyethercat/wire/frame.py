@@ -26,9 +26,13 @@ ETHERTYPE_VLAN = 0x8100
 #: EtherCAT over UDP (and the mailbox gateway) listen on this port.
 UDP_PORT = 34980
 BROADCAST_MAC = b"\xff" * 6
-#: SOEM's default primary/secondary source MACs; any value works.
-MASTER_MAC = b"\x01\x01\x01\x01\x01\x01"
-SECONDARY_MAC = b"\x04\x04\x04\x04\x04\x04"
+#: Default source MACs of the master's primary and secondary (redundancy) port.
+#: Unicast and not locally administered, so a returned frame (which slaves mark
+#: with the locally-administered bit) is told apart from our own. SOEM's
+#: 01:01:... defaults are group addresses, which Wireshark flags as invalid
+#: sources; the second 16-bit word differs between the two ports as in SOEM.
+MASTER_MAC = b"\x10\x10\x10\x10\x10\x10"
+SECONDARY_MAC = b"\x10\x10\x14\x14\x14\x14"
 ETH_HEADER_SIZE = 14
 ECAT_HEADER_SIZE = 2
 #: Minimum Ethernet frame without FCS; shorter frames are zero-padded.
@@ -133,11 +137,13 @@ def is_ethercat(raw: bytes | bytearray | memoryview) -> bool:
     return ethertype == ETHERTYPE_ETHERCAT
 
 
-def decode_frame(raw: bytes | bytearray | memoryview) -> EtherCATFrame:
+def decode_frame(raw: bytes | bytearray | memoryview, strict: bool = True) -> EtherCATFrame:
     """Decode an Ethernet frame holding EtherCAT.
 
     Raises :class:`NotEtherCATError` for other EtherTypes and
-    :class:`FrameError` for malformed EtherCAT content.
+    :class:`FrameError` for malformed EtherCAT content. ``strict=False``
+    tolerates bytes after the last datagram inside the EtherCAT length
+    (TwinCAT sends such frames; ESCs ignore the extra bytes).
     """
     view = memoryview(raw)
     if len(view) < ETH_HEADER_SIZE:
@@ -151,13 +157,14 @@ def decode_frame(raw: bytes | bytearray | memoryview) -> EtherCATFrame:
         start += 4
     if ethertype != ETHERTYPE_ETHERCAT:
         raise NotEtherCATError(f"EtherType 0x{ethertype:04X} is not EtherCAT (0x88A4)", 12)
-    frame = decode_ecat_payload(view[start:], base_offset=start)
+    frame = decode_ecat_payload(view[start:], base_offset=start, strict=strict)
     frame.dst = bytes(view[0:6])
     frame.src = bytes(view[6:12])
     return frame
 
 
-def decode_ecat_payload(payload: bytes | bytearray | memoryview, base_offset: int = 0) -> EtherCATFrame:
+def decode_ecat_payload(payload: bytes | bytearray | memoryview, base_offset: int = 0,
+                        strict: bool = True) -> EtherCATFrame:
     """Decode the EtherCAT part (header + body), e.g. a UDP payload."""
     view = memoryview(payload)
     if len(view) < ECAT_HEADER_SIZE:
@@ -175,7 +182,7 @@ def decode_ecat_payload(payload: bytes | bytearray | memoryview, base_offset: in
     body = view[ECAT_HEADER_SIZE:body_end]
     frame = EtherCATFrame(frame_type, padding=len(view) - body_end)
     if frame_type == FrameType.DATAGRAMS:
-        frame.datagrams = decode_datagrams(body, base_offset + ECAT_HEADER_SIZE)
+        frame.datagrams = decode_datagrams(body, base_offset + ECAT_HEADER_SIZE, strict=strict)
     elif frame_type == FrameType.MAILBOX:
         frame.mailbox = bytes(body)
     else:
