@@ -35,7 +35,7 @@ datagram_st = st.builds(
 
 
 def test_brd_slave_count_example_matches_facts_sheet() -> None:
-    frame = encode_frame([Datagram.device(Command.BRD, 0, 0x0000, 2)])
+    frame = encode_frame([Datagram.device(Command.BRD, 0, 0x0000, 2)], src=b"\x01" * 6)
     expected = bytes.fromhex(
         "ffffffffffff" "010101010101" "88a4" "0e10" "07000000000002000000" "0000" "0000"
     )
