@@ -1,0 +1,561 @@
+"""Finding the slaves: count, address, identify, read every SII, rebuild the topology.
+
+Everything that is done per slave is done for all slaves in the same frames:
+one APWR per position assigns the station addresses, one FPRD per slave reads
+the ESC registers, and the SII of every slave is read in lockstep: each step
+writes a read command to every slave's SII interface and reads the status,
+address and data back (0x0502-0x050F) in the same frame, so a segment of 100
+slaves needs about as many round trips as one slave does (8 bytes per step
+where 0x0502 bit 6 offers 8-byte reads, else 4). Each slave stops at its
+category end marker (``sii_bytes_needed``).
+
+The topology is rebuilt from the DL status of every slave (facts 12.1, 12.3):
+a frame enters a slave at port 0 and leaves through its other open ports in
+the order 3, 1, 2; auto-increment positions number the slaves in the order the
+frame meets them. Walking that order depth first with each slave's open ports
+gives every slave's parent and the parent's port.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+from pyethercat.errors import (
+    EtherCATError,
+    SiiError,
+    TopologyMismatchError,
+    WorkingCounterError,
+)
+from pyethercat.master.scheduler import Scheduler
+from pyethercat.master.slave import EscInfo, Identity, MailboxInfo, Port, Slave
+from pyethercat.wire.al import AlState
+from pyethercat.wire.datagram import Command, Datagram
+from pyethercat.wire.registers import (
+    AL_CONTROL,
+    AL_ERROR_FLAG,
+    AL_STATUS,
+    DL_CONTROL_ALIAS,
+    DL_STATUS,
+    ECAT_EVENT_MASK,
+    SII_CONFIG,
+    SII_CONFIG_FORCE_ECAT,
+    SII_CONTROL,
+    SII_DATA,
+    STATION_ADDRESS,
+    STATION_ALIAS,
+    TYPE,
+    EcatEvent,
+    SiiControl,
+)
+from pyethercat.wire.sii import SII_DEFAULT_MAX_BYTES, SiiInfo, parse_sii, sii_bytes_needed
+from pyethercat.wire.sii.model import (
+    WORD_ALIAS,
+    WORD_CHECKSUM,
+)
+
+__all__ = [
+    "DEFAULT_STATION_BASE",
+    "Progress",
+    "ExpectedSlave",
+    "count_slaves",
+    "reset_slaves",
+    "assign_addresses",
+    "read_esc_info",
+    "SiiAccess",
+    "read_sii_batch",
+    "write_sii",
+    "reload_sii",
+    "build_topology",
+    "check_expected",
+    "scan",
+    "describe_identity",
+]
+
+#: First configured station address the scan hands out (TwinCAT style 1001, 1002...).
+DEFAULT_STATION_BASE = 0x1001
+
+#: ``progress(stage, done, total)``; ``total`` may grow while a stage runs.
+Progress = Callable[[str, int, int], None]
+
+# 0x0502-0x050F: control/status (2), address (4), data (8).
+_SII_WINDOW = 14
+_SII_DATA_OFFSET = 6
+_SII_CMD_ERRORS = SiiControl.ACK_ERROR | SiiControl.WRITE_ENABLE_ERROR
+_SII_RETRIES = 3
+# ESC identification block 0x0000-0x0009.
+_ESC_INFO = struct.Struct("<BBHBBBBH")
+
+
+@dataclass(frozen=True, slots=True)
+class ExpectedSlave:
+    """One entry of an expected configuration: identity and, optionally, alias and name."""
+
+    identity: Identity
+    alias: int | None = None
+    name: str | None = None
+
+
+def describe_identity(identity: Identity, name: str | None = None) -> str:
+    text = str(identity)
+    return f"{text} ({name})" if name else text
+
+
+def _check_wkc(what: str, replies: Sequence[Datagram], expected: int = 1) -> None:
+    bad = [n for n, r in enumerate(replies) if r.wkc != expected]
+    if bad:
+        raise WorkingCounterError(f"{what}: position {bad[0]} did not answer", expected,
+                                  replies[bad[0]].wkc)
+
+
+# --- count, reset, address -------------------------------------------------------------
+
+
+def count_slaves(scheduler: Scheduler) -> int:
+    """Number of slaves on the segment: the working counter of a BRD of 0x0000."""
+    reply = scheduler.transact_one(Datagram.device(Command.BRD, 0, TYPE, 2))
+    return reply.wkc
+
+
+def reset_slaves(scheduler: Scheduler) -> None:
+    """Broadcast the start-up defaults: alias addressing off, INIT with acknowledge, SII to ECAT.
+
+    Also sets the ECAT event mask to DL-status changes (so the IRQ field of
+    every datagram tells when a link changed).
+    """
+    scheduler.transact([
+        Datagram.device(Command.BWR, 0, DL_CONTROL_ALIAS, b"\x00"),
+        Datagram.device(Command.BWR, 0, AL_CONTROL,
+                        struct.pack("<H", AlState.INIT | AL_ERROR_FLAG)),
+        Datagram.device(Command.BWR, 0, ECAT_EVENT_MASK, struct.pack("<H", EcatEvent.DL_STATUS)),
+    ])
+    take_sii_ownership(scheduler)
+
+
+def take_sii_ownership(scheduler: Scheduler, station: int | None = None) -> None:
+    """Give the SII interface to EtherCAT (force, then release the force bit), like SOEM."""
+    if station is None:
+        mk = [Datagram.device(Command.BWR, 0, SII_CONFIG, bytes([v]))
+              for v in (SII_CONFIG_FORCE_ECAT, 0)]
+    else:
+        mk = [Datagram.device(Command.FPWR, station, SII_CONFIG, bytes([v]))
+              for v in (SII_CONFIG_FORCE_ECAT, 0)]
+    scheduler.transact(mk[:1])
+    scheduler.transact(mk[1:])
+
+
+def assign_addresses(scheduler: Scheduler, count: int, base: int = DEFAULT_STATION_BASE) -> list[int]:
+    """Write station addresses ``base``, ``base + 1``... by position (one frame for all)."""
+    if count and not (base > 0 and base + count - 1 <= 0xFFFF):
+        raise ValueError(f"station addresses 0x{base:04X}+{count} do not fit 16 bits")
+    stations = [base + n for n in range(count)]
+    replies = scheduler.transact([
+        Datagram.positional(Command.APWR, n, STATION_ADDRESS, struct.pack("<H", st))
+        for n, st in enumerate(stations)])
+    _check_wkc("station address assignment", replies)
+    return stations
+
+
+def read_esc_info(scheduler: Scheduler, slaves: Sequence[Slave]) -> None:
+    """Read ESC identification, alias, DL status, AL status and SII control of every slave."""
+    reads = []
+    for s in slaves:
+        st = s.station_address
+        reads += [Datagram.device(Command.FPRD, st, TYPE, _ESC_INFO.size),
+                  Datagram.device(Command.FPRD, st, STATION_ALIAS, 2),
+                  Datagram.device(Command.FPRD, st, DL_STATUS, 2),
+                  Datagram.device(Command.FPRD, st, AL_STATUS, 6),
+                  Datagram.device(Command.FPRD, st, SII_CONTROL, 2)]
+    replies = scheduler.transact(reads)
+    for n, s in enumerate(slaves):
+        esc, alias, dl, al, sii = replies[5 * n:5 * n + 5]
+        _check_wkc(f"reading the registers of {s.describe()}", [esc, alias, dl, al, sii])
+        s.esc = EscInfo(*_ESC_INFO.unpack(esc.data))
+        (s.alias,) = struct.unpack("<H", alias.data)
+        (s.dl_status,) = struct.unpack("<H", dl.data)
+        status, _, code = struct.unpack("<HHH", al.data)
+        try:
+            s.al_state = AlState(status & 0x0F)
+        except ValueError:
+            s.al_state = AlState.NONE
+        s.al_error = bool(status & AL_ERROR_FLAG)
+        s.al_status_code = code if s.al_error else 0
+        (ctrl,) = struct.unpack("<H", sii.data)
+        s.sii_read_8 = bool(ctrl & SiiControl.READ_8_BYTES)
+        s.ports = [Port.from_registers(p, s.esc.port_descriptor, s.dl_status) for p in range(4)]
+
+
+# --- SII access ------------------------------------------------------------------------
+
+
+@dataclass
+class SiiAccess:
+    """How to reach one slave's SII interface: configured address or ring position."""
+
+    adp: int
+    positional: bool = False
+    read_8: bool = False
+    label: str = ""
+
+    @classmethod
+    def of(cls, slave: Slave) -> SiiAccess:
+        return cls(slave.station_address, False, slave.sii_read_8, slave.describe())
+
+    @classmethod
+    def at_position(cls, position: int, read_8: bool = False) -> SiiAccess:
+        return cls((-position) & 0xFFFF, True, read_8, f"slave {position}")
+
+    def rd(self, address: int, size: int) -> Datagram:
+        return Datagram.device(Command.APRD if self.positional else Command.FPRD, self.adp,
+                               address, size)
+
+    def wr(self, address: int, data: bytes) -> Datagram:
+        return Datagram.device(Command.APWR if self.positional else Command.FPWR, self.adp,
+                               address, data)
+
+
+@dataclass
+class _Reader:
+    access: SiiAccess
+    data: bytearray = field(default_factory=bytearray)
+    target: int = 0
+    done: bool = False
+    waiting: bool = False  # command issued, result not seen yet
+    failures: int = 0
+    error: str | None = None
+
+    @property
+    def word(self) -> int:
+        return len(self.data) // 2
+
+    @property
+    def chunk(self) -> int:
+        return 8 if self.access.read_8 else 4
+
+
+def _sii_command(cmd: int, word: int) -> bytes:
+    return struct.pack("<HI", cmd, word)
+
+
+def read_sii_batch(scheduler: Scheduler, accesses: Sequence[SiiAccess], *,
+                   max_bytes: int = SII_DEFAULT_MAX_BYTES, max_polls: int = 1000,
+                   length: int | None = None,
+                   progress: Progress | None = None) -> list[bytes | SiiError]:
+    """Read the whole SII of every slave in lockstep; one result per access.
+
+    Each result is the image from word 0 up to and including the category
+    end marker (or what could be read, if the chain has none), or a
+    :class:`SiiError` saying why that slave's SII could not be read. With
+    ``length`` exactly that many bytes are read instead, whatever they hold.
+    """
+    def needed(data: bytes) -> int | None:
+        if length is not None:
+            return length if len(data) < length else None
+        return sii_bytes_needed(data, max_bytes=max_bytes)
+
+    readers = [_Reader(a, target=needed(b"") or 0) for a in accesses]
+    polls = 0
+    while True:
+        active = [r for r in readers if not r.done]
+        if progress is not None:
+            have = sum(len(r.data) for r in readers)
+            total = sum(len(r.data) if r.done else max(r.target, len(r.data)) for r in readers)
+            progress("sii", have, total)
+        if not active:
+            break
+        datagrams: list[Datagram] = []
+        for r in active:
+            if not r.waiting:
+                # Command and read-back in one frame: an ESC that answers fast gives the
+                # data at once; a slow one shows busy and is polled again.
+                datagrams.append(r.access.wr(SII_CONTROL, _sii_command(SiiControl.CMD_READ,
+                                                                       r.word)))
+            datagrams.append(r.access.rd(SII_CONTROL, _SII_WINDOW))
+        replies = scheduler.transact(datagrams)
+        pos = 0
+        any_busy = False
+        for r in active:
+            if not r.waiting:
+                cmd_reply = replies[pos]
+                pos += 1
+                r.waiting = True
+                if cmd_reply.wkc != 1:
+                    r.waiting = False
+                    _fail(r, f"SII read command at word 0x{r.word:04X} not taken "
+                             f"(working counter {cmd_reply.wkc})")
+                    pos += 1
+                    continue
+            status = replies[pos]
+            pos += 1
+            if status.wkc != 1:
+                r.waiting = False
+                _fail(r, f"SII status read failed (working counter {status.wkc})")
+                continue
+            ctrl, addr = struct.unpack_from("<HI", status.data)
+            if ctrl & SiiControl.BUSY:
+                any_busy = True
+                continue
+            r.waiting = False
+            if ctrl & _SII_CMD_ERRORS or (addr & 0xFFFF) != r.word:
+                what = ("missing acknowledge" if ctrl & SiiControl.ACK_ERROR else
+                        "write-enable error" if ctrl & SiiControl.WRITE_ENABLE_ERROR else
+                        f"address register shows word 0x{addr:04X}")
+                _fail(r, f"SII read at word 0x{r.word:04X}: {what} (status 0x{ctrl:04X})")
+                continue
+            r.failures = 0
+            r.data += status.data[_SII_DATA_OFFSET:_SII_DATA_OFFSET + r.chunk]
+            need = needed(bytes(r.data))
+            if need is None or (length is None and len(r.data) >= max_bytes):
+                r.done = True
+                if length is not None:
+                    del r.data[length:]
+            else:
+                r.target = max(r.target, need)
+        if any_busy:
+            polls += 1
+            if polls > max_polls:
+                for r in readers:
+                    if r.waiting and not r.done:
+                        r.done = True
+                        r.error = f"SII interface stays busy at word 0x{r.word:04X}"
+        else:
+            polls = 0
+        # Clear error bits of slaves that will retry (the ESC refuses commands until then).
+        clear = [r for r in readers if not r.done and r.failures and not r.waiting]
+        if clear:
+            scheduler.transact([r.access.wr(SII_CONTROL, b"\0\0") for r in clear])
+    out: list[bytes | SiiError] = []
+    for r in readers:
+        if r.error is not None:
+            out.append(SiiError(f"{r.access.label}: {r.error}"))
+        else:
+            out.append(bytes(r.data))
+    return out
+
+
+def _fail(r: _Reader, why: str) -> None:
+    r.failures += 1
+    if r.failures > _SII_RETRIES:
+        r.done = True
+        r.error = why
+
+
+def _wait_sii_idle(scheduler: Scheduler, access: SiiAccess, what: str,
+                   max_polls: int = 100000) -> int:
+    for _ in range(max_polls):
+        reply = scheduler.transact_one(access.rd(SII_CONTROL, 2))
+        if reply.wkc != 1:
+            raise WorkingCounterError(f"{access.label}: SII status read ({what})", 1, reply.wkc)
+        (ctrl,) = struct.unpack("<H", reply.data)
+        if not ctrl & SiiControl.BUSY:
+            return int(ctrl)
+    raise SiiError(f"{access.label}: SII interface stays busy ({what})")
+
+
+def write_sii(scheduler: Scheduler, access: SiiAccess, image: bytes, *,
+              old: bytes | None = None, progress: Progress | None = None) -> int:
+    """Write ``image`` into a slave's SII word by word; returns the number of words written.
+
+    Words equal to ``old`` (the current content, when given) are skipped. Each
+    word: data to 0x0508, then command write + enable with its address, then
+    polling until the ESC is no longer busy; error bits raise
+    :class:`SiiError` naming the word.
+    """
+    if len(image) % 2:
+        image += b"\xff"
+    words = len(image) // 2
+    todo = [w for w in range(words)
+            if old is None or image[2 * w:2 * w + 2] != old[2 * w:2 * w + 2]]
+    ctrl = _wait_sii_idle(scheduler, access, "before writing")
+    if ctrl & SII_ERROR_BITS:
+        scheduler.transact_one(access.wr(SII_CONTROL, b"\0\0"))
+    for n, w in enumerate(todo):
+        if progress is not None:
+            progress("sii_write", n, len(todo))
+        replies = scheduler.transact([
+            access.wr(SII_DATA, image[2 * w:2 * w + 2]),
+            access.wr(SII_CONTROL, _sii_command(SiiControl.CMD_WRITE | SiiControl.WRITE_ENABLE,
+                                                w)),
+        ])
+        _check_wkc(f"{access.label}: SII write of word 0x{w:04X}", replies)
+        ctrl = _wait_sii_idle(scheduler, access, f"writing word 0x{w:04X}")
+        if ctrl & _SII_CMD_ERRORS:
+            raise SiiError(f"{access.label}: SII write of word 0x{w:04X} failed "
+                           f"(status 0x{ctrl:04X})")
+    if progress is not None:
+        progress("sii_write", len(todo), len(todo))
+    return len(todo)
+
+
+#: Every error bit of the SII status (cleared by writing 0 to 0x0502).
+SII_ERROR_BITS = 0x7800
+
+
+def reload_sii(scheduler: Scheduler, access: SiiAccess) -> None:
+    """Make the ESC reload its configuration words (alias...) from the SII."""
+    _wait_sii_idle(scheduler, access, "before reload")
+    reply = scheduler.transact_one(access.wr(SII_CONTROL, _sii_command(SiiControl.CMD_RELOAD, 0)))
+    if reply.wkc != 1:
+        raise WorkingCounterError(f"{access.label}: SII reload command", 1, reply.wkc)
+    ctrl = _wait_sii_idle(scheduler, access, "reloading")
+    if ctrl & _SII_CMD_ERRORS:
+        raise SiiError(f"{access.label}: SII reload failed (status 0x{ctrl:04X})")
+
+
+# --- slave objects from SII ------------------------------------------------------------
+
+
+def apply_sii(slave: Slave, image: bytes) -> None:
+    """Parse ``image`` and fill the slave's identity, name, mailbox and SII fields."""
+    slave.sii_image = image
+    try:
+        info: SiiInfo = parse_sii(image)
+    except SiiError as exc:
+        slave.sii_error = str(exc)
+        return
+    slave.sii = info
+    slave.identity = Identity(info.vendor_id, info.product_code, info.revision, info.serial)
+    slave.name = (info.device_name or info.order_number
+                  or f"0x{info.vendor_id:08X}:0x{info.product_code:08X}")
+    slave.mailbox = MailboxInfo(info.rx_mailbox_offset, info.rx_mailbox_size,
+                                info.tx_mailbox_offset, info.tx_mailbox_size,
+                                int(info.mailbox_protocols), info.boot_rx_mailbox_offset,
+                                info.boot_rx_mailbox_size, info.boot_tx_mailbox_offset,
+                                info.boot_tx_mailbox_size)
+    if not slave.alias and info.station_alias not in (0, 0xFFFF):
+        # The register wins; the SII word only fills in when the ESC did not load it.
+        slave.alias = info.station_alias
+
+
+# --- topology --------------------------------------------------------------------------
+
+
+def build_topology(slaves: Sequence[Slave]) -> bool:
+    """Set ``parent``, ``parent_port``, ``children`` and port peers from the open ports.
+
+    Returns True when the walk accounts for exactly the slaves found; False
+    when the ports do not explain the ring (then every slave that could not
+    be placed hangs on the slave before it, as SOEM would guess).
+    """
+    for s in slaves:
+        s.parent, s.parent_port, s.children = None, None, {}
+        for p in s.ports:
+            p.peer = None
+    if not slaves:
+        return True
+    next_pos = 1
+    consistent = True
+    order = (3, 1, 2)
+    stack: list[tuple[Slave, list[int]]] = [
+        (slaves[0], [p for p in order if slaves[0].ports[p].active])]
+    while stack:
+        slave, ports = stack[-1]
+        if not ports:
+            stack.pop()
+            continue
+        port = ports.pop(0)
+        if next_pos >= len(slaves):
+            # An open port with nothing behind it that processes frames (ring back to
+            # a second master port, a non-EtherCAT device): nothing to attach.
+            continue
+        child = slaves[next_pos]
+        next_pos += 1
+        _attach(slave, port, child)
+        stack.append((child, [p for p in order if child.ports[p].active]))
+    while next_pos < len(slaves):
+        consistent = False
+        prev, child = slaves[next_pos - 1], slaves[next_pos]
+        free = [p for p in (1, 3, 2) if p not in prev.children]
+        _attach(prev, free[0] if free else 1, child)
+        next_pos += 1
+    return consistent
+
+
+def _attach(parent: Slave, port: int, child: Slave) -> None:
+    child.parent = parent
+    child.parent_port = port
+    parent.children[port] = child
+    parent.ports[port].peer = child
+    child.ports[0].peer = parent
+
+
+# --- expected configuration ------------------------------------------------------------
+
+
+def check_expected(slaves: Sequence[Slave],
+                   expected: Sequence[Identity | ExpectedSlave]) -> None:
+    """Raise :class:`TopologyMismatchError` unless the slaves match ``expected`` position by position."""
+    for pos, item in enumerate(expected):
+        exp = item if isinstance(item, ExpectedSlave) else ExpectedSlave(item)
+        if pos >= len(slaves):
+            raise TopologyMismatchError(
+                f"position {pos}: expected {describe_identity(exp.identity, exp.name)}, "
+                f"found no slave (segment has {len(slaves)} slaves, expected {len(expected)})")
+        s = slaves[pos]
+        if not exp.identity.matches(s.identity):
+            raise TopologyMismatchError(
+                f"position {pos}: expected {describe_identity(exp.identity, exp.name)}, "
+                f"found {describe_identity(s.identity, s.name)}")
+        if exp.alias is not None and exp.alias != s.alias:
+            raise TopologyMismatchError(
+                f"position {pos} ({s.name}): expected alias {exp.alias}, found {s.alias}")
+    if len(slaves) > len(expected):
+        s = slaves[len(expected)]
+        raise TopologyMismatchError(
+            f"position {len(expected)}: expected no slave, found "
+            f"{describe_identity(s.identity, s.name)} (segment has {len(slaves)} slaves, "
+            f"expected {len(expected)})")
+
+
+# --- the whole scan --------------------------------------------------------------------
+
+
+def scan(scheduler: Scheduler, *, station_base: int = DEFAULT_STATION_BASE, reset: bool = True,
+         read_sii: bool = True, expected: Sequence[Identity | ExpectedSlave] | None = None,
+         progress: Progress | None = None,
+         max_sii_bytes: int = SII_DEFAULT_MAX_BYTES) -> list[Slave]:
+    """Find, address and identify every slave; returns them in ring order.
+
+    ``reset`` broadcasts INIT (with error acknowledge) and the start-up
+    defaults first; without it the slaves keep their states (a listing tool).
+    SII problems of one slave do not stop the scan: that slave gets
+    ``sii_error`` and no identity; a given ``expected`` configuration then
+    fails on it.
+    """
+    def report(stage: str, done: int, total: int) -> None:
+        if progress is not None:
+            progress(stage, done, total)
+
+    report("count", 0, 1)
+    count = count_slaves(scheduler)
+    report("count", 1, 1)
+    if reset:
+        reset_slaves(scheduler)
+    else:
+        take_sii_ownership(scheduler)
+    stations = assign_addresses(scheduler, count, station_base)
+    slaves = [Slave(pos, st) for pos, st in enumerate(stations)]
+    report("registers", 0, 1)
+    read_esc_info(scheduler, slaves)
+    report("registers", 1, 1)
+    if read_sii and slaves:
+        images = read_sii_batch(scheduler, [SiiAccess.of(s) for s in slaves],
+                                max_bytes=max_sii_bytes, progress=progress)
+        for s, img in zip(slaves, images, strict=True):
+            if isinstance(img, EtherCATError):
+                s.sii_error = str(img)
+            else:
+                apply_sii(s, img)
+    for s in slaves:
+        if not s.name:
+            s.name = "?"
+    build_topology(slaves)
+    if expected is not None:
+        check_expected(slaves, expected)
+    return slaves
+
+
+# Re-exported for callers that patch SII words (alias, checksum) before writing.
+SII_WORD_ALIAS = WORD_ALIAS
+SII_WORD_CHECKSUM = WORD_CHECKSUM

@@ -1,0 +1,232 @@
+"""The EtherCAT state machine from the master's side (facts 4).
+
+Requests go out as one AL control write per slave, all in the same frames;
+polling reads AL status and AL status code (0x0130-0x0135) of every slave
+still on its way with one multiple read per round. A slave that raises its
+error flag instead of reaching the state fails the wait with
+:class:`~pyethercat.errors.AlStatusError` (the AL status code and its name,
+the state it stays in); slaves that are still on their way when the time is
+up fail it with :class:`~pyethercat.errors.StateTimeoutError` naming each
+stuck slave and where it is.
+
+``set_state`` walks the standard path (INIT -> PREOP -> SAFEOP -> OP up;
+straight down; BOOT only from INIT), each step for all slaves at once.
+"""
+
+from __future__ import annotations
+
+import struct
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+from pyethercat.errors import AlStatusError, StateTimeoutError, WorkingCounterError
+from pyethercat.master.diag import multiple_read, multiple_write
+from pyethercat.master.scheduler import Scheduler
+from pyethercat.master.slave import Slave
+from pyethercat.wire.al import AlState, al_status_code_name, state_name
+from pyethercat.wire.registers import AL_CONTROL, AL_ERROR_FLAG, AL_STATE_MASK, AL_STATUS
+
+__all__ = [
+    "AlStatusReading",
+    "read_al_status",
+    "request_state",
+    "acknowledge_errors",
+    "wait_for_state",
+    "set_state",
+    "state_path",
+    "DEFAULT_STATE_TIMEOUT",
+]
+
+#: Seconds one transition may take before the wait gives up.
+DEFAULT_STATE_TIMEOUT = 5.0
+#: Pause between two polls on a real link (deterministic links poll back to back).
+DEFAULT_POLL_INTERVAL = 0.001
+# AL status (2 bytes), reserved (2), AL status code (2): one read covers all.
+_AL_READ_SIZE = 6
+_UP_ORDER = (AlState.INIT, AlState.PREOP, AlState.SAFEOP, AlState.OP)
+
+
+@dataclass(frozen=True, slots=True)
+class AlStatusReading:
+    """AL status of one slave as read: state bits, error flag, status code."""
+
+    station_address: int
+    state: int
+    error: bool
+    code: int
+    answered: bool = True
+
+    @property
+    def state_name(self) -> str:
+        return state_name(self.state | (AL_ERROR_FLAG if self.error else 0))
+
+    @property
+    def code_name(self) -> str:
+        return al_status_code_name(self.code)
+
+
+def _apply(slave: Slave, r: AlStatusReading) -> None:
+    if not r.answered:
+        return
+    try:
+        slave.al_state = AlState(r.state)
+    except ValueError:
+        slave.al_state = AlState.NONE
+    slave.al_error = r.error
+    slave.al_status_code = r.code if r.error else 0
+
+
+def read_al_status(scheduler: Scheduler, slaves: Sequence[Slave]) -> list[AlStatusReading]:
+    """AL status and code of every slave in one multiple read; updates the slaves."""
+    results = multiple_read(scheduler, [s.station_address for s in slaves], AL_STATUS,
+                            _AL_READ_SIZE)
+    out: list[AlStatusReading] = []
+    for slave, res in zip(slaves, results, strict=True):
+        status, _reserved, code = struct.unpack("<HHH", res.data)
+        reading = AlStatusReading(res.station_address, status & AL_STATE_MASK,
+                                  bool(status & AL_ERROR_FLAG), code, res.ok)
+        _apply(slave, reading)
+        out.append(reading)
+    return out
+
+
+def request_state(scheduler: Scheduler, slaves: Sequence[Slave], state: AlState | int,
+                  ack: bool = False) -> None:
+    """Write the requested state (with the error-acknowledge bit if ``ack``) to every slave."""
+    value = int(state) | (AL_ERROR_FLAG if ack else 0)
+    wkcs = multiple_write(scheduler, [s.station_address for s in slaves], AL_CONTROL,
+                          struct.pack("<H", value))
+    missing = [s for s, w in zip(slaves, wkcs, strict=True) if w != 1]
+    if missing:
+        names = ", ".join(s.describe() for s in missing[:5])
+        more = f" and {len(missing) - 5} more" if len(missing) > 5 else ""
+        raise WorkingCounterError(
+            f"AL control write ({state_name(int(state))}) not taken by {names}{more}", 1, 0)
+
+
+def acknowledge_errors(scheduler: Scheduler, slaves: Sequence[Slave]) -> list[Slave]:
+    """Acknowledge the error flag of every slave that shows one; returns those slaves.
+
+    The acknowledge writes the state the slave is in with the error bit
+    (what IgH does), so the slave stays where it is and clears the flag.
+    """
+    readings = read_al_status(scheduler, slaves)
+    flagged = [(s, r) for s, r in zip(slaves, readings, strict=True) if r.answered and r.error]
+    if not flagged:
+        return []
+    stations = [s.station_address for s, _ in flagged]
+    values = [struct.pack("<H", (r.state or int(AlState.INIT)) | AL_ERROR_FLAG) for _, r in flagged]
+    multiple_write(scheduler, stations, AL_CONTROL, values)
+    return [s for s, _ in flagged]
+
+
+def _stuck_message(target: AlState | int, stuck: list[tuple[Slave, AlStatusReading | None]],
+                   timeout: float) -> str:
+    parts = []
+    for slave, r in stuck[:8]:
+        where = "no answer" if r is None or not r.answered else f"in {r.state_name}"
+        parts.append(f"{slave.describe()} {where}")
+    more = f" and {len(stuck) - 8} more" if len(stuck) > 8 else ""
+    return (f"{len(stuck)} slave{'s' if len(stuck) != 1 else ''} did not reach "
+            f"{state_name(int(target))} within {timeout:g} s: {'; '.join(parts)}{more}")
+
+
+def wait_for_state(scheduler: Scheduler, slaves: Sequence[Slave], state: AlState | int,
+                   timeout: float = DEFAULT_STATE_TIMEOUT,
+                   poll_interval: float = DEFAULT_POLL_INTERVAL,
+                   clock: Callable[[], float] = time.monotonic,
+                   sleep: Callable[[float], None] = time.sleep) -> None:
+    """Poll until every slave is in ``state``.
+
+    Raises :class:`AlStatusError` for the first slave that sets its error
+    flag while not in ``state`` (the message names every such slave), and
+    :class:`StateTimeoutError` naming the slaves still on their way.
+    """
+    target = int(state)
+    pending = list(slaves)
+    last: dict[int, AlStatusReading] = {}
+    deadline = clock() + timeout
+    while pending:
+        readings = read_al_status(scheduler, pending)
+        refused: list[tuple[Slave, AlStatusReading]] = []
+        still: list[Slave] = []
+        for slave, r in zip(pending, readings, strict=True):
+            last[slave.position] = r
+            if r.answered and r.state == target and not r.error:
+                continue
+            if r.answered and r.error and r.state != target:
+                refused.append((slave, r))
+            else:
+                still.append(slave)
+        if refused:
+            slave, r = refused[0]
+            text = (f"{slave.describe()} refused {state_name(target)}, "
+                    f"stays in {r.state_name}")
+            if len(refused) > 1:
+                text += "; also " + ", ".join(
+                    f"{s.describe()} (0x{x.code:04X} {x.code_name})" for s, x in refused[1:5])
+            raise AlStatusError(text, r.code, r.code_name)
+        pending = still
+        if not pending:
+            return
+        if clock() >= deadline:
+            raise StateTimeoutError(_stuck_message(
+                state, [(s, last.get(s.position)) for s in pending], timeout))
+        if poll_interval > 0:
+            sleep(poll_interval)
+
+
+def state_path(current: AlState | int, target: AlState | int) -> list[AlState]:
+    """The states to request one after the other to get from ``current`` to ``target``."""
+    cur, tgt = int(current) & AL_STATE_MASK, AlState(int(target))
+    if cur == tgt:
+        return [tgt]
+    if tgt == AlState.BOOT:
+        return [AlState.BOOT] if cur == AlState.INIT else [AlState.INIT, AlState.BOOT]
+    if cur == AlState.BOOT or cur not in _UP_ORDER:
+        start = AlState.INIT
+        path = [AlState.INIT]
+    else:
+        start = AlState(cur)
+        path = []
+    i, j = _UP_ORDER.index(start), _UP_ORDER.index(tgt)
+    if j > i:
+        path += list(_UP_ORDER[i + 1:j + 1])
+    elif j < i:
+        path.append(tgt)  # going down may skip states
+    return path or [tgt]
+
+
+def set_state(scheduler: Scheduler, slaves: Sequence[Slave], state: AlState | int,
+              timeout: float = DEFAULT_STATE_TIMEOUT, *, ack_errors: bool = True,
+              poll_interval: float = DEFAULT_POLL_INTERVAL,
+              clock: Callable[[], float] = time.monotonic,
+              sleep: Callable[[float], None] = time.sleep) -> None:
+    """Bring every slave to ``state`` step by step (all slaves per step at once).
+
+    ``timeout`` applies to each step. With ``ack_errors`` pending error
+    flags are acknowledged first (a slave ignores requests while flagged).
+    """
+    target = AlState(int(state))
+    if not slaves:
+        return
+    if ack_errors:
+        acknowledge_errors(scheduler, slaves)
+    readings = read_al_status(scheduler, slaves)
+    # Group slaves by the path they need; run the steps in lockstep.
+    paths = {s.position: state_path(r.state if r.answered else AlState.INIT, target)
+             for s, r in zip(slaves, readings, strict=True)}
+    steps = max(len(p) for p in paths.values())
+    for n in range(steps):
+        # Slaves with shorter paths sit at their target while others catch up.
+        by_state: dict[AlState, list[Slave]] = {}
+        for s in slaves:
+            p = paths[s.position]
+            step = p[n - (steps - len(p))] if n >= steps - len(p) else None
+            if step is not None:
+                by_state.setdefault(step, []).append(s)
+        for step, group in by_state.items():
+            request_state(scheduler, group, step)
+        for step, group in by_state.items():
+            wait_for_state(scheduler, group, step, timeout, poll_interval, clock, sleep)
