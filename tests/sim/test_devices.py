@@ -48,6 +48,7 @@ def test_image_parses_strictly_with_identity(key: str) -> None:
     )
     assert info.device_name == dev.name
     assert info.order_number == dev.order
+    assert info.strings[0] == dev.order.encode()  # string 1: what SOEM shows as the name
     assert info.input_bits == dev.input_bits
     assert info.output_bits == dev.output_bits
     # Image bytes 0x10/0x14 hold vendor id/product code, little endian.

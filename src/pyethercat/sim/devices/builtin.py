@@ -131,7 +131,7 @@ class BuiltinDevice:
 
     key: str  # "di8": the name after "builtin:" in a topology file
     product_code: int
-    order: str  # order number string, e.g. "PEC-DI8"
+    order: str  # order number string, e.g. "PEC-DI8" (string 1: SOEM's slave name)
     name: str  # device name string (what SOEM shows as the slave name)
     group: str
     profile: str  # default ESC profile (sim.esc.PROFILES key)
@@ -175,8 +175,10 @@ class BuiltinDevice:
                 strings.append(raw)
             return strings.index(raw) + 1
 
-        group_i = intern(self.group)
+        # String 1 is the order number, as in Beckhoff's images: SOEM takes
+        # string 1 as the slave's name, whatever the General name index says.
         order_i = intern(self.order)
+        group_i = intern(self.group)
         name_i = intern(self.name)
 
         def sii_pdos(ctype: int, pdos: tuple[Pdo, ...]) -> SiiPdos:
