@@ -1,0 +1,681 @@
+"""Cyclic process-data exchange: the loop, its statistics, supervision and recovery.
+
+``CyclicRunner`` runs the process-data groups of a configured master at
+absolute deadlines (``start + k * period``): it sleeps until shortly before
+the deadline and busy-waits the last slice, so wake-up jitter is the spin
+granularity, not the scheduler's timer slack. Each cycle it copies every due
+group's buffer into its datagrams (one LRW, or LWR + LRD, per 1486-byte
+chunk), sends them through the master's scheduler (queued acyclic datagrams
+ride in the spare room of the frame), copies the replies' input bytes back
+and compares one working counter per datagram. No per-slave work happens on
+that path.
+
+Several groups may run at different cycle times (seed 004, "cyclic mode"):
+the loop ticks at the shortest period and sends a group every
+``period / tick`` ticks.
+
+Supervision, between cycles and cheap: every ``check_interval`` seconds a
+BRD of AL status (2 bytes) rides in a cyclic frame. Its working counter is
+the number of slaves that answered and its data the OR of their states; when
+either is off, or a group's working counter was wrong, the next frames carry
+one FPRD of AL status per slave (the "multiple read"), which names the slaves
+that dropped out of the requested state or vanished. A recovery thread (never
+the cycle thread) brings them back: a slave that answers again at position p
+with station address 0 was power-cycled, so it gets its address, its sync
+managers and FMMUs again, and is walked up to the requested state; a slave
+that only left OP is acknowledged and requested again. The master is never
+restarted.
+
+Statistics (``CycleStats``): cycles, period and wake-up latency percentiles,
+a period-jitter histogram, late cycles, overruns (and how many of them the
+user callback caused), skipped deadlines, working-counter errors, lost
+frames, round-trip times.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+import numpy.typing as npt
+
+from pyethercat.errors import ConfigError, EtherCATError
+from pyethercat.master.config import CyclicDatagram, GroupConfig, ProcessDataConfig
+from pyethercat.master.image import ProcessImage
+from pyethercat.master.scheduler import CyclicFrame, Request, Scheduler
+from pyethercat.wire import registers as reg
+from pyethercat.wire.al import AlState, state_name
+from pyethercat.wire.datagram import MAX_PAYLOAD, Command, Datagram
+
+__all__ = [
+    "Clock",
+    "PerfClock",
+    "VirtualClock",
+    "CycleStats",
+    "Cycle",
+    "GroupRuntime",
+    "CyclicRunner",
+    "SlaveHealth",
+    "JITTER_BINS_US",
+]
+
+#: Upper edges (µs) of the period-jitter histogram bins; the last bin is open.
+JITTER_BINS_US = (1, 2, 5, 10, 20, 50, 100, 200, 500, 1000)
+
+
+# --- time ----------------------------------------------------------------------------
+
+
+class Clock(Protocol):
+    """Time source of the loop: nanoseconds and waiting for a deadline."""
+
+    def now_ns(self) -> int: ...
+
+    def sleep_until(self, deadline_ns: int) -> None: ...
+
+
+class PerfClock:
+    """``time.perf_counter_ns`` with sleep-then-spin waiting.
+
+    ``spin_ns`` is the slice before a deadline spent busy-waiting instead of
+    sleeping (the OS timer may wake us late by tens of microseconds).
+    """
+
+    def __init__(self, spin_ns: int = 100_000) -> None:
+        self.spin_ns = spin_ns
+
+    def now_ns(self) -> int:
+        return time.perf_counter_ns()
+
+    def sleep_until(self, deadline_ns: int) -> None:
+        left = deadline_ns - time.perf_counter_ns()
+        if left > self.spin_ns:
+            time.sleep((left - self.spin_ns) / 1e9)
+        while time.perf_counter_ns() < deadline_ns:
+            pass
+
+
+class VirtualClock:
+    """Deterministic clock for tests: ``sleep_until`` jumps; ``advance`` models work."""
+
+    def __init__(self, start_ns: int = 0) -> None:
+        self.now = start_ns
+
+    def now_ns(self) -> int:
+        return self.now
+
+    def sleep_until(self, deadline_ns: int) -> None:
+        self.now = max(self.now, deadline_ns)
+
+    def advance(self, ns: int) -> None:
+        self.now += ns
+
+
+# --- statistics ------------------------------------------------------------------------
+
+
+class CycleStats:
+    """Counters and timing samples of a cyclic loop.
+
+    Samples (period, wake-up latency, round trip; nanoseconds) are kept in
+    fixed numpy ring buffers of ``capacity`` entries, so memory does not grow
+    with run time; percentiles cover the last ``capacity`` cycles.
+    """
+
+    def __init__(self, period_ns: int, capacity: int = 1 << 18) -> None:
+        self.period_ns = period_ns
+        self.capacity = capacity
+        self.cycles = 0
+        self.late = 0
+        self.overruns = 0
+        self.callback_overruns = 0
+        self.skipped = 0
+        self.wkc_errors = 0
+        self.lost_frames = 0
+        self.frames = 0
+        self._periods = np.zeros(capacity, dtype=np.int64)
+        self._latency = np.zeros(capacity, dtype=np.int64)
+        self._rtt = np.zeros(capacity, dtype=np.int64)
+        self._n_period = 0
+        self._n_rtt = 0
+        self._last_start: int | None = None
+        self.histogram = [0] * (len(JITTER_BINS_US) + 1)
+        self._edges_ns = [b * 1000 for b in JITTER_BINS_US]
+        self.started_ns: int | None = None
+        self.last_ns: int | None = None
+
+    def record_start(self, deadline_ns: int, start_ns: int, late_threshold_ns: int) -> None:
+        """One cycle began at ``start_ns`` for ``deadline_ns``."""
+        self.cycles += 1
+        if self.started_ns is None:
+            self.started_ns = start_ns
+        self.last_ns = start_ns
+        latency = start_ns - deadline_ns
+        i = (self.cycles - 1) % self.capacity
+        self._latency[i] = latency
+        if latency > late_threshold_ns:
+            self.late += 1
+        if self._last_start is not None:
+            period = start_ns - self._last_start
+            j = self._n_period % self.capacity
+            self._periods[j] = period
+            self._n_period += 1
+            dev = abs(period - self.period_ns)
+            k = 0
+            for edge in self._edges_ns:
+                if dev < edge:
+                    break
+                k += 1
+            self.histogram[k] += 1
+        self._last_start = start_ns
+
+    def record_round_trip(self, ns: int) -> None:
+        self._rtt[self._n_rtt % self.capacity] = ns
+        self._n_rtt += 1
+
+    def restart_period(self) -> None:
+        """Forget the previous start (after skipped deadlines the period is not a sample)."""
+        self._last_start = None
+
+    # -- views --------------------------------------------------------------------
+
+    def periods(self) -> npt.NDArray[np.int64]:
+        return self._periods[:min(self._n_period, self.capacity)].copy()
+
+    def latencies(self) -> npt.NDArray[np.int64]:
+        return self._latency[:min(self.cycles, self.capacity)].copy()
+
+    def round_trips(self) -> npt.NDArray[np.int64]:
+        return self._rtt[:min(self._n_rtt, self.capacity)].copy()
+
+    @staticmethod
+    def _pct(samples: npt.NDArray[np.int64], qs: Sequence[float]) -> dict[str, float]:
+        if samples.size == 0:
+            return {f"p{q:g}": math.nan for q in qs}
+        values = np.percentile(samples, qs)
+        return {f"p{q:g}": float(v) / 1000.0 for q, v in zip(qs, values, strict=True)}
+
+    def jitter_us(self, qs: Sequence[float] = (50, 90, 99, 99.9, 100)) -> dict[str, float]:
+        """Percentiles of |period - nominal| in µs."""
+        return self._pct(np.abs(self.periods() - self.period_ns), qs)
+
+    def latency_us(self, qs: Sequence[float] = (50, 90, 99, 99.9, 100)) -> dict[str, float]:
+        """Percentiles of wake-up latency (start - deadline) in µs."""
+        return self._pct(self.latencies(), qs)
+
+    def round_trip_us(self, qs: Sequence[float] = (50, 90, 99, 100)) -> dict[str, float]:
+        """Percentiles of the process-data round trip in µs."""
+        return self._pct(self.round_trips(), qs)
+
+    def period_us(self) -> dict[str, float]:
+        p = self.periods()
+        if p.size == 0:
+            return {"mean": math.nan, "min": math.nan, "max": math.nan}
+        return {"mean": float(p.mean()) / 1000, "min": float(p.min()) / 1000,
+                "max": float(p.max()) / 1000}
+
+    def summary(self) -> dict[str, object]:
+        """Everything as plain numbers (for printing and JSON)."""
+        return {
+            "cycles": self.cycles, "period_us": self.period_ns / 1000,
+            "late": self.late, "overruns": self.overruns,
+            "callback_overruns": self.callback_overruns, "skipped": self.skipped,
+            "wkc_errors": self.wkc_errors, "lost_frames": self.lost_frames,
+            "frames": self.frames,
+            "period": self.period_us(), "jitter_us": self.jitter_us(),
+            "latency_us": self.latency_us(), "round_trip_us": self.round_trip_us(),
+            "histogram": dict(zip([f"<{b}us" for b in JITTER_BINS_US] + [f">={JITTER_BINS_US[-1]}us"],
+                                  self.histogram, strict=True)),
+        }
+
+
+# --- groups ----------------------------------------------------------------------------
+
+
+class GroupRuntime:
+    """A group's image plus its precomputed datagram plan and counters."""
+
+    def __init__(self, config: GroupConfig, image: ProcessImage, every: int = 1) -> None:
+        self.config = config
+        self.image = image
+        self.name = config.name
+        #: The group is sent every ``every`` loop ticks.
+        self.every = every
+        self.plan: list[CyclicDatagram] = list(config.datagrams)
+        self.expected_wkc = config.expected_wkc
+        #: Working counters of the last exchange, per datagram.
+        self.last_wkc: list[int] = [0] * len(self.plan)
+        self.wkc_ok = False
+        self.wkc_errors = 0
+        self.lost = 0
+        self.exchanges = 0
+
+    @property
+    def total_wkc(self) -> int:
+        return sum(self.last_wkc)
+
+    def datagrams(self) -> list[Datagram]:
+        buf = self.image.buffer
+        return [Datagram(d.command, 0, d.logical_address, bytes(buf[d.offset:d.offset + d.length]))
+                for d in self.plan]
+
+    def take_replies(self, replies: Sequence[Datagram]) -> bool:
+        """Copy input bytes back; return whether every working counter matched."""
+        buf = self.image.buffer
+        ok = True
+        for n, (d, r) in enumerate(zip(self.plan, replies, strict=True)):
+            self.last_wkc[n] = r.wkc
+            if r.wkc != d.expected_wkc:
+                ok = False
+            if d.copy_end > d.copy_start:
+                lo = d.copy_start - d.offset
+                buf[d.copy_start:d.copy_end] = r.data[lo:lo + d.copy_end - d.copy_start]
+        return ok
+
+
+@dataclass
+class Cycle:
+    """What one cycle did (handed to the callback and yielded by ``cycles()``)."""
+
+    index: int = 0
+    deadline_ns: int = 0
+    start_ns: int = 0
+    round_trip_ns: int = 0
+    wkc_ok: bool = True
+    lost: bool = False
+    groups: tuple[str, ...] = ()
+
+
+@dataclass
+class SlaveHealth:
+    """Supervision state of one slave."""
+
+    position: int
+    station_address: int
+    state: int = 0
+    error: bool = False
+    code: int = 0
+    present: bool = True
+    #: "ok", "dropped" (answers, not in the requested state), "vanished", "recovering"
+    status: str = "ok"
+    recoveries: int = 0
+    lost_since_ns: int | None = None
+
+
+@dataclass
+class _Event:
+    t: float
+    text: str
+
+
+# --- the runner ---------------------------------------------------------------------------
+
+
+class CyclicRunner:
+    """The cyclic loop over one or more groups (see the module text).
+
+    ``slaves`` are the master's slave objects (``position``,
+    ``station_address``, ``al_state``); ``reconfigure(slave)`` is called from
+    the recovery thread to rewrite a slave's configuration and bring it back
+    to ``target`` (the master passes its own; tests may pass a fake).
+    """
+
+    def __init__(self, scheduler: Scheduler, config: ProcessDataConfig,
+                 images: dict[str, ProcessImage], slaves: Sequence[object], *,
+                 cycle: float = 0.001, clock: Clock | None = None,
+                 callback: Callable[[Cycle], None] | None = None,
+                 check_interval: float = 0.1, target: AlState = AlState.OP,
+                 recover: Callable[[list[int]], None] | None = None,
+                 groups: Sequence[str] | None = None, late_fraction: float = 0.25,
+                 frame_timeout: float | None = None) -> None:
+        if cycle <= 0:
+            raise ConfigError(f"cycle time must be positive, got {cycle}")
+        self.scheduler = scheduler
+        self.config = config
+        self.images = images
+        self.slaves = list(slaves)
+        self.clock: Clock = clock or PerfClock()
+        self.callback = callback
+        self.target = target
+        self.recover_fn = recover
+        self.check_interval = check_interval
+        self.frame_timeout = frame_timeout
+        names = list(groups) if groups is not None else [g.name for g in config.groups]
+        tick = min([cycle] + [config.group(n).cycle or cycle for n in names])
+        self.period_ns = int(round(tick * 1e9))
+        self.groups: list[GroupRuntime] = []
+        for n in names:
+            g = config.group(n)
+            g_cycle = g.cycle or cycle
+            every = max(1, int(round(g_cycle / tick)))
+            if abs(every * tick - g_cycle) > 1e-9 + 1e-6 * g_cycle:
+                raise ConfigError(f"group {n!r}: cycle {g_cycle} s is not a multiple of the "
+                                  f"loop tick {tick} s")
+            self.groups.append(GroupRuntime(g, images[n], every))
+        self.stats = CycleStats(self.period_ns)
+        self.late_threshold_ns = int(self.period_ns * late_fraction)
+        self.health: dict[int, SlaveHealth] = {
+            int(getattr(s, "position")): SlaveHealth(int(getattr(s, "position")),  # noqa: B009
+                                                     int(getattr(s, "station_address")))  # noqa: B009
+            for s in self.slaves}
+        self.events: deque[_Event] = deque(maxlen=200)
+        self.cycle = Cycle()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._cond = threading.Condition()
+        self._check_every = max(1, int(round(check_interval / tick))) if check_interval > 0 else 0
+        self._brd: Request | None = None
+        self._detail: list[Request] | None = None
+        self._want_detail = False
+        self._recover_thread: threading.Thread | None = None
+        self._recover_lock = threading.Lock()
+        self.error: BaseException | None = None
+        self.consumer_missed = 0
+
+    # -- control ------------------------------------------------------------------------
+
+    def start(self) -> CyclicRunner:
+        """Run the loop in a background thread."""
+        if self._thread is not None and self._thread.is_alive():
+            raise ConfigError("the cyclic loop is already running")
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._thread_main, name="ecat-cyclic", daemon=True)
+        self._thread.start()
+        return self
+
+    def _thread_main(self) -> None:
+        try:
+            self.run()
+        except BaseException as exc:  # noqa: BLE001 - kept and re-raised by join()
+            self.error = exc
+            self.log(f"cyclic loop stopped: {exc}")
+        finally:
+            with self._cond:
+                self._cond.notify_all()
+
+    def stop(self) -> None:
+        """Ask the loop to stop and wait for it."""
+        self._stop.set()
+        self.join()
+
+    def join(self, timeout: float | None = None) -> None:
+        t = self._thread
+        if t is not None and t is not threading.current_thread():
+            t.join(timeout)
+        r = self._recover_thread
+        if r is not None and r is not threading.current_thread():
+            r.join(timeout)
+        if self.error is not None and not isinstance(self.error, KeyboardInterrupt):
+            err, self.error = self.error, None
+            raise err
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def __enter__(self) -> CyclicRunner:
+        return self if self._thread is not None else self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def log(self, text: str) -> None:
+        self.events.append(_Event(time.time(), text))
+
+    # -- the loop --------------------------------------------------------------------------
+
+    def run(self, seconds: float | None = None, cycles: int | None = None) -> CycleStats:
+        """Run in the calling thread until ``stop()``, ``seconds`` or ``cycles``."""
+        clock = self.clock
+        period = self.period_ns
+        start = clock.now_ns() + period
+        end = None if seconds is None else start + int(seconds * 1e9)
+        k = 0
+        done = 0
+        stats = self.stats
+        cyc = self.cycle
+        while not self._stop.is_set():
+            deadline = start + k * period
+            if end is not None and deadline >= end:
+                break
+            if cycles is not None and done >= cycles:
+                break
+            clock.sleep_until(deadline)
+            t0 = clock.now_ns()
+            stats.record_start(deadline, t0, self.late_threshold_ns)
+            due = [g for g in self.groups if k % g.every == 0]
+            ok, lost, rtt = self._exchange(due, k)
+            stats.record_round_trip(rtt)
+            cyc.index, cyc.deadline_ns, cyc.start_ns = k, deadline, t0
+            cyc.round_trip_ns, cyc.wkc_ok, cyc.lost = rtt, ok, lost
+            cyc.groups = tuple(g.name for g in due)
+            t1 = clock.now_ns()
+            if self.callback is not None:
+                self.callback(cyc)
+            t2 = clock.now_ns()
+            nxt = deadline + period
+            if t2 > nxt:
+                stats.overruns += 1
+                if t1 <= nxt:
+                    stats.callback_overruns += 1
+                    if stats.callback_overruns in (1, 10, 100, 1000):
+                        self.log(f"callback overran the cycle ({(t2 - t1) / 1000:.0f} us); "
+                                 f"{stats.callback_overruns} so far")
+                # Resume at the first deadline still ahead instead of bursting to catch up.
+                steps = -(-(t2 - deadline) // period)
+                if steps > 1:
+                    stats.skipped += int(steps - 1)
+                    k += int(steps - 1)
+                    stats.restart_period()
+            k += 1
+            done += 1
+            with self._cond:
+                self._cond.notify_all()
+        return stats
+
+    def _exchange(self, due: list[GroupRuntime], k: int) -> tuple[bool, bool, int]:
+        """One cycle's frames: send, wait, copy back, check WKC."""
+        sched = self.scheduler
+        clock = self.clock
+        self._supervise_before(k)
+        frames: list[tuple[list[GroupRuntime], list[Datagram]]] = []
+        cur_groups: list[GroupRuntime] = []
+        cur: list[Datagram] = []
+        used = 0
+        for g in due:
+            dgs = g.datagrams()
+            size = sum(d.size for d in dgs)
+            if cur and used + size > MAX_PAYLOAD:
+                frames.append((cur_groups, cur))
+                cur_groups, cur, used = [], [], 0
+            if size > MAX_PAYLOAD:
+                # A split group: one frame per datagram (each fits by construction).
+                for d in dgs:
+                    frames.append(([g], [d]))
+                continue
+            cur_groups.append(g)
+            cur += dgs
+            used += size
+        if cur:
+            frames.append((cur_groups, cur))
+        t0 = clock.now_ns()
+        tickets: list[CyclicFrame] = [sched.send_cyclic(dgs, timeout=self.frame_timeout)
+                                      for _, dgs in frames]
+        ok = True
+        lost = False
+        partial: dict[str, list[Datagram]] = {}
+        for (groups, dgs), ticket in zip(frames, tickets, strict=True):
+            self.stats.frames += 1
+            replies = ticket.wait()
+            if replies is None:
+                lost = True
+                self.stats.lost_frames += 1
+                for g in groups:
+                    g.lost += 1
+                    g.wkc_ok = False
+                continue
+            if len(groups) == 1 and len(dgs) < len(groups[0].plan):
+                partial.setdefault(groups[0].name, []).extend(replies)
+                continue
+            i = 0
+            for g in groups:
+                n = len(g.plan)
+                good = g.take_replies(replies[i:i + n])
+                i += n
+                self._account(g, good)
+                ok = ok and good
+        for name, replies in partial.items():
+            g = next(x for x in self.groups if x.name == name)
+            if len(replies) == len(g.plan):
+                good = g.take_replies(replies)
+                self._account(g, good)
+                ok = ok and good
+        rtt = clock.now_ns() - t0
+        self._supervise_after(ok and not lost)
+        return ok and not lost, lost, rtt
+
+    def _account(self, g: GroupRuntime, good: bool) -> None:
+        g.exchanges += 1
+        g.wkc_ok = good
+        if not good:
+            g.wkc_errors += 1
+            self.stats.wkc_errors += 1
+
+    # -- supervision ----------------------------------------------------------------------
+
+    def _supervise_before(self, k: int) -> None:
+        """Queue the cheap check (or the per-slave read) so it rides in this cycle's frame."""
+        if not self._check_every or not self.slaves:
+            return
+        sched = self.scheduler
+        if self._want_detail and self._detail is None:
+            self._want_detail = False
+            self._detail = sched.submit(
+                [Datagram.device(Command.FPRD, h.station_address, reg.AL_STATUS, 6)
+                 for h in self.health.values()], flush=False)
+        elif self._brd is None and k % self._check_every == 0:
+            self._brd = sched.submit([Datagram.device(Command.BRD, 0, reg.AL_STATUS, 2)],
+                                     flush=False)[0]
+
+    def _supervise_after(self, wkc_good: bool) -> None:
+        if not self._check_every or not self.slaves:
+            return
+        if not wkc_good and self._detail is None:
+            self._want_detail = True
+        brd = self._brd
+        if brd is not None and brd.done():
+            self._brd = None
+            if brd.reply is not None:
+                state = brd.reply.data[0] if brd.reply.data else 0
+                count = brd.reply.wkc
+                want = int(self.target)
+                if count != len(self.slaves) or (state & 0x1F) != want or self._any_unhealthy():
+                    self._want_detail = True
+        detail = self._detail
+        if detail is not None and all(r.done() for r in detail):
+            self._detail = None
+            self._evaluate(detail)
+
+    def _any_unhealthy(self) -> bool:
+        return any(h.status != "ok" for h in self.health.values())
+
+    def _evaluate(self, detail: list[Request]) -> None:
+        now = self.clock.now_ns()
+        bad: list[int] = []
+        for h, r in zip(self.health.values(), detail, strict=True):
+            rep = r.reply
+            if rep is None or rep.wkc != 1:
+                if h.present:
+                    h.present = False
+                    h.lost_since_ns = now
+                    self.log(f"slave {h.position} (0x{h.station_address:04X}) vanished")
+                if h.status != "recovering":
+                    h.status = "vanished"
+                bad.append(h.position)
+                continue
+            status, _res, code = struct.unpack("<HHH", rep.data)
+            h.state, h.error, h.code = status & 0x0F, bool(status & 0x10), code
+            h.present = True
+            if h.state == int(self.target) and not h.error:
+                if h.status != "ok":
+                    took = "" if h.lost_since_ns is None else \
+                        f" after {(now - h.lost_since_ns) / 1e9:.2f} s"
+                    self.log(f"slave {h.position} back in {state_name(h.state)}{took}")
+                    h.recoveries += 1 if h.status == "recovering" else 0
+                h.status = "ok"
+                h.lost_since_ns = None
+                continue
+            if h.status == "ok":
+                h.lost_since_ns = now
+                self.log(f"slave {h.position} left {state_name(int(self.target))}: now "
+                         f"{state_name(status & 0x1F)}" + (f" (AL code 0x{code:04X})" if h.error else ""))
+            if h.status != "recovering":
+                h.status = "dropped"
+            bad.append(h.position)
+        if bad:
+            self._start_recovery(bad)
+
+    def _start_recovery(self, positions: list[int]) -> None:
+        if self.recover_fn is None:
+            return
+        r = self._recover_thread
+        if r is not None and r.is_alive():
+            return
+        for p in positions:
+            self.health[p].status = "recovering"
+
+        def work() -> None:
+            with self._recover_lock:
+                try:
+                    assert self.recover_fn is not None
+                    self.recover_fn(positions)
+                except EtherCATError as exc:
+                    self.log(f"recovery of slaves {positions} not done yet: {exc}")
+                except Exception as exc:  # noqa: BLE001 - a bug must not kill the loop
+                    self.log(f"recovery of slaves {positions} failed: {exc!r}")
+                finally:
+                    # Look again soon; the check decides whether it worked.
+                    self._want_detail = True
+
+        self._recover_thread = threading.Thread(target=work, name="ecat-recover", daemon=True)
+        self._recover_thread.start()
+
+    # -- consuming cycles ---------------------------------------------------------------------
+
+    def cycles(self, timeout: float = 1.0) -> Iterator[Cycle]:
+        """Yield a snapshot of each cycle as it completes (the loop runs in its thread).
+
+        A slow consumer does not slow the loop: cycles it could not see are
+        counted in ``consumer_missed``. Ends when the loop stops.
+        """
+        last = -1
+        while True:
+            with self._cond:
+                while self.cycle.index == last or self.stats.cycles == 0:
+                    if not self.running:
+                        return
+                    if not self._cond.wait(timeout) and not self.running:
+                        return
+                snap = Cycle(self.cycle.index, self.cycle.deadline_ns, self.cycle.start_ns,
+                             self.cycle.round_trip_ns, self.cycle.wkc_ok, self.cycle.lost,
+                             self.cycle.groups)
+            if last >= 0 and snap.index > last + 1:
+                self.consumer_missed += snap.index - last - 1
+            last = snap.index
+            yield snap
+
+    def status_lines(self) -> list[str]:
+        """Short text for live views and logs."""
+        lines = []
+        for g in self.groups:
+            lines.append(f"group {g.name}: WKC {g.total_wkc}/{g.expected_wkc} "
+                         f"{'ok' if g.wkc_ok else 'BAD'}; errors {g.wkc_errors}, lost {g.lost}")
+        return lines
+
