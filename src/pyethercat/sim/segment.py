@@ -1,17 +1,92 @@
-"""A simulated EtherCAT segment: slaves joined port to port (skeleton, API final)."""
+"""A simulated EtherCAT segment: slaves joined port to port (issue 3).
+
+:meth:`Segment.process` takes one Ethernet frame from the master (it enters
+the first slave's port 0) and returns the frame as it comes back, or None if
+it is lost (open port without link, CRC error, drop, circulating frame).
+
+The frame walk follows the port order 0 -> processing unit -> 3 -> 1 -> 2 ->
+0 of every slave; closed ports (no link, or loop control) send the frame
+back at once, so a broken link closes the loop at the port before it (seed
+000, Bild 5c/5d). The walk is computed once per topology change: the list of
+processing-unit passes (the route), the arrival time at every port (DC
+receive times) and the total forwarding delay.
+
+Datagrams are processed one after the other, each for all slaves on the
+route ("datagram-major"). This is equivalent to the wire order because
+slaves share nothing but the frame: the only cross-slave effect inside one
+frame is the logical image, which ``sim.fmmu`` keeps in route order.
+Logical commands and broadcasts are array operations over the memory array;
+configured/positional commands address one slave through its :class:`Esc`.
+Broadcast writes to registers with per-slave side effects (AL control, SII,
+sync managers, DL control, DC cyclic unit) take a per-slave path: those are
+configuration-time writes, never cyclic ones.
+
+Time: :meth:`tick` runs the time-driven parts (process-data watchdogs,
+SYNC0/SYNC1 events to device applications); :meth:`process` calls it first.
+With a :class:`VirtualClock` (the default) each processed frame advances the
+clock by its modelled wire time (frame bytes x ``mac_wire_ns`` plus the
+forwarding and cable delays), so DC times move as on a real segment; set
+``advance_clock = False`` to drive time only from outside.
+"""
 
 from __future__ import annotations
 
+import random
+import struct
 from dataclasses import dataclass
+from typing import Any
 
+import numpy as np
+import numpy.typing as npt
+
+from pyethercat.errors import ConfigError
 from pyethercat.sim.clock import Clock, VirtualClock
 from pyethercat.sim.device import DeviceApp
+from pyethercat.sim.esc import SIDE_EFFECT_MASK, Esc
+from pyethercat.sim.fmmu import SLAVE_STRIDE, LogicalMap, parse_fmmus
+from pyethercat.sim.memory import EscMemory
 from pyethercat.sim.profiles import EscProfile
+from pyethercat.wire import registers as R
+from pyethercat.wire.al import AlState
+from pyethercat.wire.datagram import (
+    CIRCULATING_BIT,
+    HEADER,
+    HEADER_SIZE,
+    LEN_MASK,
+    MORE_BIT,
+    WKC_SIZE,
+    Command,
+)
+from pyethercat.wire.frame import (
+    ECAT_HEADER_SIZE,
+    ECAT_LENGTH_MASK,
+    ECAT_TYPE_SHIFT,
+    ETH_HEADER_SIZE,
+    ETHERTYPE_ETHERCAT,
+    ETHERTYPE_VLAN,
+    LOCALLY_ADMINISTERED_BIT,
+    FrameType,
+)
+
+I64 = npt.NDArray[np.int64]
+
+#: Next port in the forwarding order 0 -> 3 -> 1 -> 2 -> 0.
+NEXT_PORT = (3, 2, 0, 1)
+MASTER = -1
+#: Ethernet FCS bytes (on the wire, not in the frames we exchange).
+FCS_SIZE = 4
+_WKC = struct.Struct("<H")
+_EMPTY = np.zeros(0, np.int64)
 
 
 @dataclass
 class SlaveSpec:
-    """What a slave is: its EEPROM image, its ESC and its application."""
+    """What a slave is: its EEPROM image, its ESC and its application.
+
+    ``alias`` overrides SII word 4; ``drift_ppm`` makes its local clock run
+    fast (positive) or slow; ``forwarding_delay_ns`` overrides the profile's
+    delay; ``initial_inputs`` fills the input SM as soon as it is enabled.
+    """
 
     name: str
     sii: bytes
@@ -24,12 +99,45 @@ class SlaveSpec:
 
 
 class SimSlave:
-    """One slave of a segment (``esc`` gives test helpers for its memory)."""
+    """One slave of a segment. ``esc`` is its ESC model; ``read``/``write`` are raw test helpers."""
 
-    def __init__(self, name: str, spec: SlaveSpec, index: int) -> None:
+    def __init__(self, name: str, spec: SlaveSpec, index: int, esc: Esc) -> None:
         self.name = name
         self.spec = spec
         self.index = index
+        self.esc = esc
+
+    def read(self, address: int, length: int) -> bytes:
+        """Raw memory bytes (no side effects)."""
+        return self.esc.row[address: address + length].tobytes()
+
+    def write(self, address: int, data: bytes) -> None:
+        """Raw memory write (no side effects; for test set-up)."""
+        self.esc.row[address: address + len(data)] = np.frombuffer(bytes(data), np.uint8)
+
+    def u16(self, address: int) -> int:
+        return self.esc.u16(address)
+
+    @property
+    def al_state(self) -> AlState:
+        return self.esc.al_state()
+
+    def __repr__(self) -> str:
+        return f"SimSlave({self.index}, {self.name!r}, {self.spec.profile.name})"
+
+
+@dataclass
+class Route:
+    """The walk of a frame from the master through the segment (computed per topology)."""
+
+    passes: I64                # slave index of each processing-unit pass, in order
+    port0_closed: list[bool]   # per pass: the slave's port 0 is closed (circulating rule)
+    arrivals: list[tuple[int, int, int]]  # (slave, port, ns after entry) of every port arrival
+    arrive_ns: I64             # (slaves x 4) first arrival time per port, -1 = not visited
+    epu_ns: I64                # per slave: time of its (first) processing-unit pass, -1 = none
+    returned: bool             # the frame comes back to the master
+    delay_ns: int              # forwarding + cable delays of the whole walk
+    contiguous: bool           # passes == arange(len(passes)) (fast slicing)
 
 
 class Segment:
@@ -38,32 +146,1032 @@ class Segment:
     def __init__(self, clock: Clock | None = None, mac_wire_ns: int = 80) -> None:
         self.clock: Clock = clock if clock is not None else VirtualClock()
         self.mac_wire_ns = mac_wire_ns
+        self.advance_clock = True
         self.slaves: list[SimSlave] = []
+        self.memory = EscMemory()
+        #: Duration for which SII commands keep the busy bit (0: done at once).
+        self.sii_busy_ns = 0
+        self._links: list[list[tuple[int, int] | None]] = []
+        self._cable: dict[tuple[int, int], int] = {}
+        self._broken: set[tuple[int, int]] = set()
+        self._autoclose_latched: set[tuple[int, int]] = set()
+        self._had_link: dict[tuple[int, int], bool] = {}
+        self._corrupt: dict[tuple[int, int], int] = {}
+        self._drop_p = 0.0
+        self._rng = random.Random()
+        self._wires: list[tuple[int, int, int, int, int]] = []
+        # per-slave arrays (grown in add_slave)
+        self.outputs_received = np.zeros(0, bool)
+        self.wd_last = np.zeros(0, np.int64)
+        self.wd_limit = np.zeros(0, np.int64)
+        self.wd_expired = np.zeros(0, bool)
+        self.wd_armed = np.zeros(0, bool)
+        self.dc_t0 = np.zeros(0, np.int64)
+        self.dc_rate = np.zeros(0, np.float64)
+        self.fwd_delay = np.zeros(0, np.int64)
+        self.wants_outputs = np.zeros(0, bool)
+        self.profile_id = np.zeros(0, np.int64)
+        self._profiles: list[EscProfile] = []
+        self.sync_next: dict[int, list[int]] = {}
+        # dirty flags
+        self.topology_dirty = True
+        self.addressing_dirty = True
+        self.fmmu_dirty = True
+        self.sm_dirty = True
+        self.irq_dirty = True
+        self.watchdog_dirty = True
+        self._route: Route | None = None
+        self._stations: dict[int, list[int]] = {}
+        self._lmap: LogicalMap | None = None
+        self._irq = 0
+        self._sm_span = (0, 0)
+        self._sm_areas = np.zeros(0, bool)
+        self._bw: dict[str, Any] = {}
+        self._wire_idx: tuple[I64, I64, I64, I64] | None = None
+        self._bplan: dict[tuple[int, int, int], tuple[I64, int, bool]] = {}
+        self._cur_passes: I64 = _EMPTY
+        self._frame_t0 = 0
+        self.frames = 0
+        self.frames_lost = 0
+
+    # --- building --------------------------------------------------------------------
 
     def add_slave(self, spec: SlaveSpec, parent: int | None = None, port: int | None = None,
                   cable_delay_ns: int = 5) -> int:
-        raise NotImplementedError
+        """Add a slave; return its index.
 
-    def process(self, frame: bytes) -> bytes | None:
-        raise NotImplementedError
+        Without ``parent`` the slave continues the line: it joins the first
+        free port (order 3, 1, 2... as the walk goes: 1 first, then 2, then
+        3) of the previous slave on its port 0. With ``parent``/``port`` it
+        hangs on that port of that slave (a tree branch).
+        """
+        index = self.memory.add()
+        esc = Esc(self, index, spec.name, spec.sii, spec.profile, spec.app, spec.alias,
+                  spec.initial_inputs)
+        self.slaves.append(SimSlave(spec.name, spec, index, esc))
+        self._links.append([None, None, None, None])
+        if spec.profile not in self._profiles:
+            self._profiles.append(spec.profile)
+        pid = self._profiles.index(spec.profile)
+        delay = spec.forwarding_delay_ns if spec.forwarding_delay_ns is not None else (
+            spec.profile.default_forwarding_delay_ns)
+        self.outputs_received = np.append(self.outputs_received, False)
+        self.wd_last = np.append(self.wd_last, -1)
+        self.wd_limit = np.append(self.wd_limit, 0)
+        self.wd_expired = np.append(self.wd_expired, False)
+        self.wd_armed = np.append(self.wd_armed, False)
+        self.dc_t0 = np.append(self.dc_t0, self.clock.now_ns())
+        self.dc_rate = np.append(self.dc_rate, 1.0 + spec.drift_ppm * 1e-6)
+        self.fwd_delay = np.append(self.fwd_delay, delay)
+        self.wants_outputs = np.append(self.wants_outputs, bool(spec.app and spec.app.wants_output_events))
+        self.profile_id = np.append(self.profile_id, pid)
+        if index == 0:
+            if parent is not None:
+                raise ConfigError("the first slave is connected to the master; it has no parent")
+        else:
+            if parent is None:
+                parent = index - 1
+                port = self._free_port(parent)
+            if not 0 <= parent < index:
+                raise ConfigError(f"slave {spec.name!r}: parent {parent} does not exist yet")
+            if port is None:
+                port = self._free_port(parent)
+            if port not in self.slaves[parent].spec.profile.implemented_ports or port == 0:
+                raise ConfigError(f"slave {spec.name!r}: parent {self.slaves[parent].name!r} "
+                                  f"has no usable port {port}")
+            if self._links[parent][port] is not None:
+                raise ConfigError(f"slave {spec.name!r}: port {port} of "
+                                  f"{self.slaves[parent].name!r} is already connected")
+            self._links[parent][port] = (index, 0)
+            self._links[index][0] = (parent, port)
+            self._cable[(parent, port)] = cable_delay_ns
+            self._cable[(index, 0)] = cable_delay_ns
+        esc.power_on()
+        if spec.app is not None:
+            spec.app.attach(esc.pdi)
+            spec.app.on_power_on()
+        self._invalidate_all()
+        return index
 
-    def wire(self, src_slave: int, src_bit: int, dst_slave: int, dst_bit: int, bits: int) -> None:
-        raise NotImplementedError
+    def _free_port(self, slave: int) -> int:
+        prof = self.slaves[slave].spec.profile
+        for p in (1, 2, 3):
+            if p in prof.implemented_ports and self._links[slave][p] is None:
+                return p
+        raise ConfigError(f"slave {self.slaves[slave].name!r} has no free port for the next slave")
+
+    def _invalidate_all(self) -> None:
+        self.topology_dirty = self.addressing_dirty = self.fmmu_dirty = True
+        self.sm_dirty = self.irq_dirty = self.watchdog_dirty = True
+        self._bplan.clear()
+
+    def slave(self, key: int | str) -> SimSlave:
+        """A slave by index or name."""
+        if isinstance(key, int):
+            return self.slaves[key]
+        for s in self.slaves:
+            if s.name == key:
+                return s
+        raise ConfigError(f"no slave named {key!r}")
+
+    # --- topology ----------------------------------------------------------------------
+
+    def _port_exists(self, s: int, p: int) -> bool:
+        return p in self.slaves[s].spec.profile.implemented_ports
+
+    def _link_up(self, s: int, p: int) -> bool:
+        if not self.slaves[s].esc.powered or not self._port_exists(s, p):
+            return False
+        if s == 0 and p == 0:
+            return (0, 0) not in self._broken
+        peer = self._links[s][p]
+        if peer is None or (s, p) in self._broken or peer in self._broken:
+            return False
+        return self.slaves[peer[0]].esc.powered
+
+    def _loop_closed(self, s: int, p: int, link: bool) -> bool:
+        if not self._port_exists(s, p):
+            return True
+        lc = (int(self.memory.mem[s, R.DL_CONTROL_LOOP]) >> (2 * p)) & 3
+        if lc == R.LoopControl.OPEN:
+            return False
+        if lc == R.LoopControl.CLOSED:
+            return True
+        if lc == R.LoopControl.AUTO_CLOSE:
+            return not link or (s, p) in self._autoclose_latched
+        return not link
+
+    def _update_topology(self) -> None:
+        n = len(self.slaves)
+        links = [[self._link_up(s, p) for p in range(4)] for s in range(n)]
+        closed = [[self._loop_closed(s, p, links[s][p]) for p in range(4)] for s in range(n)]
+        mem = self.memory.mem
+        for s in range(n):
+            esc = self.slaves[s].esc
+            if not esc.powered:
+                continue
+            dl = esc.u16(R.DL_STATUS) & 0x000F
+            for p in range(4):
+                key = (s, p)
+                had = self._had_link.get(key, False)
+                if had and not links[s][p]:
+                    c = int(mem[s, R.LOST_LINK_COUNTER + p])
+                    mem[s, R.LOST_LINK_COUNTER + p] = min(255, c + 1)
+                    lc = (int(mem[s, R.DL_CONTROL_LOOP]) >> (2 * p)) & 3
+                    if lc == R.LoopControl.AUTO_CLOSE:
+                        self._autoclose_latched.add(key)
+                self._had_link[key] = links[s][p]
+                if links[s][p]:
+                    dl |= R.dl_status_link(p) | R.dl_status_com(p)
+                if closed[s][p]:
+                    dl |= R.dl_status_loop(p)
+            if dl != esc.u16(R.DL_STATUS):
+                esc.set_u16(R.DL_STATUS, dl)
+                esc.set_ecat_event(int(R.EcatEvent.DL_STATUS))
+        self._route = self._walk(links, closed)
+        self.topology_dirty = False
+        self.addressing_dirty = self.fmmu_dirty = self.irq_dirty = self.sm_dirty = True
+        self._bplan.clear()
+
+    def _walk(self, links: list[list[bool]], closed: list[list[bool]]) -> Route:
+        n = len(self.slaves)
+        passes: list[int] = []
+        port0_closed: list[bool] = []
+        arrivals: list[tuple[int, int, int]] = []
+        arrive = np.full((n, 4), -1, np.int64)
+        epu = np.full(n, -1, np.int64)
+        returned = False
+        t = 0
+        if n == 0 or not links[0][0]:
+            return Route(np.zeros(0, np.int64), [], [], arrive, epu, False, 0, True)
+        s, p, via_link = 0, 0, True
+        limit = 16 * n + 16
+        steps = 0
+        while steps < limit:
+            steps += 1
+            if via_link:
+                arrivals.append((s, p, t))
+                if arrive[s, p] < 0:
+                    arrive[s, p] = t
+            if p == 0:
+                passes.append(s)
+                port0_closed.append(closed[s][0])
+                if epu[s] < 0:
+                    epu[s] = t
+                if sum(port0_closed) >= 2:
+                    break  # circulating: destroyed on the second closed-port-0 pass
+            q = NEXT_PORT[p]
+            if closed[s][q]:
+                s, p, via_link = s, q, False
+                continue
+            if not links[s][q]:
+                break  # open port without link: the frame is lost
+            t += int(self.fwd_delay[s])
+            if s == 0 and q == 0:
+                returned = True
+                break
+            peer = self._links[s][q]
+            assert peer is not None
+            t += self._cable.get((s, q), 0)
+            s, p, via_link = peer[0], peer[1], True
+        arr = np.array(passes, dtype=np.int64)
+        contiguous = bool(len(arr) == 0 or np.array_equal(arr, np.arange(len(arr))))
+        return Route(arr, port0_closed, arrivals, arrive, epu, returned, t, contiguous)
+
+    @property
+    def route(self) -> Route:
+        """The current walk (recomputed after topology changes)."""
+        if self.topology_dirty or self._route is None:
+            self._update_topology()
+        assert self._route is not None
+        return self._route
+
+    def loop_control_written(self, index: int, old: int, new: int) -> None:
+        """DL control loop byte written: writing auto-close (1) re-opens a latched port."""
+        for p in range(4):
+            if (new >> (2 * p)) & 3 == R.LoopControl.AUTO_CLOSE:
+                self._autoclose_latched.discard((index, p))
+        self.topology_dirty = True
+
+    # --- faults ------------------------------------------------------------------------
+
+    def _peer_key(self, slave: int, port: int) -> tuple[int, int] | None:
+        if not 0 <= slave < len(self.slaves) or not 0 <= port <= 3:
+            raise ConfigError(f"no port {port} on slave {slave}")
+        return self._links[slave][port]
 
     def break_link(self, slave: int, port: int) -> None:
-        raise NotImplementedError
+        """Cut the cable at ``slave``'s ``port`` (both ends lose the link)."""
+        self._peer_key(slave, port)
+        self._broken.add((slave, port))
+        self.topology_dirty = True
 
     def restore_link(self, slave: int, port: int) -> None:
-        raise NotImplementedError
+        """Reconnect a cable cut with :meth:`break_link`."""
+        peer = self._peer_key(slave, port)
+        self._broken.discard((slave, port))
+        if peer is not None:
+            self._broken.discard(peer)
+        self.topology_dirty = True
 
     def power_off(self, slave: int) -> None:
-        raise NotImplementedError
+        """Switch a slave off: it disappears, its neighbours lose their links."""
+        esc = self.slaves[slave].esc
+        esc.powered = False
+        self.memory.clear(slave)
+        self.outputs_received[slave] = False
+        self.wd_last[slave] = -1
+        self.sync_next.pop(slave, None)
+        self._invalidate_all()
 
     def power_on(self, slave: int) -> None:
-        raise NotImplementedError
+        """Switch a slave on: INIT, station address 0, alias from the SII."""
+        self.reset_slave(slave)
+        self._invalidate_all()
+
+    def reset_slave(self, slave: int) -> None:
+        """Power-on reset of one ESC (also the 'RES' sequence in 0x0040)."""
+        esc = self.slaves[slave].esc
+        self.outputs_received[slave] = False
+        self.wd_last[slave] = -1
+        self.wd_expired[slave] = False
+        self.dc_t0[slave] = self.clock.now_ns()
+        self.sync_next.pop(slave, None)
+        esc.power_on()
+        for p in range(4):
+            self._autoclose_latched.discard((slave, p))
+            self._had_link[(slave, p)] = False
+        app = self.slaves[slave].spec.app
+        if app is not None:
+            app.on_power_on()
+        self._invalidate_all()
 
     def corrupt_frames(self, slave: int, port: int, count: int = 1) -> None:
-        raise NotImplementedError
+        """The next ``count`` frames arriving at ``slave``'s ``port`` carry a CRC error."""
+        self._peer_key(slave, port)
+        self._corrupt[(slave, port)] = self._corrupt.get((slave, port), 0) + count
 
     def drop_probability(self, p: float, seed: int | None = None) -> None:
-        raise NotImplementedError
+        """Lose each frame with probability ``p`` (before any slave sees it)."""
+        if not 0.0 <= p <= 1.0:
+            raise ConfigError(f"drop probability {p} is not within 0..1")
+        self._drop_p = p
+        if seed is not None:
+            self._rng.seed(seed)
+
+    # --- process-data wiring -------------------------------------------------------------
+
+    def wire(self, src_slave: int, src_bit: int, dst_slave: int, dst_bit: int, bits: int) -> None:
+        """Bits of ``src``'s outputs (SM2 image) appear in ``dst``'s inputs (SM3 image)."""
+        n = len(self.slaves)
+        if not (0 <= src_slave < n and 0 <= dst_slave < n) or bits <= 0 or src_bit < 0 or dst_bit < 0:
+            raise ConfigError(f"bad wire {src_slave}.{src_bit} -> {dst_slave}.{dst_bit} ({bits} bits)")
+        self._wires.append((src_slave, src_bit, dst_slave, dst_bit, bits))
+        self._wire_idx = None
+
+    def _sm_start(self, slave: int, n: int, default_from_sii: bool = True) -> int | None:
+        esc = self.slaves[slave].esc
+        if n < esc.profile.sm_count:
+            s = esc.sm(n)
+            if s.enabled:
+                return int(s.start)
+        if default_from_sii and esc.sii_info is not None:
+            sms = esc.sii_info.sync_managers
+            if n < len(sms):
+                return int(sms[n].start)
+        return None
+
+    def _compile_wires(self) -> tuple[I64, I64, I64, I64]:
+        sb, ss, db, ds = [], [], [], []
+        for src, sbit, dst, dbit, bits in self._wires:
+            s0 = self._sm_start(src, self.slaves[src].esc.output_sm)
+            d0 = self._sm_start(dst, self.slaves[dst].esc.input_sm)
+            if s0 is None or d0 is None:
+                continue
+            k = np.arange(bits, dtype=np.int64)
+            sbits = s0 * 8 + sbit + k
+            dbits = d0 * 8 + dbit + k
+            sb.append(src * SLAVE_STRIDE + (sbits >> 3))
+            ss.append(sbits & 7)
+            db.append(dst * SLAVE_STRIDE + (dbits >> 3))
+            ds.append(dbits & 7)
+
+        def cat(x: list[I64]) -> I64:
+            return np.concatenate(x) if x else _EMPTY
+
+        return cat(sb), cat(ss), cat(db), cat(ds)
+
+    def apply_wires(self) -> None:
+        """Copy wired output bits (complete buffers) into the inputs they drive."""
+        if not self._wires:
+            return
+        if self._wire_idx is None:
+            self._wire_idx = self._compile_wires()
+        sb, ss, db, ds = self._wire_idx
+        if not len(sb):
+            return
+        flat = self.memory.flat
+        vals = ((self.memory.shadow_flat[sb] >> ss) & 1).astype(np.uint8)
+        np.bitwise_and.at(flat, db, (~np.left_shift(1, ds)).astype(np.uint8))
+        np.bitwise_or.at(flat, db, (vals << ds).astype(np.uint8))
+
+    # --- compiled state ------------------------------------------------------------------
+
+    def _refresh_sm_state(self) -> None:
+        """Recompile what depends on the SM registers (buffer completion, SM areas)."""
+        n = len(self.slaves)
+        mem = self.memory.mem
+        idx_parts, owner_parts = [], []
+        pair_slave, pair_n, pair_status, pair_al, pair_wd = [], [], [], [], []
+        lo, hi = R.ADDRESS_SPACE, 0
+        complete: dict[int, set[int]] = {}
+        for s in range(n):
+            esc = self.slaves[s].esc
+            if not esc.powered:
+                continue
+            for k in range(esc.profile.sm_count):
+                sm = esc.sm(k)
+                if not sm.enabled:
+                    continue
+                lo, hi = min(lo, sm.start), max(hi, sm.end)
+                if sm.mode == R.SmMode.BUFFERED and sm.ecat_writes:
+                    idx_parts.append(np.arange(sm.start, min(sm.end, R.ADDRESS_SPACE)) + s * SLAVE_STRIDE)
+                    owner_parts.append(np.full(len(idx_parts[-1]), s, np.int64))
+                    pair_slave.append(s)
+                    pair_n.append(k)
+                    pair_status.append(s * SLAVE_STRIDE + R.sm_address(k) + R.SM_STATUS)
+                    pair_al.append(1 << k if sm.control & R.SM_CONTROL_AL_EVENT and k < 8 else 0)
+                    pair_wd.append(bool(sm.control & R.SM_CONTROL_WATCHDOG))
+                    complete.setdefault(s, set()).add(sm.end - 1)
+        self._bw = {
+            "idx": np.concatenate(idx_parts).astype(np.int64) if idx_parts else _EMPTY,
+            "owner": np.concatenate(owner_parts) if owner_parts else _EMPTY,
+            "slave": np.array(pair_slave, np.int64),
+            "status": np.array(pair_status, np.int64),
+            "al": np.array(pair_al, np.uint8),
+            "wd": np.array(pair_wd, bool),
+            "complete": complete,
+        }
+        self._sm_span = (lo, hi) if hi > lo else (0, 0)
+        self.sm_dirty = False
+        self.fmmu_dirty = True
+        self.watchdog_dirty = True
+        self._wire_idx = None
+        self._bplan.clear()
+        del mem
+
+    def _refresh_fmmus(self) -> None:
+        route = self.route
+        if self.sm_dirty:
+            self._refresh_sm_state()
+        configs = []
+        mem = self.memory.mem
+        for pos, s in enumerate(route.passes.tolist()):
+            esc = self.slaves[s].esc
+            count = esc.profile.fmmu_count
+            raw = mem[s, R.FMMU_BASE: R.FMMU_BASE + count * R.FMMU_SIZE].tobytes()
+            configs.extend(parse_fmmus(raw, count, pos, s))
+        writable = [sl.esc.writable for sl in self.slaves]
+        impl = [sl.esc.impl for sl in self.slaves]
+        self._lmap = LogicalMap(configs, writable, self._bw["complete"], impl)
+        self.fmmu_dirty = False
+
+    def _refresh_addressing(self) -> None:
+        route = self.route
+        stations: dict[int, list[int]] = {}
+        mem = self.memory.mem
+        for pos, s in enumerate(route.passes.tolist()):
+            st = int(mem[s, R.STATION_ADDRESS]) | (int(mem[s, R.STATION_ADDRESS + 1]) << 8)
+            stations.setdefault(st, []).append(pos)
+            if mem[s, R.DL_CONTROL_ALIAS] & 1:
+                alias = int(mem[s, R.STATION_ALIAS]) | (int(mem[s, R.STATION_ALIAS + 1]) << 8)
+                if alias != st:
+                    stations.setdefault(alias, []).append(pos)
+        self._stations = stations
+        self.addressing_dirty = False
+
+    def _refresh_irq(self) -> None:
+        passes = self.route.passes
+        mem = self.memory.mem
+        if len(passes):
+            req = mem[passes, R.ECAT_EVENT_REQUEST: R.ECAT_EVENT_REQUEST + 2]
+            mask = mem[passes, R.ECAT_EVENT_MASK: R.ECAT_EVENT_MASK + 2]
+            v = np.bitwise_or.reduce(req & mask, axis=0)
+            self._irq = int(v[0]) | (int(v[1]) << 8)
+        else:
+            self._irq = 0
+        self.irq_dirty = False
+
+    def _refresh_watchdogs(self) -> None:
+        n = len(self.slaves)
+        mem = self.memory.mem[:n]
+        div = mem[:, R.WATCHDOG_DIVIDER].astype(np.int64) | (mem[:, R.WATCHDOG_DIVIDER + 1].astype(np.int64) << 8)
+        wt = (mem[:, R.WATCHDOG_TIME_PROCESS_DATA].astype(np.int64)
+              | (mem[:, R.WATCHDOG_TIME_PROCESS_DATA + 1].astype(np.int64) << 8))
+        armed = np.zeros(n, bool)
+        for k in range(16):
+            base = R.sm_address(k)
+            armed |= ((mem[:, base + R.SM_CONTROL] & R.SM_CONTROL_WATCHDOG) != 0) & (
+                (mem[:, base + R.SM_ACTIVATE] & R.SM_ACTIVATE_ENABLE) != 0)
+        self.wd_limit = (div + 2) * R.WATCHDOG_TICK_NS * wt
+        self.wd_armed = armed & (wt > 0)
+        self.watchdog_dirty = False
+
+    # --- ESC callbacks -------------------------------------------------------------------
+
+    def state_changed(self, index: int, old: AlState, new: AlState) -> None:
+        """Called by an ESC when its AL state changed."""
+        if new in (AlState.INIT, AlState.PREOP, AlState.BOOT):
+            self.outputs_received[index] = False
+            self.wd_last[index] = -1
+            self.wd_expired[index] = False
+
+    def complete_write_sms(self, slaves: I64) -> None:
+        """Buffered write SMs of ``slaves`` got their last byte: publish the buffers."""
+        if self.sm_dirty:
+            self._refresh_sm_state()
+        if not len(slaves):
+            return
+        bw = self._bw
+        n = len(self.slaves)
+        sel_mask = np.zeros(n, bool)
+        sel_mask[slaves] = True
+        idx = bw["idx"][sel_mask[bw["owner"]]]
+        flat, shadow = self.memory.flat, self.memory.shadow_flat
+        shadow[idx] = flat[idx]
+        psel = sel_mask[bw["slave"]]
+        if psel.any():
+            st = bw["status"][psel]
+            old = flat[st]
+            cur = (old >> R.SM_STATUS_BUFFER_SHIFT) & 3
+            new = np.where(cur == 3, 0, (cur + 1) % 3).astype(np.uint8)
+            flat[st] = (old & ~np.uint8(R.SM_STATUS_BUFFER_MASK | R.SM_STATUS_READ_EVENT)) | (
+                new << R.SM_STATUS_BUFFER_SHIFT) | R.SM_STATUS_WRITE_EVENT
+            al = bw["al"][psel]
+            ps = bw["slave"][psel]
+            if al.any():
+                np.bitwise_or.at(flat, ps * SLAVE_STRIDE + R.AL_EVENT_REQUEST + 1, al)
+            wd = bw["wd"][psel]
+            if wd.any():
+                ws = ps[wd]
+                self.wd_last[ws] = self.clock.now_ns()
+                self.wd_expired[ws] = False
+                flat[ws * SLAVE_STRIDE + R.WATCHDOG_STATUS_PROCESS_DATA] |= 1
+        self.outputs_received[slaves] = True
+        for s in slaves.tolist():
+            esc = self.slaves[s].esc
+            if esc.pending_op:
+                esc.outputs_arrived()
+        apps = np.nonzero(sel_mask & self.wants_outputs)[0]
+        for s in apps.tolist():
+            app = self.slaves[s].spec.app
+            if app is not None:
+                app.on_outputs()
+        self.apply_wires()
+
+    # --- DC -------------------------------------------------------------------------------
+
+    def local_time(self, slaves: I64, t_ns: I64 | int) -> I64:
+        """Local (free-running, drifting) time of ``slaves`` at segment time ``t_ns``."""
+        return ((np.asarray(t_ns, np.int64) - self.dc_t0[slaves]) * self.dc_rate[slaves]).astype(np.int64)
+
+    def _pass_time(self, slaves: I64) -> I64:
+        route = self.route
+        t = route.epu_ns[slaves]
+        return self._frame_t0 + np.maximum(t, 0)
+
+    def refresh_system_time(self, slaves: I64) -> None:
+        """Write the system time (local time + offset 0x0920) into 0x0910 of ``slaves``."""
+        mem = self.memory.mem
+        local = self.local_time(slaves, self._pass_time(slaves))
+        offset = mem[slaves, R.DC_SYSTEM_TIME_OFFSET: R.DC_SYSTEM_TIME_OFFSET + 8].copy().view("<i8")[:, 0]
+        st = (local + offset).astype("<i8")
+        mem[slaves, R.DC_SYSTEM_TIME: R.DC_SYSTEM_TIME + 8] = st.view(np.uint8).reshape(-1, 8)
+
+    def latch_receive_times(self, slaves: I64) -> None:
+        """A write to 0x0900 passed ``slaves``: latch the port receive times and 0x0918."""
+        if not len(slaves):
+            return
+        route = self.route
+        mem = self.memory.mem
+        arrive = route.arrive_ns[slaves]  # (k, 4)
+        t = self._frame_t0 + np.maximum(arrive, 0)
+        local = ((t - self.dc_t0[slaves, None]) * self.dc_rate[slaves, None]).astype(np.int64)
+        cur = mem[slaves, R.DC_RECEIVE_TIME_PORT0: R.DC_RECEIVE_TIME_PORT0 + 16].copy().view("<u4")
+        new = np.where(arrive >= 0, (local & 0xFFFFFFFF).astype("<u4"), cur)
+        mem[slaves, R.DC_RECEIVE_TIME_PORT0: R.DC_RECEIVE_TIME_PORT0 + 16] = new.astype("<u4").view(
+            np.uint8).reshape(-1, 16)
+        epu_local = self.local_time(slaves, self._pass_time(slaves)).astype("<i8")
+        mem[slaves, R.DC_RECEIVE_TIME_ECAT: R.DC_RECEIVE_TIME_ECAT + 8] = epu_local.view(
+            np.uint8).reshape(-1, 8)
+
+    def time_loop_write(self, slaves: I64, data: bytes, offset: int) -> None:
+        """A reference time was written to 0x0910: store the difference in 0x092C.
+
+        The value is not taken over (facts 11.7). The difference is
+        (local copy of system time - system time delay) - received time,
+        sign-magnitude; drift correction of the local clock comes with the
+        DC issue.
+        """
+        if not len(slaves) or offset != 0 or len(data) < 4:
+            return
+        mem = self.memory.mem
+        self.refresh_system_time(slaves)
+        if len(data) >= 8:
+            received = np.int64(int.from_bytes(data[:8], "little", signed=True))
+            own = mem[slaves, R.DC_SYSTEM_TIME: R.DC_SYSTEM_TIME + 8].copy().view("<i8")[:, 0]
+        else:
+            received = np.int64(int.from_bytes(data[:4], "little"))
+            own = mem[slaves, R.DC_SYSTEM_TIME: R.DC_SYSTEM_TIME + 4].copy().view("<u4")[:, 0].astype(np.int64)
+        delay = mem[slaves, R.DC_SYSTEM_TIME_DELAY: R.DC_SYSTEM_TIME_DELAY + 4].copy().view("<u4")[:, 0]
+        diff = own - delay.astype(np.int64) - received
+        mag = np.minimum(np.abs(diff), 0x7FFFFFFF).astype(np.uint32)
+        value = (mag | np.where(diff >= 0, np.uint32(0x80000000), np.uint32(0))).astype("<u4")
+        mem[slaves, R.DC_SYSTEM_TIME_DIFFERENCE: R.DC_SYSTEM_TIME_DIFFERENCE + 4] = value.view(
+            np.uint8).reshape(-1, 4)
+
+    def sync_config_written(self, index: int) -> None:
+        """DC cyclic unit registers written: (re)plan SYNC0/SYNC1 events."""
+        esc = self.slaves[index].esc
+        act = esc.u8(R.DC_ACTIVATION)
+        cycle0 = esc.u32(R.DC_SYNC0_CYCLE)
+        if act & R.DcActivation.CYCLIC and act & (R.DcActivation.SYNC0 | R.DcActivation.SYNC1):
+            start = esc.u64(R.DC_START_TIME)
+            self.sync_next[index] = [start, cycle0, esc.u32(R.DC_SYNC1_CYCLE), act]
+        else:
+            self.sync_next.pop(index, None)
+
+    def _system_time_now(self, index: int, now: int) -> int:
+        s = np.array([index], np.int64)
+        local = int(self.local_time(s, now)[0])
+        offset = int.from_bytes(self.slaves[index].esc.row[R.DC_SYSTEM_TIME_OFFSET:
+                                                           R.DC_SYSTEM_TIME_OFFSET + 8].tobytes(),
+                                "little", signed=True)
+        return (local + offset) & 0xFFFFFFFFFFFFFFFF
+
+    def _run_sync(self, now: int) -> None:
+        for index, plan in list(self.sync_next.items()):
+            start, cycle0, cycle1, act = plan
+            systime = self._system_time_now(index, now)
+            if systime < start:
+                continue
+            esc = self.slaves[index].esc
+            app = esc.app
+            fired = 0
+            while systime >= plan[0] and fired < 16:
+                t = plan[0]
+                if act & R.DcActivation.SYNC0:
+                    esc.row[R.DC_SYNC0_STATUS] = 1
+                    esc.set_al_event(int(R.AlEvent.SYNC0))
+                    if app is not None:
+                        app.on_sync0(t)
+                if act & R.DcActivation.SYNC1:
+                    esc.row[R.DC_SYNC1_STATUS] = 1
+                    esc.set_al_event(int(R.AlEvent.SYNC1))
+                    if app is not None:
+                        app.on_sync1(t + cycle1)
+                fired += 1
+                if cycle0 == 0:
+                    self.sync_next.pop(index, None)  # single shot
+                    break
+                plan[0] = t + cycle0
+            if cycle0 and systime >= plan[0]:
+                # Far behind (no ticks for a long time): skip the missed pulses.
+                missed = (systime - plan[0]) // cycle0 + 1
+                plan[0] += missed * cycle0
+
+    # --- time ---------------------------------------------------------------------------------
+
+    def tick(self, now: int | None = None) -> None:
+        """Run time-driven work: process-data watchdogs, SYNC0/SYNC1 events."""
+        if now is None:
+            now = self.clock.now_ns()
+        if self.watchdog_dirty or self.sm_dirty:
+            if self.sm_dirty:
+                self._refresh_sm_state()
+            self._refresh_watchdogs()
+        if len(self.wd_last):
+            due = self.wd_armed & ~self.wd_expired & (self.wd_last >= 0) & (
+                now - self.wd_last > self.wd_limit)
+            if due.any():
+                for s in np.nonzero(due)[0].tolist():
+                    self.wd_expired[s] = True
+                    self.outputs_received[s] = False
+                    self.slaves[s].esc.watchdog_expired()
+        if self.sync_next:
+            self._run_sync(now)
+
+    # --- frames -------------------------------------------------------------------------------
+
+    def wire_time_ns(self, frame_len: int) -> int:
+        """Modelled time for a frame of ``frame_len`` bytes (without FCS) to go round."""
+        route = self.route
+        return (max(frame_len, 60) + FCS_SIZE) * self.mac_wire_ns + route.delay_ns
+
+    def process(self, frame: bytes | bytearray) -> bytes | None:
+        """Process one frame from the master; the returned frame, or None if it is lost."""
+        now = self.clock.now_ns()
+        self.tick(now)
+        self.frames += 1
+        route = self.route
+        if self._drop_p and self._rng.random() < self._drop_p:
+            self.frames_lost += 1
+            return None
+        if len(frame) < ETH_HEADER_SIZE + ECAT_HEADER_SIZE or not len(route.passes) and not route.returned:
+            self.frames_lost += 1
+            return None
+        buf = bytearray(frame)
+        start = ETH_HEADER_SIZE
+        ethertype = (buf[12] << 8) | buf[13]
+        if ethertype == ETHERTYPE_VLAN and len(buf) >= 18:
+            ethertype = (buf[16] << 8) | buf[17]
+            start += 4
+        if ethertype != ETHERTYPE_ETHERCAT:
+            # Non-EtherCAT frames pass unchanged unless the first slave destroys them.
+            if len(route.passes) and self.memory.mem[route.passes[0], R.DL_CONTROL] & R.DL_CONTROL_FORWARDING_RULE:
+                return None
+            return bytes(buf) if route.returned else None
+        if self._corrupt and self._apply_corruption(route):
+            self.frames_lost += 1
+            self._advance(len(buf))
+            return None
+        word = buf[start] | (buf[start + 1] << 8)
+        length = word & ECAT_LENGTH_MASK
+        if word >> ECAT_TYPE_SHIFT != FrameType.DATAGRAMS:
+            return None  # mailbox-gateway and other types are not for the slaves
+        body = start + ECAT_HEADER_SIZE
+        end = body + length
+        if end > len(buf):
+            self._processing_error(route)
+            return None
+        # Parse all headers first (a malformed frame is not processed at all).
+        heads: list[tuple[int, int, int, int, int, int]] = []
+        off = body
+        any_c = False
+        while True:
+            if off + HEADER_SIZE + WKC_SIZE > end:
+                self._processing_error(route)
+                return None
+            cmd, _idx, address, lw, irq = HEADER.unpack_from(buf, off)
+            n = lw & LEN_MASK
+            if off + HEADER_SIZE + n + WKC_SIZE > end:
+                self._processing_error(route)
+                return None
+            heads.append((off, cmd, address, lw, irq, n))
+            any_c = any_c or bool(lw & CIRCULATING_BIT)
+            off += HEADER_SIZE + n + WKC_SIZE
+            if not lw & MORE_BIT:
+                break
+        passes = route.passes
+        destroy = False
+        set_c = False
+        closed_idx = [i for i, c in enumerate(route.port0_closed) if c]
+        if closed_idx:
+            if any_c:
+                passes, destroy = passes[: closed_idx[0]], True
+            elif len(closed_idx) > 1:
+                passes, destroy = passes[: closed_idx[1]], True
+            else:
+                set_c = True
+        self._frame_t0 = now
+        self._cur_passes = passes
+        if self.irq_dirty:
+            self._refresh_irq()
+        for off, cmd, address, lw, irq, n in heads:
+            data = np.frombuffer(buf, np.uint8, n, off + HEADER_SIZE)
+            wkc_off = off + HEADER_SIZE + n
+            (wkc,) = _WKC.unpack_from(buf, wkc_off)
+            add, address = self._datagram(cmd, address, data, n)
+            if self.irq_dirty:
+                self._refresh_irq()
+            if set_c:
+                lw |= CIRCULATING_BIT
+            HEADER.pack_into(buf, off, cmd, buf[off + 1], address, lw, irq | self._irq)
+            _WKC.pack_into(buf, wkc_off, (wkc + add) & 0xFFFF)
+        self._advance(len(buf))
+        if destroy or not route.returned:
+            self.frames_lost += 1
+            return None
+        buf[6] |= LOCALLY_ADMINISTERED_BIT
+        return bytes(buf)
+
+    def _advance(self, frame_len: int) -> None:
+        if self.advance_clock and isinstance(self.clock, VirtualClock):
+            self.clock.advance(self.wire_time_ns(frame_len))
+
+    def _processing_error(self, route: Route) -> None:
+        """A malformed EtherCAT frame: counted by the first slave's processing unit."""
+        self.frames_lost += 1
+        if len(route.passes):
+            s = int(route.passes[0])
+            c = int(self.memory.mem[s, R.ECAT_PROCESSING_ERROR_COUNTER])
+            self.memory.mem[s, R.ECAT_PROCESSING_ERROR_COUNTER] = min(255, c + 1)
+
+    def _apply_corruption(self, route: Route) -> bool:
+        """Count CRC errors along the walk; True if the frame got corrupted."""
+        mem = self.memory.mem
+        corrupted = False
+        for s, p, _t in route.arrivals:
+            if not corrupted:
+                left = self._corrupt.get((s, p), 0)
+                if left:
+                    corrupted = True
+                    if left == 1:
+                        del self._corrupt[(s, p)]
+                    else:
+                        self._corrupt[(s, p)] = left - 1
+                    a = R.RX_ERROR_COUNTER + 2 * p
+                    mem[s, a] = min(255, int(mem[s, a]) + 1)
+            else:
+                a = R.FORWARDED_RX_ERROR_COUNTER + p
+                mem[s, a] = min(255, int(mem[s, a]) + 1)
+        return corrupted
+
+    # --- datagrams ------------------------------------------------------------------------------
+
+    def _datagram(self, cmd: int, address: int, data: npt.NDArray[np.uint8], n: int) -> tuple[int, int]:
+        """Process one datagram over the route; (working counter increment, new address field)."""
+        passes = self._cur_passes
+        count = len(passes)
+        adp = address & 0xFFFF
+        ado = address >> 16
+        if cmd == Command.LRW or cmd == Command.LRD or cmd == Command.LWR:
+            return self._logical(cmd, address, data, n), address
+        if cmd == Command.BRD or cmd == Command.BWR or cmd == Command.BRW:
+            wkc = self._broadcast(cmd, ado, data, n)
+            return wkc, ((adp + count) & 0xFFFF) | (ado << 16)
+        if cmd in (Command.APRD, Command.APWR, Command.APRW, Command.ARMW):
+            pos = (-adp) & 0xFFFF
+            new_address = ((adp + count) & 0xFFFF) | (ado << 16)
+            if cmd == Command.ARMW:
+                return self._rmw(pos if pos < count else None, ado, data, n), new_address
+            if pos >= count:
+                return 0, new_address
+            return self._single(cmd, int(passes[pos]), ado, data, n), new_address
+        if cmd in (Command.FPRD, Command.FPWR, Command.FPRW, Command.FRMW):
+            if self.addressing_dirty:
+                self._refresh_addressing()
+            hits = self._stations.get(adp)
+            if cmd == Command.FRMW:
+                return self._rmw(hits[0] if hits and hits[0] < count else None, ado, data, n), address
+            if not hits:
+                return 0, address
+            wkc = 0
+            for pos in hits:
+                if pos < count:
+                    wkc += self._single(cmd, int(passes[pos]), ado, data, n)
+            return wkc, address
+        return 0, address  # NOP and unknown commands pass untouched
+
+    def _single(self, cmd: int, s: int, ado: int, data: npt.NDArray[np.uint8], n: int) -> int:
+        esc = self.slaves[s].esc
+        if cmd == Command.APRD or cmd == Command.FPRD:
+            r = esc.ecat_read(ado, n)
+            if r is None:
+                return 0
+            data[:] = np.frombuffer(r, np.uint8)
+            return 1
+        if cmd == Command.APWR or cmd == Command.FPWR:
+            return 1 if esc.ecat_write(ado, data.tobytes()) else 0
+        # APRW / FPRW: read the old content into the frame, store the data as received.
+        if esc.profile.features & R.Feature.RW_NOT_SUPPORTED:
+            return 0
+        incoming = data.tobytes()
+        wkc = 0
+        r = esc.ecat_read(ado, n)
+        if r is not None:
+            data[:] = np.frombuffer(r, np.uint8)
+            wkc += 1
+        if esc.ecat_write(ado, incoming):
+            wkc += 2
+        return wkc
+
+    def _rmw(self, reader: int | None, ado: int, data: npt.NDArray[np.uint8], n: int) -> int:
+        """ARMW/FRMW: the addressed slave reads, every other slave writes (facts 2.2)."""
+        passes = self._cur_passes
+        wkc = 0
+        if reader is None:
+            return self._multi_write(passes, ado, data.tobytes())
+        before = passes[:reader]
+        after = passes[reader + 1:]
+        original = data.tobytes()
+        wkc += self._multi_write(before, ado, original)
+        r = self.slaves[int(passes[reader])].esc.ecat_read(ado, n)
+        if r is not None:
+            data[:] = np.frombuffer(r, np.uint8)
+            wkc += 1
+        wkc += self._multi_write(after, ado, data.tobytes())
+        return wkc
+
+    def _rows_implementing(self, rows: I64, lo: int, hi: int) -> I64:
+        if len(self._profiles) == 1:
+            impl = self.slaves[int(rows[0])].esc.impl if len(rows) else None
+            if impl is None or not impl[lo:hi].any():
+                return _EMPTY
+            return rows
+        keep = np.zeros(len(rows), bool)
+        pids = self.profile_id[rows]
+        for pid, prof in enumerate(self._profiles):
+            sel = pids == pid
+            if sel.any():
+                impl = next(sl.esc.impl for sl in self.slaves if sl.spec.profile == prof)
+                if impl[lo:hi].any():
+                    keep |= sel
+        return rows[keep]
+
+    def _fast_write_ok(self, lo: int, hi: int) -> bool:
+        """Whether a multi-slave write over [lo, hi) can be one array operation."""
+        if self.sm_dirty:
+            self._refresh_sm_state()
+        sm_lo, sm_hi = self._sm_span
+        if lo < sm_hi and hi > sm_lo:
+            return False
+        side = SIDE_EFFECT_MASK[lo:hi]
+        if not side.any():
+            return True
+        # Side effects that are handled as array operations.
+        vec = np.zeros(hi - lo, bool)
+        for a, b in ((R.STATION_ADDRESS, R.STATION_ALIAS + 2), (R.ECAT_EVENT_MASK, R.ECAT_EVENT_MASK + 2),
+                     (R.FMMU_BASE, R.SM_BASE), (R.DC_RECEIVE_TIME_PORT0, R.DC_SYSTEM_TIME + 8),
+                     (R.WATCHDOG_DIVIDER, R.WATCHDOG_STATUS_PROCESS_DATA)):
+            vec[max(a, lo) - lo: max(min(b, hi) - lo, 0)] = True
+        return bool(np.all(vec | ~side))
+
+    def _multi_write(self, rows: I64, ado: int, data: bytes) -> int:
+        """Write ``data`` at ``ado`` into every slave of ``rows`` (in route order)."""
+        if not len(rows):
+            return 0
+        lo, hi = ado, ado + len(data)
+        if hi > R.ADDRESS_SPACE:
+            return 0
+        if not self._fast_write_ok(lo, hi):
+            wkc = 0
+            for s in rows.tolist():
+                if self.slaves[s].esc.ecat_write(ado, data):
+                    wkc += 1
+            return wkc
+        rows = self._rows_implementing(rows, lo, hi)
+        if not len(rows):
+            return 0
+        mem = self.memory.mem
+        new = np.frombuffer(data, np.uint8)
+        for pid, prof in enumerate(self._profiles):
+            sel = rows if len(self._profiles) == 1 else rows[self.profile_id[rows] == pid]
+            if not len(sel):
+                continue
+            wmask = next(sl.esc.writable for sl in self.slaves if sl.spec.profile == prof)[lo:hi]
+            if wmask.all():
+                mem[sel, lo:hi] = new
+            elif wmask.any():
+                cols = np.nonzero(wmask)[0]
+                mem[np.ix_(sel, cols + lo)] = new[cols]
+        if lo < R.STATION_ALIAS + 2 and hi > R.STATION_ADDRESS:
+            self.addressing_dirty = True
+        if lo < R.ECAT_EVENT_MASK + 2 and hi > R.ECAT_EVENT_MASK:
+            self.irq_dirty = True
+        if lo < R.SM_BASE and hi > R.FMMU_BASE:
+            self.fmmu_dirty = True
+        if lo < R.WATCHDOG_STATUS_PROCESS_DATA and hi > R.WATCHDOG_DIVIDER:
+            self.watchdog_dirty = True
+        if lo < R.DC_RECEIVE_TIME_PORT0 + 16 and hi > R.DC_RECEIVE_TIME_PORT0:
+            self.latch_receive_times(rows)
+        if lo < R.DC_SYSTEM_TIME + 8 and hi > R.DC_SYSTEM_TIME:
+            a = max(lo, R.DC_SYSTEM_TIME)
+            self.time_loop_write(rows, data[a - lo: min(hi, R.DC_SYSTEM_TIME + 8) - lo], a - R.DC_SYSTEM_TIME)
+        return len(rows)
+
+    def _broadcast(self, cmd: int, ado: int, data: npt.NDArray[np.uint8], n: int) -> int:
+        route = self.route
+        passes = self._cur_passes
+        if not len(passes) or n == 0:
+            return 0
+        lo, hi = ado, ado + n
+        if hi > R.ADDRESS_SPACE:
+            return 0
+        if cmd == Command.BWR:
+            return self._multi_write(passes, ado, data.tobytes())
+        if cmd == Command.BRW:
+            incoming = data.tobytes()
+            wkc = 0
+            for s in passes.tolist():
+                esc = self.slaves[s].esc
+                if esc.profile.features & R.Feature.RW_NOT_SUPPORTED:
+                    continue
+                r = esc.ecat_read(ado, n)
+                if r is not None:
+                    data |= np.frombuffer(r, np.uint8)
+                    wkc += 1
+                if esc.ecat_write(ado, incoming):
+                    wkc += 2
+            return wkc
+        # BRD
+        key = (lo, hi, len(passes))
+        plan = self._bplan.get(key)
+        if plan is None:
+            if self.sm_dirty:
+                self._refresh_sm_state()
+            sm_lo, sm_hi = self._sm_span
+            slow = (lo < sm_hi and hi > sm_lo) or (
+                self.sii_busy_ns > 0 and lo < R.SII_CONTROL + 2 and hi > R.SII_CONTROL)
+            rows = self._rows_implementing(passes, lo, hi)
+            contig = route.contiguous and len(rows) == len(passes)
+            plan = (rows, 1 if contig else 0, bool(slow))
+            self._bplan[key] = plan
+        rows, contiguous, slow = plan
+        if slow:
+            wkc = 0
+            for s in passes.tolist():
+                r = self.slaves[s].esc.ecat_read(ado, n)
+                if r is not None:
+                    data |= np.frombuffer(r, np.uint8)
+                    wkc += 1
+            return wkc
+        if not len(rows):
+            return 0
+        mem = self.memory.mem
+        if lo < R.DC_SYSTEM_TIME + 8 and hi > R.DC_SYSTEM_TIME:
+            self.refresh_system_time(rows)
+        block = mem[: len(rows), lo:hi] if contiguous else mem[rows, lo:hi]
+        if n == 1:
+            data |= np.bitwise_or.reduce(block[:, 0])
+        else:
+            data |= np.bitwise_or.reduce(block, axis=0)
+        clear = 0
+        if lo < R.DL_STATUS + 2 and hi > R.DL_STATUS:
+            clear |= R.EcatEvent.DL_STATUS
+        if lo < R.AL_STATUS + 2 and hi > R.AL_STATUS:
+            clear |= R.EcatEvent.AL_STATUS
+        if clear and self._irq & clear:
+            col = mem[: len(rows), R.ECAT_EVENT_REQUEST] if contiguous else None
+            if col is not None:
+                col &= np.uint8(~clear & 0xFF)
+            else:
+                mem[rows, R.ECAT_EVENT_REQUEST] &= np.uint8(~clear & 0xFF)
+            self.irq_dirty = True
+        elif clear:
+            # Events not in any mask: clear them without touching the IRQ cache.
+            if contiguous:
+                mem[: len(rows), R.ECAT_EVENT_REQUEST] &= np.uint8(~clear & 0xFF)
+            else:
+                mem[rows, R.ECAT_EVENT_REQUEST] &= np.uint8(~clear & 0xFF)
+        return len(rows)
+
+    def _logical(self, cmd: int, address: int, data: npt.NDArray[np.uint8], n: int) -> int:
+        if self.sm_dirty:
+            self._refresh_sm_state()
+        if self.fmmu_dirty or self._lmap is None:
+            self._refresh_fmmus()
+        lmap = self._lmap
+        assert lmap is not None
+        if lmap.empty or n == 0:
+            return 0
+        reads = cmd != Command.LWR
+        writes = cmd != Command.LRD
+        lo = address & 0xFFFFFFFF
+        wkc = lmap.working_counter(lo, lo + n, reads, writes)
+        if not wkc:
+            return 0
+        done = lmap.execute(self.memory.flat, lo, data, reads, writes)
+        if len(done):
+            self.complete_write_sms(done)
+        return wkc

@@ -375,6 +375,14 @@ WATCHDOG_TIME_DEFAULT = 1000
 WATCHDOG_TICK_NS = 40
 
 
+#: DC loop reset values (facts 3.14, KickCAT citing the ESC datasheet).
+DC_SPEED_COUNTER_START_DEFAULT = 0x1000
+DC_TIME_FILTER_DEPTH_DEFAULT = 4
+DC_SPEED_FILTER_DEPTH_DEFAULT = 12
+#: Bytes to write to ESC_RESET_ECAT, one per frame, to reset an ESC (facts 3.3).
+ESC_RESET_SEQUENCE = (0x52, 0x45, 0x53)
+
+
 def watchdog_unit_ns(divider: int) -> int:
     """Duration of one watchdog time unit for a divider value."""
     return (divider + 2) * WATCHDOG_TICK_NS

@@ -1,0 +1,315 @@
+"""FMMU configuration compiled into gather/scatter index arrays (issue 3 items 6, 12).
+
+When the FMMU or SM registers of any slave change, the segment compiles the
+active FMMUs of all slaves on the frame's route into flat index arrays over
+the memory array (``EscMemory.flat``):
+
+- byte entries (logical start bit 0, stop bit 7, physical start bit 0): one
+  logical byte <-> one physical byte;
+- bit entries (anything else): one logical bit <-> one physical bit.
+
+A logical datagram then costs a fixed number of numpy operations: two
+``searchsorted`` to find the entries inside [address, address + length), a
+gather for the read FMMUs and a scatter for the write FMMUs. The rules of
+seed 004 hold: a logical byte may be read by one FMMU and written by another,
+bit operations leave unmapped bits untouched (``ufunc.at`` read-modify-write),
+unconfigured logical addresses pass unchanged.
+
+Ordering along the ring matters only where mappings overlap: when a logical
+byte read by one slave is written by a later slave on the route (cross
+traffic), or when byte and bit entries of different slaves read the same
+byte. Such bytes are listed in ``conflicts``; a datagram touching one is
+processed pass by pass in route order (``_execute_ordered``). Several
+readers of the same byte/bit otherwise resolve by ordered assignment (the
+last slave on the route wins, as on the wire).
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from pyethercat.wire import registers as R
+
+I64 = npt.NDArray[np.int64]
+U8 = npt.NDArray[np.uint8]
+BoolA = npt.NDArray[np.bool_]
+
+_FMMU = struct.Struct("<IHBBHBBB3x")
+SLAVE_STRIDE = R.ADDRESS_SPACE
+
+
+@dataclass
+class FmmuConfig:
+    """One active FMMU of the slave at route position ``pos``."""
+
+    pos: int
+    slave: int
+    logical: int
+    length: int
+    start_bit: int
+    stop_bit: int
+    physical: int
+    physical_bit: int
+    read: bool
+    write: bool
+
+    @property
+    def bits(self) -> int:
+        return 8 * self.length - self.start_bit - (7 - self.stop_bit)
+
+    @property
+    def byte_aligned(self) -> bool:
+        return self.start_bit == 0 and self.stop_bit == 7 and self.physical_bit == 0
+
+
+def parse_fmmus(raw: bytes, count: int, pos: int, slave: int) -> list[FmmuConfig]:
+    """Active FMMUs from the bytes of a slave's FMMU register block."""
+    out = []
+    for n in range(count):
+        (logical, length, sbit, ebit, phys, pbit, ftype, act) = _FMMU.unpack_from(raw, 16 * n)
+        if not act & 1 or length == 0 or not ftype & 3:
+            continue
+        cfg = FmmuConfig(pos, slave, logical, length, sbit & 7, ebit & 7, phys, pbit & 7,
+                         bool(ftype & R.FmmuType.READ), bool(ftype & R.FmmuType.WRITE))
+        if cfg.bits > 0:
+            out.append(cfg)
+    return out
+
+
+def _cat(parts: list[I64]) -> I64:
+    return np.concatenate(parts).astype(np.int64) if parts else np.zeros(0, np.int64)
+
+
+class LogicalMap:
+    """Compiled FMMU mappings of a route (see the module docstring).
+
+    ``writable[slave]`` is the slave's ECAT-writable byte mask (written bytes
+    outside it are dropped); ``complete[slave]`` lists the last bytes of the
+    slave's enabled buffered write SMs (a write there completes a buffer).
+    """
+
+    def __init__(self, configs: list[FmmuConfig], writable: list[npt.NDArray[np.bool_]],
+                 complete: dict[int, set[int]], implemented: list[npt.NDArray[np.bool_]]) -> None:
+        self.configs = configs
+        rb_log, rb_phys, rb_pos = [], [], []
+        wb_log, wb_phys, wb_pos, wb_done = [], [], [], []
+        rt_lbit, rt_pbyte, rt_shift, rt_pos = [], [], [], []
+        wt_lbit, wt_pbyte, wt_shift, wt_pos, wt_done = [], [], [], [], []
+        for c in configs:
+            base = c.slave * SLAVE_STRIDE
+            impl = implemented[c.slave]
+            wmask = writable[c.slave]
+            done = complete.get(c.slave, set())
+            if c.byte_aligned:
+                log = np.arange(c.logical, c.logical + c.length, dtype=np.int64)
+                phys = np.arange(c.physical, c.physical + c.length, dtype=np.int64)
+                keep = phys < R.ADDRESS_SPACE
+                log, phys = log[keep], phys[keep]
+                pos = np.full(len(log), c.pos, np.int64)
+                if c.read:
+                    ok = impl[phys]
+                    rb_log.append(log[ok])
+                    rb_phys.append(phys[ok] + base)
+                    rb_pos.append(pos[ok])
+                if c.write:
+                    ok = wmask[phys]
+                    wb_log.append(log[ok])
+                    wb_phys.append(phys[ok] + base)
+                    wb_pos.append(pos[ok])
+                    wb_done.append(np.isin(phys[ok], list(done)) if done else np.zeros(int(ok.sum()), bool))
+            else:
+                k = np.arange(c.bits, dtype=np.int64)
+                lbit = c.logical * 8 + c.start_bit + k
+                pbit = c.physical * 8 + c.physical_bit + k
+                keep = (pbit >> 3) < R.ADDRESS_SPACE
+                lbit, pbit = lbit[keep], pbit[keep]
+                pos = np.full(len(lbit), c.pos, np.int64)
+                if c.read:
+                    ok = impl[pbit >> 3]
+                    rt_lbit.append(lbit[ok])
+                    rt_pbyte.append((pbit[ok] >> 3) + base)
+                    rt_shift.append(pbit[ok] & 7)
+                    rt_pos.append(pos[ok])
+                if c.write:
+                    ok = wmask[pbit >> 3]
+                    wt_lbit.append(lbit[ok])
+                    wt_pbyte.append((pbit[ok] >> 3) + base)
+                    wt_shift.append(pbit[ok] & 7)
+                    wt_pos.append(pos[ok])
+                    wt_done.append(np.isin(pbit[ok] >> 3, list(done)) if done else np.zeros(int(ok.sum()), bool))
+
+        def sort(keys: I64, *cols: I64) -> tuple[I64, ...]:
+            # Stable by (logical, route position): ordered assignment = last reader wins.
+            order = np.lexsort((cols[-1], keys)) if len(keys) else np.zeros(0, np.int64)
+            return (keys[order],) + tuple(c[order] for c in cols)
+
+        self.rb_log, self.rb_phys, self.rb_pos = sort(_cat(rb_log), _cat(rb_phys), _cat(rb_pos))
+        wdone = np.concatenate(wb_done).astype(bool) if wb_done else np.zeros(0, bool)
+        self.wb_log, self.wb_phys, wdone_i, self.wb_pos = sort(
+            _cat(wb_log), _cat(wb_phys), wdone.astype(np.int64), _cat(wb_pos))
+        self.wb_done: BoolA = wdone_i.astype(bool)
+        self.rt_lbit, self.rt_pbyte, self.rt_shift, self.rt_pos = sort(
+            _cat(rt_lbit), _cat(rt_pbyte), _cat(rt_shift), _cat(rt_pos))
+        tdone = np.concatenate(wt_done).astype(bool) if wt_done else np.zeros(0, bool)
+        self.wt_lbit, self.wt_pbyte, self.wt_shift, tdone_i, self.wt_pos = sort(
+            _cat(wt_lbit), _cat(wt_pbyte), _cat(wt_shift), tdone.astype(np.int64), _cat(wt_pos))
+        self.wt_done: BoolA = tdone_i.astype(bool)
+        self.wt_slave: I64 = self.wt_pbyte // SLAVE_STRIDE
+        self.wb_slave: I64 = self.wb_phys // SLAVE_STRIDE
+        self.wt_clear: U8 = (~(np.left_shift(1, self.wt_shift))).astype(np.uint8)
+        # FMMU-level ranges for the working counter (ordered by route position).
+        self.f_lo = np.array([c.logical for c in configs], dtype=np.int64)
+        self.f_hi = np.array([c.logical + c.length for c in configs], dtype=np.int64)
+        self.f_pos = np.array([c.pos for c in configs], dtype=np.int64)
+        self.f_read = np.array([c.read for c in configs], dtype=bool)
+        self.f_write = np.array([c.write for c in configs], dtype=bool)
+        self.has_bits = bool(len(self.rt_lbit) or len(self.wt_lbit))
+        self.conflicts = self._find_conflicts()
+        self.empty = not configs
+
+    def _find_conflicts(self) -> I64:
+        """Logical bytes whose result depends on the order along the route."""
+        read_log = np.concatenate([self.rb_log, self.rt_lbit >> 3])
+        read_pos = np.concatenate([self.rb_pos, self.rt_pos])
+        write_log = np.concatenate([self.wb_log, self.wt_lbit >> 3])
+        write_pos = np.concatenate([self.wb_pos, self.wt_pos])
+        bad: list[I64] = []
+        if len(read_log) and len(write_log):
+            # Earliest reader of each logical byte versus the writers of that byte.
+            order = np.lexsort((read_pos, read_log))
+            rl, rp = read_log[order], read_pos[order]
+            first = np.ones(len(rl), bool)
+            first[1:] = rl[1:] != rl[:-1]
+            ul, up = rl[first], rp[first]
+            idx = np.searchsorted(ul, write_log)
+            idx_c = np.minimum(idx, len(ul) - 1)
+            hit = (idx < len(ul)) & (ul[idx_c] == write_log) & (up[idx_c] < write_pos)
+            bad.append(write_log[hit])
+        if len(self.rb_log) and len(self.rt_lbit):
+            tb = self.rt_lbit >> 3
+            common = np.intersect1d(self.rb_log, tb)
+            for b in common.tolist():
+                p1 = set(self.rb_pos[self.rb_log == b].tolist())
+                p2 = set(self.rt_pos[tb == b].tolist())
+                if len(p1 | p2) > 1:
+                    bad.append(np.array([b], np.int64))
+        if not bad:
+            return np.zeros(0, np.int64)
+        return np.unique(np.concatenate(bad))
+
+    # --- execution --------------------------------------------------------------------
+
+    @staticmethod
+    def _count(pos: I64) -> int:
+        if len(pos) == 0:
+            return 0
+        return 1 + int(np.count_nonzero(pos[1:] != pos[:-1]))
+
+    def working_counter(self, lo: int, hi: int, reads: bool, writes: bool) -> int:
+        """WKC of a logical datagram over [lo, hi): +1 per slave read, +2 (LRW) / +1 (LWR) per slave written."""
+        if self.empty:
+            return 0
+        hit = (self.f_lo < hi) & (self.f_hi > lo)
+        wkc = 0
+        if reads:
+            wkc += self._count(self.f_pos[hit & self.f_read])
+        if writes:
+            nw = self._count(self.f_pos[hit & self.f_write])
+            wkc += 2 * nw if reads else nw
+        return wkc
+
+    def execute(self, flat: U8, lo: int, data: U8, reads: bool, writes: bool) -> I64:
+        """Apply a logical datagram at ``lo`` to ``data`` (in place) and memory.
+
+        Returns the slaves whose buffered write SM got its last byte written.
+        """
+        hi = lo + len(data)
+        if self.empty:
+            return np.zeros(0, np.int64)
+        if len(self.conflicts):
+            c0, c1 = np.searchsorted(self.conflicts, (lo, hi))
+            if c1 > c0:
+                return self._execute_ordered(flat, lo, data, reads, writes)
+        orig = data.copy() if writes and reads else data
+        # Reads gather before writes scatter: a slave reads its memory as it was.
+        if reads:
+            r0, r1 = np.searchsorted(self.rb_log, (lo, hi))
+            rvals = flat[self.rb_phys[r0:r1]] if r1 > r0 else None
+            if self.has_bits:
+                t0, t1 = np.searchsorted(self.rt_lbit, (lo * 8, hi * 8))
+                tvals = (flat[self.rt_pbyte[t0:t1]] >> self.rt_shift[t0:t1]) & 1 if t1 > t0 else None
+            else:
+                t0 = t1 = 0
+                tvals = None
+        done_parts: list[I64] = []
+        if writes:
+            w0, w1 = np.searchsorted(self.wb_log, (lo, hi))
+            if w1 > w0:
+                flat[self.wb_phys[w0:w1]] = orig[self.wb_log[w0:w1] - lo]
+                d = self.wb_done[w0:w1]
+                if d.any():
+                    done_parts.append(self.wb_slave[w0:w1][d])
+            if self.has_bits:
+                b0, b1 = np.searchsorted(self.wt_lbit, (lo * 8, hi * 8))
+                if b1 > b0:
+                    lb = self.wt_lbit[b0:b1] - lo * 8
+                    vals = ((orig[lb >> 3] >> (lb & 7)) & 1).astype(np.uint8)
+                    pb = self.wt_pbyte[b0:b1]
+                    np.bitwise_and.at(flat, pb, self.wt_clear[b0:b1])
+                    np.bitwise_or.at(flat, pb, (vals << self.wt_shift[b0:b1]).astype(np.uint8))
+                    d = self.wt_done[b0:b1]
+                    if d.any():
+                        done_parts.append(self.wt_slave[b0:b1][d])
+        if reads:
+            if rvals is not None:
+                data[self.rb_log[r0:r1] - lo] = rvals
+            if tvals is not None:
+                bits = np.unpackbits(data, bitorder="little")
+                bits[self.rt_lbit[t0:t1] - lo * 8] = tvals
+                data[:] = np.packbits(bits, bitorder="little")
+        if not done_parts:
+            return np.zeros(0, np.int64)
+        return np.unique(np.concatenate(done_parts))
+
+    def _execute_ordered(self, flat: U8, lo: int, data: U8, reads: bool, writes: bool) -> I64:
+        """Pass-by-pass processing in route order (only for datagrams over conflicting bytes)."""
+        hi = lo + len(data)
+        r0, r1 = np.searchsorted(self.rb_log, (lo, hi))
+        t0, t1 = np.searchsorted(self.rt_lbit, (lo * 8, hi * 8))
+        w0, w1 = np.searchsorted(self.wb_log, (lo, hi))
+        b0, b1 = np.searchsorted(self.wt_lbit, (lo * 8, hi * 8))
+        positions = sorted(set(self.rb_pos[r0:r1].tolist()) | set(self.rt_pos[t0:t1].tolist())
+                           | set(self.wb_pos[w0:w1].tolist()) | set(self.wt_pos[b0:b1].tolist()))
+        done: set[int] = set()
+        for p in positions:
+            arriving = data.copy()
+            rsel = np.nonzero(self.rb_pos[r0:r1] == p)[0] + r0 if reads else np.zeros(0, np.int64)
+            tsel = np.nonzero(self.rt_pos[t0:t1] == p)[0] + t0 if reads else np.zeros(0, np.int64)
+            rvals = flat[self.rb_phys[rsel]]
+            tvals = (flat[self.rt_pbyte[tsel]] >> self.rt_shift[tsel]) & 1
+            if writes:
+                wsel = np.nonzero(self.wb_pos[w0:w1] == p)[0] + w0
+                if len(wsel):
+                    flat[self.wb_phys[wsel]] = arriving[self.wb_log[wsel] - lo]
+                    if self.wb_done[wsel].any():
+                        done.update(self.wb_slave[wsel][self.wb_done[wsel]].tolist())
+                bsel = np.nonzero(self.wt_pos[b0:b1] == p)[0] + b0
+                if len(bsel):
+                    lb = self.wt_lbit[bsel] - lo * 8
+                    vals = ((arriving[lb >> 3] >> (lb & 7)) & 1).astype(np.uint8)
+                    np.bitwise_and.at(flat, self.wt_pbyte[bsel], self.wt_clear[bsel])
+                    np.bitwise_or.at(flat, self.wt_pbyte[bsel],
+                                     (vals << self.wt_shift[bsel]).astype(np.uint8))
+                    if self.wt_done[bsel].any():
+                        done.update(self.wt_slave[bsel][self.wt_done[bsel]].tolist())
+            if len(rsel):
+                data[self.rb_log[rsel] - lo] = rvals
+            if len(tsel):
+                bits = np.unpackbits(data, bitorder="little")
+                bits[self.rt_lbit[tsel] - lo * 8] = tvals
+                data[:] = np.packbits(bits, bitorder="little")
+        return np.array(sorted(done), dtype=np.int64)
