@@ -153,7 +153,7 @@ class ErrorCounterReport:
 
     def format(self) -> str:
         """A table: one line per slave; per port invalid/rx/forwarded/lost."""
-        lines = ["pos  station  port0 inv/rx/fwd/lost  port1          port2          port3"
+        lines = ["# pos station  port0 inv/rx/fwd/lost  port1          port2          port3"
                  "          epu  pdi"]
         for s in self.slaves:
             if not s.answered:

@@ -281,17 +281,20 @@ class Master(ProcessDataMixin):
 
     def set_state(self, state: AlState | int | str, slaves: Sequence[SlaveRef] | None = None,
                   timeout: float = states.DEFAULT_STATE_TIMEOUT, *,
-                  ack_errors: bool = True) -> None:
+                  ack_errors: bool = True,
+                  prepare: states.PrepareStep | None = states.setup_mailboxes) -> None:
         """Bring slaves to ``state`` through the standard path and wait for it.
 
         ``timeout`` applies to each step. Refusals raise
         :class:`~pyethercat.errors.AlStatusError` with the AL status code;
         slaves that take too long raise
-        :class:`~pyethercat.errors.StateTimeoutError` naming them.
+        :class:`~pyethercat.errors.StateTimeoutError` naming them. ``prepare``
+        runs before each step (default: mailbox sync managers from the SII
+        before INIT -> PREOP/BOOT).
         """
         with self._lock:
             states.set_state(self.scheduler, self._select(slaves), _state(state), timeout,
-                             ack_errors=ack_errors, sleep=self._sleep)
+                             ack_errors=ack_errors, sleep=self._sleep, prepare=prepare)
 
     def acknowledge_errors(self, slaves: Sequence[SlaveRef] | None = None) -> list[Slave]:
         """Acknowledge error flags; returns the slaves that had one."""

@@ -25,7 +25,18 @@ from pyethercat.master.diag import multiple_read, multiple_write
 from pyethercat.master.scheduler import Scheduler
 from pyethercat.master.slave import Slave
 from pyethercat.wire.al import AlState, al_status_code_name, state_name
-from pyethercat.wire.registers import AL_CONTROL, AL_ERROR_FLAG, AL_STATE_MASK, AL_STATUS
+from pyethercat.wire.datagram import Command, Datagram
+from pyethercat.wire.registers import (
+    AL_CONTROL,
+    AL_ERROR_FLAG,
+    AL_STATE_MASK,
+    AL_STATUS,
+    SM_ACTIVATE_ENABLE,
+    SM_CONTROL_MAILBOX_IN,
+    SM_CONTROL_MAILBOX_OUT,
+    sm_address,
+)
+from pyethercat.wire.sii.model import SyncManagerType
 
 __all__ = [
     "AlStatusReading",
@@ -35,6 +46,8 @@ __all__ = [
     "wait_for_state",
     "set_state",
     "state_path",
+    "mailbox_sm_writes",
+    "setup_mailboxes",
     "DEFAULT_STATE_TIMEOUT",
 ]
 
@@ -164,8 +177,9 @@ def wait_for_state(scheduler: Scheduler, slaves: Sequence[Slave], state: AlState
             text = (f"{slave.describe()} refused {state_name(target)}, "
                     f"stays in {r.state_name}")
             if len(refused) > 1:
-                text += "; also " + ", ".join(
-                    f"{s.describe()} (0x{x.code:04X} {x.code_name})" for s, x in refused[1:5])
+                others = ", ".join(f"slave {s.position} 0x{x.code:04X}" for s, x in refused[1:6])
+                more = ", ..." if len(refused) > 6 else ""
+                text += (f" ({len(refused) - 1} more refused: {others}{more})")
             raise AlStatusError(text, r.code, r.code_name)
         pending = still
         if not pending:
@@ -198,15 +212,68 @@ def state_path(current: AlState | int, target: AlState | int) -> list[AlState]:
     return path or [tgt]
 
 
+def mailbox_sm_writes(slave: Slave, boot: bool = False) -> list[tuple[int, bytes]]:
+    """(register address, bytes) of SM0/SM1 for the slave's standard (or bootstrap) mailbox.
+
+    Sizes and offsets come from the SII fixed area (words 0x14-0x1B), control
+    bytes from the SII SyncM category when it describes SM0/SM1 as mailboxes
+    (the usual 0x26/0x22 otherwise). Empty for slaves without a mailbox.
+    """
+    sii = slave.sii
+    if sii is None:
+        return []
+    if boot:
+        rx = (sii.boot_rx_mailbox_offset, sii.boot_rx_mailbox_size)
+        tx = (sii.boot_tx_mailbox_offset, sii.boot_tx_mailbox_size)
+    else:
+        rx = (sii.rx_mailbox_offset, sii.rx_mailbox_size)
+        tx = (sii.tx_mailbox_offset, sii.tx_mailbox_size)
+    if not rx[1] or not tx[1]:
+        return []
+    controls = [SM_CONTROL_MAILBOX_OUT, SM_CONTROL_MAILBOX_IN]
+    sms = sii.sync_managers
+    for n, kind in enumerate((SyncManagerType.MAILBOX_OUT, SyncManagerType.MAILBOX_IN)):
+        if n < len(sms) and sms[n].sm_type == kind and sms[n].control:
+            controls[n] = sms[n].control
+    return [(sm_address(n), struct.pack("<HHBBBB", start, size, controls[n], 0,
+                                        SM_ACTIVATE_ENABLE, 0))
+            for n, (start, size) in enumerate((rx, tx))]
+
+
+def setup_mailboxes(scheduler: Scheduler, step: AlState, slaves: Sequence[Slave]) -> None:
+    """Before INIT -> PREOP/BOOT: write the mailbox sync managers of slaves still in INIT."""
+    if step not in (AlState.PREOP, AlState.BOOT):
+        return
+    readings = read_al_status(scheduler, slaves)
+    datagrams = []
+    for s, r in zip(slaves, readings, strict=True):
+        if r.answered and r.state == AlState.INIT:
+            for address, data in mailbox_sm_writes(s, boot=step == AlState.BOOT):
+                datagrams.append(Datagram.device(Command.FPWR, s.station_address, address, data))
+    replies = scheduler.transact(datagrams)
+    for d, reply in zip(datagrams, replies, strict=True):
+        if reply.wkc != 1:
+            raise WorkingCounterError(
+                f"mailbox sync manager write to station 0x{d.adp:04X} at 0x{d.ado:04X}", 1,
+                reply.wkc)
+
+
+#: Called before each step with the state about to be requested and the slaves concerned.
+PrepareStep = Callable[[Scheduler, AlState, Sequence[Slave]], None]
+
+
 def set_state(scheduler: Scheduler, slaves: Sequence[Slave], state: AlState | int,
               timeout: float = DEFAULT_STATE_TIMEOUT, *, ack_errors: bool = True,
               poll_interval: float = DEFAULT_POLL_INTERVAL,
               clock: Callable[[], float] = time.monotonic,
-              sleep: Callable[[float], None] = time.sleep) -> None:
+              sleep: Callable[[float], None] = time.sleep,
+              prepare: PrepareStep | None = setup_mailboxes) -> None:
     """Bring every slave to ``state`` step by step (all slaves per step at once).
 
     ``timeout`` applies to each step. With ``ack_errors`` pending error
     flags are acknowledged first (a slave ignores requests while flagged).
+    ``prepare`` runs before each request (default: mailbox sync managers
+    for INIT -> PREOP/BOOT; pass None when the configuration does that).
     """
     target = AlState(int(state))
     if not slaves:
@@ -227,6 +294,8 @@ def set_state(scheduler: Scheduler, slaves: Sequence[Slave], state: AlState | in
             if step is not None:
                 by_state.setdefault(step, []).append(s)
         for step, group in by_state.items():
+            if prepare is not None:
+                prepare(scheduler, step, group)
             request_state(scheduler, group, step)
         for step, group in by_state.items():
             wait_for_state(scheduler, group, step, timeout, poll_interval, clock, sleep)

@@ -1,0 +1,93 @@
+"""Opening a master from the command line's global options.
+
+``--iface IF`` and ``--udp HOST:PORT`` open a real link; ``--sim
+TOPOLOGY.toml`` builds the simulated segment and joins it to the master: in
+this process through the in-process pair link (the segment answers each
+frame synchronously, so nothing waits on timers), or with ``child=True`` in
+a child process over a Unix socketpair. The master package never imports
+the simulator; this module is where the two meet.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Any
+
+from pyethercat.errors import ConfigError
+from pyethercat.master.master import Master
+
+__all__ = ["Connection", "connect"]
+
+
+@dataclass
+class Connection:
+    """An open master and, for ``--sim``, the simulated segment or its child process."""
+
+    master: Master
+    #: The in-process ``Segment`` (``--sim`` without ``child``), else None.
+    segment: Any = None
+    #: The ``SimProcess`` handle (``--sim`` with ``child``), else None.
+    process: Any = None
+
+
+@contextlib.contextmanager
+def connect(obj: dict[str, Any] | None, *, child: bool = False, pcap: str | None = None,
+            **options: Any) -> Iterator[Connection]:
+    """Open the master the global options ask for; close everything afterwards.
+
+    ``options`` go to :class:`~pyethercat.master.master.Master`. ``pcap``
+    records every frame the master sends and receives.
+    """
+    obj = obj or {}
+    iface, udp, sim = obj.get("iface"), obj.get("udp"), obj.get("sim")
+    if sum(x is not None for x in (iface, udp, sim)) != 1:
+        raise ConfigError("say where the segment is: give one of --iface IF, --udp HOST:PORT "
+                          "or --sim TOPOLOGY.toml (before the command)")
+    conn: Connection
+    if sim is not None and not child:
+        from pyethercat.link.pair import PairLink
+        from pyethercat.sim.topology import load_topology
+
+        segment = load_topology(sim).build()
+        link: Any = PairLink.responder_link(segment.process, name=f"sim:{sim}")
+        link = _capture(link, pcap)
+        options.setdefault("deterministic", True)
+        conn = Connection(Master(link, **options), segment=segment)
+    elif sim is not None:
+        from pyethercat.sim.server import start_sim_process
+
+        process = start_sim_process(sim, link="unix")
+        try:
+            assert process.link is not None
+            # The handle closes its link itself when it stops.
+            conn = Connection(Master(_capture(process.link, pcap), owns_link=pcap is not None,
+                                     **options), process=process)
+        except BaseException:
+            process.stop()
+            raise
+    elif iface is not None:
+        from pyethercat.link.raw import RawLink
+
+        conn = Connection(Master(_capture(RawLink(iface), pcap), **options))
+    else:
+        from pyethercat.link.udp import UdpLink
+        from pyethercat.wire.frame import MASTER_MAC, returned_source_mac
+
+        link = UdpLink(peer=udp, rx_src=returned_source_mac(options.get("src", MASTER_MAC)))
+        conn = Connection(Master(_capture(link, pcap), **options))
+    try:
+        yield conn
+    finally:
+        conn.master.close()
+        if conn.process is not None:
+            conn.process.stop()
+
+
+def _capture(link: Any, pcap: str | None) -> Any:
+    if pcap is None:
+        return link
+    from pyethercat.link.capture import CaptureLink
+
+    return CaptureLink(link, pcap)
