@@ -86,6 +86,8 @@ def test_duplicate_entry_names_need_the_pdo_name(corpus_dir):
     out["Channel 3.Output"] = 1
     assert img.buffer[0] == 0b0100
     assert "Output" not in out and "Channel 3.Output" in out
+    out["Output 4"] = 1  # repeated names are numbered in image order
+    assert img.buffer[0] == 0b1100 and out["Channel 4.Output"] is True
 
 
 @given(st.lists(st.integers(1, 16), min_size=1, max_size=12), st.data())

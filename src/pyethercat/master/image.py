@@ -183,8 +183,9 @@ class SlaveIO(MutableMapping[str, PdoValue]):
     """A slave's inputs or outputs by entry name (``"Input 1"``) or ``"PDO.entry"``.
 
     Entry names that repeat across PDOs (Beckhoff: every channel's entry is
-    called ``"Input"``) are reachable only by their qualified name
-    (``"Channel 1.Input"``), or by ``(index, subindex)``.
+    called ``"Input"``) are reachable by their qualified name
+    (``"Channel 1.Input"``), by number in image order (``"Input 1"``), or by
+    ``(index, subindex)``.
     Writing inputs is refused.
     """
 
@@ -203,6 +204,13 @@ class SlaveIO(MutableMapping[str, PdoValue]):
         for v in variables:
             if counts[v.info.name] == 1:
                 self._by_name[v.info.name] = v
+        # Repeated entry names (every channel's entry is "Input") also answer to
+        # "Input 1", "Input 2", ... in image order, unless a real name is taken.
+        seen: dict[str, int] = {}
+        for v in variables:
+            if counts[v.info.name] > 1:
+                seen[v.info.name] = seen.get(v.info.name, 0) + 1
+                self._by_name.setdefault(f"{v.info.name} {seen[v.info.name]}", v)
         self._primary = [v.info.name if counts[v.info.name] == 1 else v.info.qualified_name
                          for v in variables]
 

@@ -1,0 +1,208 @@
+"""``pyethercat pdos`` and ``pyethercat run``: process data from the command line.
+
+``pdos [-p POS]`` lists each slave's sync managers, PDOs and entries (as
+IgH's ``ethercat pdos`` does) plus where the master maps them: the logical
+address and bit of every block. ``run [--cycle US] [--seconds S]`` brings the
+segment to OP and runs the cyclic exchange with a live view (states, working
+counters, cycle statistics) refreshed in place; Ctrl-C ends it early.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from typing import Any
+
+import click
+from rich.console import Console, Group
+from rich.live import Live
+from rich.table import Table
+from rich.text import Text
+
+from pyethercat.cli._connect import connect
+from pyethercat.errors import ConfigError
+from pyethercat.master.config import Direction, ProcessDataConfig
+from pyethercat.master.cyclic import CyclicRunner
+from pyethercat.master.master import Master
+from pyethercat.wire.al import state_name
+from pyethercat.wire.mailbox.datatypes import DataType
+from pyethercat.wire.sii.model import SyncManagerType
+
+__all__ = ["register", "format_pdos", "live_view", "format_summary"]
+
+_SM_KIND: dict[int, str] = {SyncManagerType.MAILBOX_OUT: "mailbox out", SyncManagerType.MAILBOX_IN: "mailbox in",
+            SyncManagerType.OUTPUTS: "outputs", SyncManagerType.INPUTS: "inputs"}
+
+
+def parse_int(value: str) -> int:
+    """A number from the command line (``0x`` hex accepted)."""
+    try:
+        return int(value, 0)
+    except ValueError:
+        raise click.BadParameter(f"not a number: {value!r}") from None
+
+
+def _type_name(code: int) -> str:
+    try:
+        return DataType(code).name
+    except ValueError:
+        return f"type 0x{code:04X}" if code else "-"
+
+
+def format_pdos(master: Master, cfg: ProcessDataConfig, positions: list[int]) -> str:
+    """The text of ``pyethercat pdos`` for the given slave positions."""
+    lines: list[str] = []
+    for p in positions:
+        s = master.slaves[p]
+        sc = cfg.slaves[p]
+        lines.append(f"=== slave {p} ({s.address_text}, {s.name or '?'}) ===")
+        if not sc.sync_managers:
+            lines.append("  no sync managers")
+        for sm in sc.sync_managers:
+            kind = _SM_KIND.get(sm.sm_type, f"type {sm.sm_type}")
+            lines.append(f"SM{sm.index}: PhysAddr 0x{sm.start:04X}, Size {sm.length:4d}, "
+                         f"Control 0x{sm.control:02X}, Enable {sm.activate}, {kind}")
+            for pdo in sm.pdos:
+                tag = "RxPDO" if pdo.direction is Direction.OUTPUTS else "TxPDO"
+                lines.append(f"  {tag} 0x{pdo.index:04X} \"{pdo.name}\"")
+                for e in pdo.entries:
+                    if e.index == 0:
+                        lines.append(f"    (gap) {e.bit_length} bit")
+                        continue
+                    lines.append(f"    PDO entry 0x{e.index:04X}:{e.subindex:02X}, "
+                                 f"{e.bit_length:2d} bit, {_type_name(e.data_type)}, \"{e.name}\"")
+        for f in sc.fmmus:
+            what = "outputs" if f.fmmu_type & 2 else "inputs"
+            lines.append(f"FMMU{f.index}: logical 0x{f.logical_start:08X}.{f.logical_start_bit}"
+                         f"-{f.logical_stop_bit} ({f.length} byte{'s' if f.length != 1 else ''}, "
+                         f"{f.bit_length} bit) <-> 0x{f.physical_start:04X}.{f.physical_start_bit}"
+                         f" {what}")
+        for w in sc.warnings:
+            lines.append(f"note: {w}")
+    for g in cfg.groups:
+        if not positions or any(cfg.slaves[p].group == g.name for p in positions):
+            kinds = ", ".join(f"{d.command.name} 0x{d.logical_address:08X}+{d.length} "
+                              f"WKC {d.expected_wkc}" for d in g.datagrams) or "no datagrams"
+            lines.append(f"group {g.name}: {g.output_bytes} output + {g.input_bytes} input bytes "
+                         f"at 0x{g.logical_base:08X} ({g.layout.value}); {kinds}")
+    return "\n".join(lines)
+
+
+def _fmt(v: float, digits: int = 1) -> str:
+    return "-" if math.isnan(v) else f"{v:.{digits}f}"
+
+
+def live_view(master: Master, runner: CyclicRunner, extra: Callable[[], list[str]] | None = None
+              ) -> Group:
+    """A rich renderable: slaves and states, groups and WKC, cycle statistics, events."""
+    slaves = Table(title="slaves", expand=False, show_edge=False)
+    for col in ("pos", "address"):
+        slaves.add_column(col, no_wrap=True)
+    slaves.add_column("name", no_wrap=True, overflow="ellipsis", max_width=32)
+    for col in ("state", "supervision"):
+        slaves.add_column(col, no_wrap=True)
+    for s in master.slaves:
+        h = runner.health.get(s.position)
+        state = state_name(h.state | (0x10 if h.error else 0)) if h and h.state else \
+            s.al_state_name
+        status = h.status if h else "-"
+        style = "green" if status == "ok" else "red"
+        slaves.add_row(str(s.position), s.address_text, s.name or "?", state,
+                       Text(status, style=style))
+    st = runner.stats
+    jit = st.jitter_us()
+    rtt = st.round_trip_us()
+    per = st.period_us()
+    stats = Table(title="cycles", show_header=False, show_edge=False)
+    stats.add_column("what")
+    stats.add_column("value")
+    stats.add_row("cycles", f"{st.cycles} at {st.period_ns / 1000:g} us")
+    stats.add_row("period mean/min/max us",
+                  f"{_fmt(per['mean'])} / {_fmt(per['min'])} / {_fmt(per['max'])}")
+    stats.add_row("jitter p50/p99/max us",
+                  f"{_fmt(jit['p50'])} / {_fmt(jit['p99'])} / {_fmt(jit['p100'])}")
+    stats.add_row("round trip p50/p99 us", f"{_fmt(rtt['p50'])} / {_fmt(rtt['p99'])}")
+    stats.add_row("late / overruns / skipped", f"{st.late} / {st.overruns} / {st.skipped}")
+    stats.add_row("WKC errors / lost frames", f"{st.wkc_errors} / {st.lost_frames}")
+    for g in runner.groups:
+        ok = Text("ok", style="green") if g.wkc_ok else Text("BAD", style="red")
+        stats.add_row(f"group {g.name} WKC", Text.assemble(f"{g.total_wkc}/{g.expected_wkc} ", ok))
+    parts: list[Any] = [slaves, stats]
+    lines = list(extra()) if extra is not None else []
+    lines += [e.text for e in list(runner.events)[-4:]]
+    if lines:
+        parts.append(Text("\n".join(lines)))
+    return Group(*parts)
+
+
+def format_summary(runner: CyclicRunner) -> str:
+    """A few lines summarising a run."""
+    st = runner.stats
+    jit = st.jitter_us((50, 90, 99, 99.9, 100))
+    rtt = st.round_trip_us()
+    per = st.period_us()
+    return "\n".join([
+        f"cycles: {st.cycles} at {st.period_ns / 1000:g} us (mean period {_fmt(per['mean'], 2)} us)",
+        "jitter us: " + ", ".join(f"{k} {_fmt(v)}" for k, v in jit.items()),
+        f"round trip us: p50 {_fmt(rtt['p50'])}, p99 {_fmt(rtt['p99'])}",
+        f"late cycles: {st.late}, overruns: {st.overruns} (callback {st.callback_overruns}), "
+        f"skipped: {st.skipped}",
+        f"WKC errors: {st.wkc_errors}, lost frames: {st.lost_frames}",
+    ])
+
+
+def register(cli: click.Group) -> None:
+    """Add ``pdos`` and ``run`` to the command line."""
+
+    @cli.command("pdos")
+    @click.option("-p", "--position", "position", metavar="POS", default=None,
+                  help="Only this slave (ring position).")
+    @click.pass_obj
+    def pdos_cmd(obj: dict[str, Any], position: str | None) -> None:
+        """Sync managers, PDOs and entries of every slave, and their logical mapping."""
+        with connect(obj) as conn:
+            m = conn.master
+            m.scan()
+            cfg = m.configure()
+            if position is None:
+                positions = [s.position for s in m.slaves]
+            else:
+                pos = parse_int(position)
+                m.slave(pos)
+                positions = [pos]
+            click.echo(format_pdos(m, cfg, positions))
+
+    @cli.command("run")
+    @click.option("--cycle", "cycle_us", default="1000", metavar="US", show_default=True,
+                  help="Cycle time in microseconds.")
+    @click.option("--seconds", default=None, type=float, metavar="S",
+                  help="Stop after S seconds (default: until Ctrl-C).")
+    @click.option("--pcap", default=None, metavar="FILE", help="Record every frame to FILE.")
+    @click.option("--layout", type=click.Choice(["packed", "byte"]), default="packed",
+                  show_default=True, help="Bit-packed or byte-aligned process image.")
+    @click.pass_obj
+    def run_cmd(obj: dict[str, Any], cycle_us: str, seconds: float | None, pcap: str | None,
+                layout: str) -> None:
+        """Bring the segment to OP and run cyclic exchange with a live view."""
+        cycle = parse_int(cycle_us) / 1e6
+        if cycle <= 0:
+            raise ConfigError(f"cycle time must be positive, got {cycle_us} us")
+        console = Console()
+        with connect(obj, pcap=pcap) as conn:
+            m = conn.master
+            m.scan()
+            m.configure(layout=layout)
+            runner = m.start(cycle)
+            end = None if seconds is None else time.monotonic() + seconds
+            try:
+                with Live(live_view(m, runner), console=console, refresh_per_second=4,
+                          transient=False) as live:
+                    while runner.running and (end is None or time.monotonic() < end):
+                        time.sleep(0.25)
+                        live.update(live_view(m, runner))
+            except KeyboardInterrupt:
+                pass
+            finally:
+                runner.stop()
+            click.echo(format_summary(runner))
