@@ -376,6 +376,11 @@ class CyclicRunner:
         self._want_detail = False
         self._recover_thread: threading.Thread | None = None
         self._recover_lock = threading.Lock()
+        self._check_ns = int(check_interval * 1e9)
+        self._last_detail_ns = 0
+        self._next_recovery_ns = 0
+        self._backoff_ns = 0
+        self._last_failure = ""
         self.error: BaseException | None = None
         self.consumer_missed = 0
 
@@ -555,8 +560,12 @@ class CyclicRunner:
         if not self._check_every or not self.slaves:
             return
         sched = self.scheduler
-        if self._want_detail and self._detail is None:
+        now = self.clock.now_ns()
+        # A fresh incident is looked at at once; a known one once per check interval.
+        if (self._want_detail and self._detail is None
+                and (not self._any_unhealthy() or now - self._last_detail_ns >= self._check_ns)):
             self._want_detail = False
+            self._last_detail_ns = now
             self._detail = sched.submit(
                 [Datagram.device(Command.FPRD, h.station_address, reg.AL_STATUS, 6)
                  for h in self.health.values()], flush=False)
@@ -628,19 +637,31 @@ class CyclicRunner:
         r = self._recover_thread
         if r is not None and r.is_alive():
             return
+        if self.clock.now_ns() < self._next_recovery_ns:
+            return
         for p in positions:
             self.health[p].status = "recovering"
 
         def work() -> None:
+            failure = ""
             with self._recover_lock:
                 try:
                     assert self.recover_fn is not None
                     self.recover_fn(positions)
                 except EtherCATError as exc:
-                    self.log(f"recovery of slaves {positions} not done yet: {exc}")
+                    failure = f"recovery of slaves {positions} not done yet: {exc}"
                 except Exception as exc:  # noqa: BLE001 - a bug must not kill the loop
-                    self.log(f"recovery of slaves {positions} failed: {exc!r}")
+                    failure = f"recovery of slaves {positions} failed: {exc!r}"
                 finally:
+                    if failure:
+                        # Back off (0.1 s doubling to 2 s) and say it once, not every try.
+                        self._backoff_ns = min(2_000_000_000, max(100_000_000, 2 * self._backoff_ns))
+                        if failure != self._last_failure:
+                            self.log(failure)
+                    else:
+                        self._backoff_ns = 0
+                    self._last_failure = failure
+                    self._next_recovery_ns = self.clock.now_ns() + self._backoff_ns
                     # Look again soon; the check decides whether it worked.
                     self._want_detail = True
 
