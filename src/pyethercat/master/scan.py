@@ -82,7 +82,12 @@ Progress = Callable[[str, int, int], None]
 # 0x0502-0x050F: control/status (2), address (4), data (8).
 _SII_WINDOW = 14
 _SII_DATA_OFFSET = 6
-_SII_CMD_ERRORS = SiiControl.ACK_ERROR | SiiControl.WRITE_ENABLE_ERROR
+# Plain ints: flag-enum arithmetic is slow in the per-slave loops below.
+_SII_CMD_ERRORS = int(SiiControl.ACK_ERROR | SiiControl.WRITE_ENABLE_ERROR)
+_SII_BUSY = int(SiiControl.BUSY)
+_SII_ACK_ERROR = int(SiiControl.ACK_ERROR)
+_SII_WE_ERROR = int(SiiControl.WRITE_ENABLE_ERROR)
+_SII_CMD_READ = int(SiiControl.CMD_READ)
 _SII_RETRIES = 3
 # ESC identification block 0x0000-0x0009.
 _ESC_INFO = struct.Struct("<BBHBBBBH")
@@ -269,8 +274,7 @@ def read_sii_batch(scheduler: Scheduler, accesses: Sequence[SiiAccess], *,
             if not r.waiting:
                 # Command and read-back in one frame: an ESC that answers fast gives the
                 # data at once; a slow one shows busy and is polled again.
-                datagrams.append(r.access.wr(SII_CONTROL, _sii_command(SiiControl.CMD_READ,
-                                                                       r.word)))
+                datagrams.append(r.access.wr(SII_CONTROL, _sii_command(_SII_CMD_READ, r.word)))
             datagrams.append(r.access.rd(SII_CONTROL, _SII_WINDOW))
         replies = scheduler.transact(datagrams)
         pos = 0
@@ -293,13 +297,13 @@ def read_sii_batch(scheduler: Scheduler, accesses: Sequence[SiiAccess], *,
                 _fail(r, f"SII status read failed (working counter {status.wkc})")
                 continue
             ctrl, addr = struct.unpack_from("<HI", status.data)
-            if ctrl & SiiControl.BUSY:
+            if ctrl & _SII_BUSY:
                 any_busy = True
                 continue
             r.waiting = False
             if ctrl & _SII_CMD_ERRORS or (addr & 0xFFFF) != r.word:
-                what = ("missing acknowledge" if ctrl & SiiControl.ACK_ERROR else
-                        "write-enable error" if ctrl & SiiControl.WRITE_ENABLE_ERROR else
+                what = ("missing acknowledge" if ctrl & _SII_ACK_ERROR else
+                        "write-enable error" if ctrl & _SII_WE_ERROR else
                         f"address register shows word 0x{addr:04X}")
                 _fail(r, f"SII read at word 0x{r.word:04X}: {what} (status 0x{ctrl:04X})")
                 continue
@@ -348,7 +352,7 @@ def _wait_sii_idle(scheduler: Scheduler, access: SiiAccess, what: str,
         if reply.wkc != 1:
             raise WorkingCounterError(f"{access.label}: SII status read ({what})", 1, reply.wkc)
         (ctrl,) = struct.unpack("<H", reply.data)
-        if not ctrl & SiiControl.BUSY:
+        if not ctrl & _SII_BUSY:
             return int(ctrl)
     raise SiiError(f"{access.label}: SII interface stays busy ({what})")
 
