@@ -267,7 +267,7 @@ class Esc:
         self.seg.irq_dirty = True
 
     def clear_ecat_event(self, bits: int) -> None:
-        value = self.u16(R.ECAT_EVENT_REQUEST) & ~bits
+        value = self.u16(R.ECAT_EVENT_REQUEST) & ~int(bits)
         self.set_u16(R.ECAT_EVENT_REQUEST, value)
         self.seg.irq_dirty = True
 
@@ -382,7 +382,7 @@ class Esc:
         if (lo < R.SII_CONTROL + 2 and hi > R.SII_CONTROL and self.sii_busy_until
                 and self.now_ns() >= self.sii_busy_until):
                 self.sii_busy_until = 0
-                self.set_u16(R.SII_CONTROL, self.u16(R.SII_CONTROL) & ~R.SiiControl.BUSY)
+                self.set_u16(R.SII_CONTROL, self.u16(R.SII_CONTROL) & ~int(R.SiiControl.BUSY))
         if lo < R.DC_SYSTEM_TIME + 8 and hi > R.DC_SYSTEM_TIME and self.profile.dc_supported:
             self.seg.refresh_system_time(np.array([self.index]))
 
@@ -522,7 +522,7 @@ class Esc:
         else:  # the write started at 0x0503
             prev = self.u8(R.SII_CONTROL) | (int(old[0]) << 8)
         written = self.u16(R.SII_CONTROL)
-        status_bits = prev & ~(R.SII_COMMAND_MASK | R.SiiControl.WRITE_ENABLE)
+        status_bits = prev & ~(R.SII_COMMAND_MASK | int(R.SiiControl.WRITE_ENABLE))
         if prev & R.SiiControl.BUSY:
             # Writes while busy are ignored.
             self.set_u16(R.SII_CONTROL, prev)
@@ -533,7 +533,7 @@ class Esc:
         owner_pdi = bool(self.u8(R.SII_CONFIG) & R.SII_CONFIG_PDI_OWNS) and not (
             self.u8(R.SII_CONFIG) & R.SII_CONFIG_FORCE_ECAT)
         if cmd == 0:
-            status &= ~(R.SiiControl.ACK_ERROR | R.SiiControl.WRITE_ENABLE_ERROR)
+            status &= ~int(R.SiiControl.ACK_ERROR | R.SiiControl.WRITE_ENABLE_ERROR)
         elif owner_pdi:
             status |= R.SiiControl.ACK_ERROR
         elif cmd == R.SiiControl.CMD_READ:
@@ -543,7 +543,7 @@ class Esc:
             chunk = bytes(self.sii[off: off + n])
             chunk += b"\xff" * (n - len(chunk))
             self.set_bytes(R.SII_DATA, chunk)
-            status &= ~(R.SiiControl.ACK_ERROR | R.SiiControl.WRITE_ENABLE_ERROR)
+            status &= ~int(R.SiiControl.ACK_ERROR | R.SiiControl.WRITE_ENABLE_ERROR)
         elif cmd == R.SiiControl.CMD_WRITE:
             if not we:
                 status |= R.SiiControl.WRITE_ENABLE_ERROR
@@ -553,14 +553,14 @@ class Esc:
                 if off + 2 > len(self.sii):
                     self.sii.extend(b"\xff" * (off + 2 - len(self.sii)))
                 self.sii[off: off + 2] = self.row[R.SII_DATA: R.SII_DATA + 2].tobytes()
-                status &= ~(R.SiiControl.ACK_ERROR | R.SiiControl.WRITE_ENABLE_ERROR)
+                status &= ~int(R.SiiControl.ACK_ERROR | R.SiiControl.WRITE_ENABLE_ERROR)
                 if off < 16 or off >= 2 * 0x40:
                     self._reparse_sii()
         elif cmd == R.SiiControl.CMD_RELOAD:
-            status &= ~R.SiiControl.CHECKSUM_ERROR
+            status &= ~int(R.SiiControl.CHECKSUM_ERROR)
             self.set_u16(R.SII_CONTROL, status)
             self._sii_load()
-            status = self.u16(R.SII_CONTROL) & ~(R.SII_COMMAND_MASK | R.SiiControl.WRITE_ENABLE)
+            status = self.u16(R.SII_CONTROL) & ~(R.SII_COMMAND_MASK | int(R.SiiControl.WRITE_ENABLE))
         else:
             status |= R.SiiControl.ACK_ERROR
         if cmd and self.seg.sii_busy_ns > 0 and not status & R.SiiControl.ACK_ERROR:
@@ -623,7 +623,7 @@ class Esc:
             self._set_sm_status(n, (s.status | R.SM_STATUS_MAILBOX_FULL | R.SM_STATUS_WRITE_EVENT)
                                 & ~R.SM_STATUS_READ_EVENT)
         repeat = s.activate & R.SM_ACTIVATE_REPEAT
-        pdi = self.row[R.sm_address(n) + R.SM_PDI_CONTROL]
+        pdi = int(self.row[R.sm_address(n) + R.SM_PDI_CONTROL])
         self.row[R.sm_address(n) + R.SM_PDI_CONTROL] = (pdi & ~R.SM_PDI_REPEAT_ACK) | (
             R.SM_PDI_REPEAT_ACK if repeat else 0)
 

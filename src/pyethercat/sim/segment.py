@@ -1091,12 +1091,12 @@ class Segment:
         if cmd == Command.BWR:
             return self._multi_write(passes, ado, data.tobytes())
         if cmd == Command.BRW:
-            incoming = data.tobytes()
             wkc = 0
             for s in passes.tolist():
                 esc = self.slaves[s].esc
                 if esc.profile.features & R.Feature.RW_NOT_SUPPORTED:
                     continue
+                incoming = data.tobytes()  # the data as it arrives at this slave
                 r = esc.ecat_read(ado, n)
                 if r is not None:
                     data |= np.frombuffer(r, np.uint8)
@@ -1144,16 +1144,16 @@ class Segment:
         if clear and self._irq & clear:
             col = mem[: len(rows), R.ECAT_EVENT_REQUEST] if contiguous else None
             if col is not None:
-                col &= np.uint8(~clear & 0xFF)
+                col &= np.uint8(~int(clear) & 0xFF)
             else:
-                mem[rows, R.ECAT_EVENT_REQUEST] &= np.uint8(~clear & 0xFF)
+                mem[rows, R.ECAT_EVENT_REQUEST] &= np.uint8(~int(clear) & 0xFF)
             self.irq_dirty = True
         elif clear:
             # Events not in any mask: clear them without touching the IRQ cache.
             if contiguous:
-                mem[: len(rows), R.ECAT_EVENT_REQUEST] &= np.uint8(~clear & 0xFF)
+                mem[: len(rows), R.ECAT_EVENT_REQUEST] &= np.uint8(~int(clear) & 0xFF)
             else:
-                mem[rows, R.ECAT_EVENT_REQUEST] &= np.uint8(~clear & 0xFF)
+                mem[rows, R.ECAT_EVENT_REQUEST] &= np.uint8(~int(clear) & 0xFF)
         return len(rows)
 
     def _logical(self, cmd: int, address: int, data: npt.NDArray[np.uint8], n: int) -> int:
