@@ -8,10 +8,13 @@ import time
 
 import pytest
 from fake_esc_segment import FakeSegment, FakeSlave
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from master_sii_helpers import io_sii
 
 from pyethercat.errors import FrameError, FrameTooLargeError, LinkError, TimeoutError
 from pyethercat.link.pair import PairLink
+from pyethercat.master import Master
 from pyethercat.master.scheduler import Scheduler
 from pyethercat.wire import registers as reg
 from pyethercat.wire.datagram import MAX_DATA, Command, Datagram
@@ -265,3 +268,28 @@ def test_closed_scheduler_refuses_work() -> None:
 
 def test_returned_mac_helper_sets_the_la_bit() -> None:
     assert returned_source_mac(b"\x01\x01\x01\x01\x01\x01")[0] == 0x03
+
+
+@settings(max_examples=40, deadline=None)
+@given(sizes=st.lists(st.integers(0, 700), min_size=1, max_size=40),
+       drops=st.sets(st.integers(0, 10), max_size=3))
+def test_packing_property(sizes: list[int], drops: set[int]) -> None:
+    """Any batch: frames stay within 1498 bytes, replies come back in order, all answered."""
+    seg = _segment(1)
+    for n in drops:
+        seg.faults[n] = "drop"
+    s, rec = _sched(seg, retries=len(drops) + 1)
+    dgs = [Datagram.device(Command.BWR, 0, 0x1000 + 3 * n, bytes([n % 256]) * size)
+           for n, size in enumerate(sizes)]
+    replies = s.transact(dgs)
+    assert [len(r.data) for r in replies] == sizes
+    assert [r.ado for r in replies] == [d.ado for d in dgs]
+    assert all(r.wkc == 1 for r in replies)
+    for raw in rec.sent:
+        assert sum(d.size for d in decode_frame(raw).datagrams) <= 1498
+    assert s.in_flight == 0 and s.queued == 0
+
+
+def test_empty_segment_scan() -> None:
+    m = Master(PairLink.responder_link(FakeSegment([]).process), deterministic=True)
+    assert m.scan() == [] and m.error_counters().slaves == ()
