@@ -15,7 +15,6 @@ from contextlib import contextmanager
 import click
 
 from pyethercat.cli._connect import connect
-from pyethercat.cli.main import parse_int
 from pyethercat.errors import ConfigError, SiiError
 from pyethercat.master.listing import slave_record, slave_table, topology_tree
 from pyethercat.master.master import Master
@@ -36,9 +35,11 @@ __all__ = ["register"]
 
 
 def _number(text: str, what: str) -> int:
+    """A number as typed on the command line (``0x`` hex accepted)."""
+    # Not cli.main.parse_int: importing cli.main from here would be circular.
     try:
-        return parse_int(text)
-    except click.BadParameter:
+        return int(text, 0)
+    except ValueError:
         raise ConfigError(f"{what}: not a number: {text!r}") from None
 
 
