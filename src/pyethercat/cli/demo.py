@@ -16,6 +16,7 @@ segment; the loop-back check then needs ``--topology`` naming the wiring.
 from __future__ import annotations
 
 import os
+import sys
 import tempfile
 import time
 from dataclasses import dataclass
@@ -233,7 +234,9 @@ def register(cli: click.Group) -> None:
     def demo_cmd(obj: dict[str, Any], seconds: float, cycle_us: int, topology: str | None,
                  pcap: str | None) -> None:
         """Run the main job: scan, configure, OP, 1 ms cycles with loop-back checks, pcap."""
-        console = Console()
+        # Off a terminal (make demo | tee, CI logs) rich would squeeze tables
+        # into 80 columns and cut names; give it room instead.
+        console = Console() if sys.stdout.isatty() else Console(width=140)
         obj = dict(obj or {})
         real = obj.get("iface") is not None or obj.get("udp") is not None
         topo_path = Path(topology) if topology else (None if real else find_demo_topology())
