@@ -586,7 +586,8 @@ class _Parser:
 
     def coe(self, el: _Element) -> EsiCoe:
         cmds: list[EsiInitCmd] = []
-        eds = None
+        # Older files (e.g. seed 002) give the EDS file as an attribute.
+        eds = el.get("EdsFile") or None
         for name, c in _kids(el):
             if name == "InitCmd":
                 cmds.append(self.init_cmd(c, "CoE"))
