@@ -170,7 +170,6 @@ class Esc:
         self.impl, self.writable = register_masks(prof)
         self.powered = False
         self.sii_busy_until = 0
-        self.pending_op = False
         self.last_mailbox_in = b""
         self.inputs = bytes(initial_inputs) if initial_inputs else b""
         self.reset_sequence = 0
@@ -199,13 +198,19 @@ class Esc:
 
     @property
     def output_bytes(self) -> int:
-        """Bytes of process-data outputs the device expects (from its RxPDOs)."""
+        """Bytes of process-data outputs expected (app's PDO mapping, else SII RxPDOs)."""
+        sizes = self.app.process_data_sizes() if self.app is not None else None
+        if sizes is not None:
+            return sizes[0]
         info = self.sii_info
         return 0 if info is None else (info.output_bits + 7) // 8
 
     @property
     def input_bytes(self) -> int:
-        """Bytes of process-data inputs the device sends (from its TxPDOs)."""
+        """Bytes of process-data inputs sent (app's PDO mapping, else SII TxPDOs)."""
+        sizes = self.app.process_data_sizes() if self.app is not None else None
+        if sizes is not None:
+            return sizes[1]
         info = self.sii_info
         return 0 if info is None else (info.input_bits + 7) // 8
 
@@ -329,6 +334,18 @@ class Esc:
             dl & ~int(R.DlStatus.PDI_OPERATIONAL))
         self.set_u16(R.DL_STATUS, dl)
         self.seg.addressing_dirty = True
+
+    @property
+    def pending_op(self) -> bool:
+        """A SAFEOP -> OP request waits for the first complete outputs."""
+        return self.index in self.seg.pending_op
+
+    @pending_op.setter
+    def pending_op(self, value: bool) -> None:
+        if value:
+            self.seg.pending_op.add(self.index)
+        else:
+            self.seg.pending_op.discard(self.index)
 
     @property
     def device_emulation(self) -> bool:

@@ -77,6 +77,21 @@ MASTER = -1
 FCS_SIZE = 4
 _WKC = struct.Struct("<H")
 _EMPTY = np.zeros(0, np.int64)
+_NEVER = 1 << 62
+
+
+def _status_after_write_table() -> npt.NDArray[np.uint8]:
+    """SM status byte after a buffered write completed: next buffer, write event."""
+    table = np.zeros(256, np.uint8)
+    for old in range(256):
+        cur = (old & R.SM_STATUS_BUFFER_MASK) >> R.SM_STATUS_BUFFER_SHIFT
+        nxt = 0 if cur == 3 else (cur + 1) % 3
+        table[old] = ((old & ~(R.SM_STATUS_BUFFER_MASK | R.SM_STATUS_READ_EVENT))
+                      | (nxt << R.SM_STATUS_BUFFER_SHIFT) | R.SM_STATUS_WRITE_EVENT)
+    return table
+
+
+_STATUS_AFTER_WRITE = _status_after_write_table()
 
 
 @dataclass
@@ -191,6 +206,13 @@ class Segment:
         self._bplan: dict[tuple[int, int, int], tuple[I64, int, bool]] = {}
         self._cur_passes: I64 = _EMPTY
         self._frame_t0 = 0
+        self._complete_plans: dict[bytes, tuple[I64, I64, I64, npt.NDArray[np.uint8], I64]] = {}
+        #: Slaves with a SAFEOP -> OP request waiting for their first outputs.
+        self.pending_op: set[int] = set()
+        self._any_output_apps = False
+        self._wd_deadline = _NEVER
+        self._wd_min_limit = 0
+        self._wd_expired_any = False
         self.frames = 0
         self.frames_lost = 0
 
@@ -224,6 +246,7 @@ class Segment:
         self.dc_rate = np.append(self.dc_rate, 1.0 + spec.drift_ppm * 1e-6)
         self.fwd_delay = np.append(self.fwd_delay, delay)
         self.wants_outputs = np.append(self.wants_outputs, bool(spec.app and spec.app.wants_output_events))
+        self._any_output_apps = bool(self.wants_outputs.any())
         self.profile_id = np.append(self.profile_id, pid)
         if index == 0:
             if parent is not None:
@@ -553,6 +576,7 @@ class Segment:
             "complete": complete,
         }
         self._sm_span = (lo, hi) if hi > lo else (0, 0)
+        self._complete_plans.clear()
         self.sm_dirty = False
         self.fmmu_dirty = True
         self.watchdog_dirty = True
@@ -615,6 +639,7 @@ class Segment:
                 (mem[:, base + R.SM_ACTIVATE] & R.SM_ACTIVATE_ENABLE) != 0)
         self.wd_limit = (div + 2) * R.WATCHDOG_TICK_NS * wt
         self.wd_armed = armed & (wt > 0)
+        self._wd_min_limit = int(self.wd_limit[self.wd_armed].min()) if self.wd_armed.any() else 0
         self.watchdog_dirty = False
 
     # --- ESC callbacks -------------------------------------------------------------------
@@ -625,49 +650,76 @@ class Segment:
             self.outputs_received[index] = False
             self.wd_last[index] = -1
             self.wd_expired[index] = False
+            self.pending_op.discard(index)
 
     def complete_write_sms(self, slaves: I64) -> None:
-        """Buffered write SMs of ``slaves`` got their last byte: publish the buffers."""
+        """Buffered write SMs of ``slaves`` got their last byte: publish the buffers.
+
+        Copies the buffers into the shadow (what the PDI sees), advances the SM
+        status (buffer index, write event), raises the AL events, re-triggers
+        the process-data watchdogs and applies the wiring. The index arrays
+        for a given set of slaves are computed once and cached.
+        """
         if self.sm_dirty:
             self._refresh_sm_state()
         if not len(slaves):
             return
+        key = slaves.tobytes()
+        plan = self._complete_plans.get(key)
+        if plan is None:
+            plan = self._complete_plan(slaves)
+            if len(self._complete_plans) > 1024:
+                self._complete_plans.clear()
+            self._complete_plans[key] = plan
+        idx, st, al_idx, al_val, wd_slaves = plan
+        flat = self.memory.flat
+        self.memory.shadow_flat[idx] = flat[idx]
+        if len(st):
+            flat[st] = _STATUS_AFTER_WRITE[flat[st]]
+        if len(al_idx):
+            flat[al_idx] |= al_val
+        if len(wd_slaves):
+            now = self.clock.now_ns()
+            self.wd_last[wd_slaves] = now
+            if self._wd_expired_any:
+                self.wd_expired[wd_slaves] = False
+                flat[wd_slaves * SLAVE_STRIDE + R.WATCHDOG_STATUS_PROCESS_DATA] |= 1
+                self._wd_expired_any = bool(self.wd_expired.any())
+            # A watchdog (re)started here expires no earlier than now + the shortest limit.
+            soonest = now + self._wd_min_limit
+            if soonest < self._wd_deadline:
+                self._wd_deadline = soonest
+        self.outputs_received[slaves] = True
+        if self.pending_op:
+            for s in sorted(self.pending_op & set(slaves.tolist())):
+                self.slaves[s].esc.outputs_arrived()
+        if self._any_output_apps:
+            for s in slaves.tolist():
+                if self.wants_outputs[s]:
+                    app = self.slaves[s].spec.app
+                    if app is not None:
+                        app.on_outputs()
+        if self._wires:
+            self.apply_wires()
+
+    def _complete_plan(self, slaves: I64) -> tuple[I64, I64, I64, npt.NDArray[np.uint8], I64]:
         bw = self._bw
-        n = len(self.slaves)
-        sel_mask = np.zeros(n, bool)
+        sel_mask = np.zeros(len(self.slaves), bool)
         sel_mask[slaves] = True
         idx = bw["idx"][sel_mask[bw["owner"]]]
-        flat, shadow = self.memory.flat, self.memory.shadow_flat
-        shadow[idx] = flat[idx]
         psel = sel_mask[bw["slave"]]
-        if psel.any():
-            st = bw["status"][psel]
-            old = flat[st]
-            cur = (old >> R.SM_STATUS_BUFFER_SHIFT) & 3
-            new = np.where(cur == 3, 0, (cur + 1) % 3).astype(np.uint8)
-            flat[st] = (old & ~np.uint8(R.SM_STATUS_BUFFER_MASK | R.SM_STATUS_READ_EVENT)) | (
-                new << R.SM_STATUS_BUFFER_SHIFT) | R.SM_STATUS_WRITE_EVENT
-            al = bw["al"][psel]
-            ps = bw["slave"][psel]
-            if al.any():
-                np.bitwise_or.at(flat, ps * SLAVE_STRIDE + R.AL_EVENT_REQUEST + 1, al)
-            wd = bw["wd"][psel]
-            if wd.any():
-                ws = ps[wd]
-                self.wd_last[ws] = self.clock.now_ns()
-                self.wd_expired[ws] = False
-                flat[ws * SLAVE_STRIDE + R.WATCHDOG_STATUS_PROCESS_DATA] |= 1
-        self.outputs_received[slaves] = True
-        for s in slaves.tolist():
-            esc = self.slaves[s].esc
-            if esc.pending_op:
-                esc.outputs_arrived()
-        apps = np.nonzero(sel_mask & self.wants_outputs)[0]
-        for s in apps.tolist():
-            app = self.slaves[s].spec.app
-            if app is not None:
-                app.on_outputs()
-        self.apply_wires()
+        st = bw["status"][psel]
+        ps = bw["slave"][psel]
+        al = bw["al"][psel]
+        # One OR per slave: combine the SM event bits of slaves with several write SMs.
+        al_bits: dict[int, int] = {}
+        for s_, a in zip(ps.tolist(), al.tolist(), strict=True):
+            if a:
+                al_bits[s_] = al_bits.get(s_, 0) | a
+        al_idx = np.array([s_ * SLAVE_STRIDE + R.AL_EVENT_REQUEST + 1 for s_ in al_bits], np.int64)
+        al_val = np.array(list(al_bits.values()), np.uint8)
+        wd_slaves = np.unique(ps[bw["wd"][psel]]).astype(np.int64)
+        return idx, st, al_idx, al_val, wd_slaves
 
     # --- DC -------------------------------------------------------------------------------
 
@@ -790,14 +842,21 @@ class Segment:
             if self.sm_dirty:
                 self._refresh_sm_state()
             self._refresh_watchdogs()
-        if len(self.wd_last):
-            due = self.wd_armed & ~self.wd_expired & (self.wd_last >= 0) & (
-                now - self.wd_last > self.wd_limit)
+            self._wd_deadline = -1
+        # Deadlines only move later when outputs arrive, so the earliest one
+        # computed at the last check is a safe lower bound until then.
+        if now > self._wd_deadline and len(self.wd_last):
+            eligible = self.wd_armed & ~self.wd_expired & (self.wd_last >= 0)
+            expiry = self.wd_last + self.wd_limit
+            due = eligible & (now > expiry)
             if due.any():
                 for s in np.nonzero(due)[0].tolist():
                     self.wd_expired[s] = True
+                    self._wd_expired_any = True
                     self.outputs_received[s] = False
                     self.slaves[s].esc.watchdog_expired()
+            rest = eligible & ~due
+            self._wd_deadline = int(expiry[rest].min()) if rest.any() else _NEVER
         if self.sync_next:
             self._run_sync(now)
 
@@ -1167,11 +1226,7 @@ class Segment:
             return 0
         reads = cmd != Command.LWR
         writes = cmd != Command.LRD
-        lo = address & 0xFFFFFFFF
-        wkc = lmap.working_counter(lo, lo + n, reads, writes)
-        if not wkc:
-            return 0
-        done = lmap.execute(self.memory.flat, lo, data, reads, writes)
+        wkc, done = lmap.run(self.memory.flat, address & 0xFFFFFFFF, data, reads, writes)
         if len(done):
             self.complete_write_sms(done)
         return wkc
