@@ -28,6 +28,7 @@ from pyethercat.errors import ConfigError, StateTimeoutError, WorkingCounterErro
 from pyethercat.link.base import Link
 from pyethercat.master import diag, states
 from pyethercat.master import scan as scanning
+from pyethercat.master.coe_setup import CoeMasterMixin
 from pyethercat.master.process import ProcessDataMixin
 from pyethercat.master.scheduler import (
     DEFAULT_MAX_IN_FLIGHT,
@@ -48,7 +49,7 @@ __all__ = ["Master", "SlaveRef"]
 SlaveRef = Slave | int
 
 
-class Master(ProcessDataMixin):
+class Master(CoeMasterMixin, ProcessDataMixin):
     """An EtherCAT master on one link.
 
     ``timeout``/``retries``/``max_in_flight`` configure the scheduler;
@@ -192,6 +193,7 @@ class Master(ProcessDataMixin):
                                read_sii=read_sii, progress=progress,
                                max_sii_bytes=max_sii_bytes)
             self.slaves = slaves
+            self._attach_mailboxes(slaves)
             self.topology_consistent = scanning.build_topology(slaves)
             if reset and slaves:
                 # Slaves that take longer show up in the listing; set_state() reports them.
@@ -293,8 +295,13 @@ class Master(ProcessDataMixin):
         before INIT -> PREOP/BOOT).
         """
         with self._lock:
+            finish = None
+            if prepare is states.setup_mailboxes:
+                # mailbox SMs plus the CoE start-up commands of each transition
+                prepare, finish = self._prepare_step, self._finish_step
             states.set_state(self.scheduler, self._select(slaves), _state(state), timeout,
-                             ack_errors=ack_errors, sleep=self._sleep, prepare=prepare)
+                             ack_errors=ack_errors, sleep=self._sleep, prepare=prepare,
+                             finish=finish)
 
     def acknowledge_errors(self, slaves: Sequence[SlaveRef] | None = None) -> list[Slave]:
         """Acknowledge error flags; returns the slaves that had one."""

@@ -53,7 +53,8 @@ def slave_spec(slave: Slave) -> SlaveSpec:
         raise ConfigError(f"{slave.describe()}: no SII was read, cannot configure process data")
     esc = slave.esc
     return SlaveSpec(slave.position, slave.station_address, slave.sii, esc.features,
-                     esc.fmmu_count or 8, esc.sm_count or 8, slave.name)
+                     esc.fmmu_count or 8, esc.sm_count or 8, slave.name,
+                     getattr(slave, "pdo_mapping", None))
 
 
 class ProcessDataMixin:
@@ -68,6 +69,13 @@ class ProcessDataMixin:
     runner: CyclicRunner | None = None
 
     def _sleep(self, seconds: float) -> None: ...  # provided by Master
+
+    def _state_hooks(self) -> dict[str, Any]:
+        """Extra keyword arguments for ``states.set_state`` (CoE start-up commands)."""
+        return {}
+
+    def _before_configure(self) -> None:
+        """Runs first in :meth:`configure` (the CoE mixin reads PDO mappings there)."""
 
     # -- configuration -----------------------------------------------------------------
 
@@ -84,6 +92,7 @@ class ProcessDataMixin:
                 raise ConfigError("no slaves: scan first")
             if groups is None:
                 groups = [GroupSpec("main", None, layout)]
+            self._before_configure()
             cfg = configure([slave_spec(s) for s in self.slaves], groups)
             self.process_data = cfg
             self.images = build_images(cfg)
@@ -131,11 +140,14 @@ class ProcessDataMixin:
     def _bring_up(self, slaves: Sequence[Slave], timeout: float) -> None:
         """INIT -> (mailbox SMs) PREOP -> (SMs, FMMUs) SAFEOP for ``slaves``."""
         st = self.scheduler
-        states.set_state(st, slaves, AlState.INIT, timeout, sleep=self._sleep)
+        states.set_state(st, slaves, AlState.INIT, timeout, sleep=self._sleep,
+                         **self._state_hooks())
         self.write_mailbox_config(slaves)
-        states.set_state(st, slaves, AlState.PREOP, timeout, sleep=self._sleep)
+        states.set_state(st, slaves, AlState.PREOP, timeout, sleep=self._sleep,
+                         **self._state_hooks())
         self.write_process_data_config(slaves)
-        states.set_state(st, slaves, AlState.SAFEOP, timeout, sleep=self._sleep)
+        states.set_state(st, slaves, AlState.SAFEOP, timeout, sleep=self._sleep,
+                         **self._state_hooks())
 
     # -- running --------------------------------------------------------------------------
 
@@ -164,7 +176,7 @@ class ProcessDataMixin:
             try:
                 if want == AlState.OP:
                     states.set_state(self.scheduler, self.slaves, AlState.OP, timeout,
-                                     sleep=self._sleep)
+                                     sleep=self._sleep, **self._state_hooks())
             except BaseException:
                 runner.stop()
                 raise
@@ -233,7 +245,8 @@ class ProcessDataMixin:
             resume += full
         if resume:
             states.acknowledge_errors(self.scheduler, resume)
-            states.set_state(self.scheduler, resume, target, 5.0, sleep=self._sleep)
+            states.set_state(self.scheduler, resume, target, 5.0, sleep=self._sleep,
+                             **self._state_hooks())
 
     def _check_identity(self, slave: Slave) -> None:
         """After a power cycle: is it still the same device (SII words 8-0xB)?"""

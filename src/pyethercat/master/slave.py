@@ -9,7 +9,9 @@ machine find out.
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 from pyethercat.wire.al import AlState, al_status_code_name, state_name
 from pyethercat.wire.registers import (
@@ -20,7 +22,14 @@ from pyethercat.wire.registers import (
     dl_status_loop,
     port_types,
 )
-from pyethercat.wire.sii.model import GeneralFlags, SiiInfo
+from pyethercat.wire.sii.model import GeneralFlags, MailboxProtocol, SiiInfo
+
+if TYPE_CHECKING:
+    from pyethercat.master.coe import CoeClient, DTypeLike, ObjectDictionary
+    from pyethercat.master.coe_setup import PdoSpec
+    from pyethercat.master.config import Pdo
+    from pyethercat.master.mailbox import Mailbox
+    from pyethercat.wire.mailbox.datatypes import Value
 
 __all__ = ["Identity", "EscInfo", "Port", "MailboxInfo", "Slave", "PORT_ORDER"]
 
@@ -178,6 +187,13 @@ class Slave:
         self.al_error = False
         self.al_status_code = 0
         self.mailbox: MailboxInfo | None = None
+        #: Mailbox transport and CoE client (set by the master after a scan; None: no mailbox).
+        self.mbx: Mailbox | None = None
+        self.coe: CoeClient | None = None
+        #: PDOs per sync manager read (or written) over CoE; None: the SII's PDOs apply.
+        self.pdo_mapping: dict[int, list[Pdo]] | None = None
+        self._mapping_changed: Any = None
+        self._startup: list[Any] | None = None
 
     # -- derived -------------------------------------------------------------------
 
@@ -226,6 +242,52 @@ class Slave:
         """``0x1001`` or ``0x1001/alias 7`` for listings."""
         text = f"0x{self.station_address:04X}"
         return f"{text}/alias {self.alias}" if self.alias else text
+
+    # -- CoE (through the client the master attached) ---------------------------------
+
+    def _coe_client(self) -> CoeClient:
+        if self.coe is None:
+            from pyethercat.errors import ConfigError
+
+            raise ConfigError(f"{self.describe()} has no mailbox (or was not scanned by a "
+                              "master): no CoE")
+        return self.coe
+
+    @property
+    def has_coe(self) -> bool:
+        """The SII announces CoE among the mailbox protocols."""
+        return self.mailbox is not None and bool(self.mailbox.protocols & MailboxProtocol.COE)
+
+    def sdo_read(self, index: int, subindex: int = 0, dtype: DTypeLike | None = None, *,
+                 complete_access: bool = False, timeout: float | None = None) -> Value:
+        """SDO upload: raw bytes, or a value of ``dtype`` ("uint16", ``DataType.REAL32``...)."""
+        return self._coe_client().read(index, subindex, dtype, complete_access=complete_access,
+                                       timeout=timeout)
+
+    def sdo_write(self, index: int, subindex: int, value: Value,
+                  dtype: DTypeLike | None = None, *, complete_access: bool = False,
+                  timeout: float | None = None) -> None:
+        """SDO download of raw bytes, or of ``value`` encoded as ``dtype``."""
+        self._coe_client().write(index, subindex, value, dtype, complete_access=complete_access,
+                                 timeout=timeout)
+
+    @property
+    def od(self) -> ObjectDictionary:
+        """The object dictionary (SDO information service, fetched lazily)."""
+        return self._coe_client().od
+
+    def set_pdo_mapping(self, mapping: Mapping[int, Sequence[PdoSpec]]) -> dict[int, list[Pdo]]:
+        """Write a new PDO assignment (and mappings) in PRE-OP; the next start uses it.
+
+        ``mapping`` keys are sync managers (2, 3) or assignment objects
+        (0x1C12, 0x1C13); values list PDO indices (their mapping kept) or
+        ``(pdo_index, [(index, subindex, bits), ...])`` to rewrite a mapping
+        object too. The writes are also kept as PS start-up commands, so they
+        are done again whenever the slave passes PRE-OP -> SAFE-OP.
+        """
+        from pyethercat.master.coe_setup import set_pdo_mapping
+
+        return set_pdo_mapping(self._mapping_changed, self, mapping, self._startup)
 
     def describe(self) -> str:
         """``slave 3 (0x1004, EL2004)``: how errors name a slave."""

@@ -267,13 +267,16 @@ def set_state(scheduler: Scheduler, slaves: Sequence[Slave], state: AlState | in
               poll_interval: float = DEFAULT_POLL_INTERVAL,
               clock: Callable[[], float] = time.monotonic,
               sleep: Callable[[float], None] = time.sleep,
-              prepare: PrepareStep | None = setup_mailboxes) -> None:
+              prepare: PrepareStep | None = setup_mailboxes,
+              finish: PrepareStep | None = None) -> None:
     """Bring every slave to ``state`` step by step (all slaves per step at once).
 
     ``timeout`` applies to each step. With ``ack_errors`` pending error
     flags are acknowledged first (a slave ignores requests while flagged).
     ``prepare`` runs before each request (default: mailbox sync managers
-    for INIT -> PREOP/BOOT; pass None when the configuration does that).
+    for INIT -> PREOP/BOOT; pass None when the configuration does that);
+    ``finish`` after the slaves of a step reached it (CoE start-up commands
+    of INIT -> PREOP run there: the mailbox works only from PRE-OP on).
     """
     target = AlState(int(state))
     if not slaves:
@@ -299,3 +302,6 @@ def set_state(scheduler: Scheduler, slaves: Sequence[Slave], state: AlState | in
             request_state(scheduler, group, step)
         for step, group in by_state.items():
             wait_for_state(scheduler, group, step, timeout, poll_interval, clock, sleep)
+        if finish is not None:
+            for step, group in by_state.items():
+                finish(scheduler, step, group)

@@ -1,0 +1,535 @@
+"""Mailbox transport, master side: SM0/SM1 handshake, counters, polling, repeat requests.
+
+One :class:`Mailbox` per slave carries mailbox messages of any protocol
+(CoE, FoE, EoE, SoE) to and from that slave (facts 6):
+
+- **Send**: the message gets the next counter (1..7, then 1 again), is padded
+  to the whole SM0 length and written with one FPWR (the ESC flips SM0 to
+  "full" only when the last byte is written). A refused write (working
+  counter 0: SM0 still full, the slave has not read the previous message) is
+  tried again until the timeout. The same frame carries a speculative FPRD of
+  the whole SM1: a fast slave (or a simulator) has the answer ready at once
+  and the transaction costs one round trip; an empty SM1 simply refuses the
+  read (working counter 0), which changes nothing in the ESC.
+- **Poll**: while a reply is awaited, SM1's status byte (0x080D, bit 3
+  "mailbox full") is polled. Without cyclic exchange the polls of all waiting
+  mailboxes are batched: one frame reads the status of every slave that has
+  a transaction in progress (:class:`MailboxPoller`). When cyclic exchange
+  runs and the status byte is mapped into the cyclic frame by a read FMMU,
+  ``Mailbox.status_source`` reads it from the process image instead: no
+  extra frames at all.
+- **Fetch**: FPRD of the whole SM1; reading the last byte empties it.
+- **Repeat request** (facts 6.6): when a fetch may have emptied SM1 but its
+  reply frame was lost (the scheduler had to send the read again and the
+  retry came back with working counter 0), or when the status said "full"
+  and the read found nothing, the master toggles SM1 activate bit 1, waits
+  for the slave to echo it in PDI control bit 1 (repeat acknowledge), and
+  reads the re-posted message.
+- **Check**: length word against the SM size, duplicate counters (a message
+  with the same non-zero counter as the previous one is a repetition and is
+  dropped), mailbox error replies (type 0) raise
+  :class:`~pyethercat.errors.MailboxErrorReply`, unsolicited messages (CoE
+  emergencies) go to registered handlers, everything else waits in an inbox
+  until the protocol client that wants it takes it.
+
+Transactions to different slaves run concurrently: each mailbox has its own
+lock (protocol clients hold ``Mailbox.lock`` for a whole transfer, such as a
+segmented SDO upload), and no global lock is held while waiting; the
+scheduler packs the datagrams of concurrent transactions into shared frames.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from pyethercat.errors import (
+    EtherCATError,
+    FrameError,
+    MailboxError,
+    MailboxErrorReply,
+    WorkingCounterError,
+)
+from pyethercat.errors import TimeoutError as EcTimeoutError
+from pyethercat.master.scheduler import Request, Scheduler
+from pyethercat.wire import registers as reg
+from pyethercat.wire.datagram import Command, Datagram
+from pyethercat.wire.mailbox.header import (
+    MAILBOX_HEADER_SIZE,
+    MailboxHeader,
+    MailboxType,
+    decode_mailbox_error,
+    encode_mailbox,
+    is_repeated_counter,
+    next_counter,
+)
+
+__all__ = [
+    "DEFAULT_MAILBOX_TIMEOUT",
+    "Mailbox",
+    "MailboxMessage",
+    "MailboxPoller",
+    "MailboxStats",
+    "UnsolicitedHandler",
+    "Accept",
+]
+
+_log = logging.getLogger("pyethercat.mailbox")
+
+#: Seconds a mailbox transaction may take by default (SOEM uses 0.7 s, IgH 1 s).
+DEFAULT_MAILBOX_TIMEOUT = 1.0
+#: Polls go back to back this long; then with growing pauses (real links only).
+_BUSY_POLL = 0.002
+_MAX_POLL_PAUSE = 0.001
+
+
+@dataclass(frozen=True, slots=True)
+class MailboxMessage:
+    """A message read from SM1: its header and payload (exactly ``header.length`` bytes)."""
+
+    header: MailboxHeader
+    payload: bytes
+
+    @property
+    def type(self) -> MailboxType | int:
+        return self.header.type
+
+
+#: Called with every message read from a slave; returns True when it took the message.
+UnsolicitedHandler = Callable[["Mailbox", MailboxMessage], bool]
+#: Decides whether a message answers the transaction in progress.
+Accept = Callable[[MailboxMessage], bool]
+
+
+@dataclass
+class MailboxStats:
+    """Counters of one mailbox (monotonic)."""
+
+    sent: int = 0
+    received: int = 0
+    #: SM0 writes refused because the slave had not read the previous message yet.
+    write_refused: int = 0
+    status_polls: int = 0
+    fetches: int = 0
+    #: Speculative SM1 reads that found the answer already there.
+    early_replies: int = 0
+    repeat_requests: int = 0
+    #: Messages dropped because they repeated the previous counter.
+    duplicates: int = 0
+    error_replies: int = 0
+    unsolicited: int = 0
+
+
+class MailboxPoller:
+    """Batches SM1 status polls of concurrent transactions into shared frames.
+
+    A caller that needs a fresh status joins the next poll round; the first
+    caller to find no round running performs it for everybody waiting (one
+    FPRD of 0x080D per slave, all in the same frames) and hands out the
+    results. No lock is held while the frame is on the wire.
+    """
+
+    def __init__(self, scheduler: Scheduler) -> None:
+        self.scheduler = scheduler
+        self._cond = threading.Condition()
+        self._pending: dict[Mailbox, None] = {}
+        self._results: dict[Mailbox, int | None | EtherCATError] = {}
+        self._busy = False
+        #: Poll rounds performed and statuses read (for tests and statistics).
+        self.rounds = 0
+        self.polled = 0
+
+    def status(self, mailbox: Mailbox) -> int | None:
+        """SM1 status byte of ``mailbox`` read by a round that started after this call.
+
+        ``None`` when the slave did not answer the read.
+        """
+        with self._cond:
+            self._pending[mailbox] = None
+            while True:
+                if mailbox in self._results and mailbox not in self._pending:
+                    return self._take(mailbox)
+                if not self._busy:
+                    break
+                self._cond.wait(0.05)
+            self._busy = True
+            batch = list(self._pending)
+            self._pending.clear()
+        results: dict[Mailbox, int | None | EtherCATError] = {}
+        try:
+            dgs = [Datagram.device(Command.FPRD, m.station, m.status_address, 1) for m in batch]
+            replies = self.scheduler.transact(dgs)
+            for m, r in zip(batch, replies, strict=True):
+                results[m] = r.data[0] if r.wkc == 1 else None
+        except EtherCATError as exc:
+            for m in batch:
+                results[m] = exc
+        with self._cond:
+            self.rounds += 1
+            self.polled += len(batch)
+            self._results.update(results)
+            self._busy = False
+            self._cond.notify_all()
+            return self._take(mailbox)
+
+    def _take(self, mailbox: Mailbox) -> int | None:
+        got = self._results.pop(mailbox)
+        if isinstance(got, EtherCATError):
+            raise got
+        return got
+
+
+class Mailbox:
+    """The mailbox of one slave (see the module text).
+
+    ``station`` is the slave's configured address, ``label`` how messages
+    name the slave (``slave 3 (0x1004, EL6751)``). ``rx_*`` describe SM
+    ``rx_sm`` (master -> slave, usually SM0), ``tx_*`` SM ``tx_sm`` (slave
+    -> master, usually SM1).
+    """
+
+    def __init__(self, scheduler: Scheduler, station: int, label: str, *,
+                 rx_offset: int, rx_size: int, tx_offset: int, tx_size: int,
+                 rx_sm: int = 0, tx_sm: int = 1, poller: MailboxPoller | None = None,
+                 timeout: float = DEFAULT_MAILBOX_TIMEOUT, deterministic: bool = False,
+                 clock: Callable[[], float] = time.monotonic,
+                 sleep: Callable[[float], None] = time.sleep) -> None:
+        for name, size in (("receive (SM0)", rx_size), ("send (SM1)", tx_size)):
+            if size < MAILBOX_HEADER_SIZE + 2:
+                raise MailboxError(f"{label}: {name} mailbox of {size} bytes is too small")
+        self.scheduler = scheduler
+        self.station = station
+        self.label = label
+        self.rx_offset = rx_offset
+        self.rx_size = rx_size
+        self.tx_offset = tx_offset
+        self.tx_size = tx_size
+        self.rx_sm = rx_sm
+        self.tx_sm = tx_sm
+        self.poller = poller if poller is not None else MailboxPoller(scheduler)
+        self.timeout = timeout
+        self.deterministic = deterministic
+        self.clock = clock
+        self._sleep = sleep
+        #: Held by a protocol client for a whole transaction (re-entrant).
+        self.lock = threading.RLock()
+        # Serialises fetches and inbox access between threads.
+        self._io = threading.RLock()
+        self._counter = 0
+        self._last_in = 0
+        self._inbox: deque[MailboxMessage | MailboxErrorReply] = deque(maxlen=64)
+        self._handlers: list[UnsolicitedHandler] = []
+        # A fetch may have emptied SM1 without its reply reaching us.
+        self._lost = False
+        #: Reads SM1's status byte from the cyclic process image (None: poll with frames).
+        self.status_source: Callable[[], int | None] | None = None
+        #: Waits up to the given seconds for the next cycle (with ``status_source``).
+        self.status_wait: Callable[[float], None] | None = None
+        self.stats = MailboxStats()
+
+    # -- addresses -------------------------------------------------------------------
+
+    @property
+    def status_address(self) -> int:
+        """SM1 status register (0x080D for SM1)."""
+        return reg.sm_address(self.tx_sm) + reg.SM_STATUS
+
+    @property
+    def activate_address(self) -> int:
+        return reg.sm_address(self.tx_sm) + reg.SM_ACTIVATE
+
+    @property
+    def pdi_control_address(self) -> int:
+        return reg.sm_address(self.tx_sm) + reg.SM_PDI_CONTROL
+
+    @property
+    def max_payload(self) -> int:
+        """Largest payload one message to the slave can carry."""
+        return self.rx_size - MAILBOX_HEADER_SIZE
+
+    # -- handlers ---------------------------------------------------------------------
+
+    def add_handler(self, handler: UnsolicitedHandler) -> None:
+        """Offer every message read from the slave to ``handler`` first (emergencies)."""
+        self._handlers.append(handler)
+
+    def remove_handler(self, handler: UnsolicitedHandler) -> None:
+        if handler in self._handlers:
+            self._handlers.remove(handler)
+
+    def reset(self) -> None:
+        """Forget counters and queued messages (after the slave went back to INIT)."""
+        with self._io:
+            self._counter = 0
+            self._last_in = 0
+            self._inbox.clear()
+            self._lost = False
+
+    def next_counter(self) -> int:
+        """The counter of the next message (1..7, wrapping to 1)."""
+        self._counter = next_counter(self._counter)
+        return self._counter
+
+    # -- sending ------------------------------------------------------------------------
+
+    def send(self, mtype: MailboxType | int, payload: bytes, *, what: str = "mailbox message",
+             timeout: float | None = None, fetch: bool = True, counter: int | None = None,
+             ) -> int:
+        """Write one message into SM0 (whole SM length); returns the counter used.
+
+        ``fetch`` adds the speculative SM1 read to the same frame. Raises
+        :class:`~pyethercat.errors.TimeoutError` when SM0 stays full.
+        """
+        if len(payload) > self.max_payload:
+            raise MailboxError(f"{self.label}: {what} needs {len(payload)} bytes, the mailbox "
+                               f"carries {self.max_payload}")
+        cnt = self.next_counter() if counter is None else counter
+        frame = encode_mailbox(mtype, payload, counter=cnt, size=self.rx_size)
+        limit = self.clock() + (self.timeout if timeout is None else timeout)
+        waited = 0.0
+        while True:
+            dgs = [Datagram.device(Command.FPWR, self.station, self.rx_offset, frame)]
+            if fetch:
+                dgs.append(self._read_datagram())
+            reqs = self.scheduler.submit(dgs)
+            self.scheduler.wait(reqs)
+            write = reqs[0]
+            if fetch:
+                self._take_read(reqs[1], early=True)
+            if write.error is not None:
+                raise _named(write.error, f"{self.label}: sending {what}")
+            assert write.reply is not None
+            if write.reply.wkc == 1:
+                self.stats.sent += 1
+                return cnt
+            self.stats.write_refused += 1
+            now = self.clock()
+            if now >= limit:
+                raise EcTimeoutError(f"{self.label}: mailbox (SM{self.rx_sm}) still full, "
+                                     f"{what} not taken within "
+                                     f"{(self.timeout if timeout is None else timeout):g} s")
+            waited = self._pause(waited)
+
+    # -- receiving ------------------------------------------------------------------------
+
+    def receive(self, accept: Accept | None = None, *, what: str = "mailbox reply",
+                timeout: float | None = None) -> MailboxMessage:
+        """Wait for a message ``accept`` takes (any message when None).
+
+        Messages nobody wants stay in the inbox for other clients; a mailbox
+        error reply raises :class:`~pyethercat.errors.MailboxErrorReply`;
+        no message in time raises :class:`~pyethercat.errors.TimeoutError`.
+        """
+        span = self.timeout if timeout is None else timeout
+        limit = self.clock() + span
+        waited = 0.0
+        while True:
+            got = self._from_inbox(accept, what)
+            if got is not None:
+                return got
+            if self._lost:
+                self._lost = False
+                self.repeat_request(limit)
+                continue
+            now = self.clock()
+            if now >= limit:
+                raise EcTimeoutError(f"{self.label}: no {what} within {span:.3g} s")
+            status = self._status(limit - now)
+            if status is not None and status & reg.SM_STATUS_MAILBOX_FULL:
+                if not self.fetch() and not self._lost:
+                    # Full a moment ago, empty now: somebody's read got it and lost it.
+                    self._lost = True
+                waited = 0.0
+                continue
+            if self.status_source is None:
+                waited = self._pause(waited)
+
+    def transact(self, mtype: MailboxType | int, payload: bytes, accept: Accept | None = None,
+                 *, what: str = "mailbox request", timeout: float | None = None,
+                 ) -> MailboxMessage:
+        """Send a request and wait for the message ``accept`` takes as its answer."""
+        span = self.timeout if timeout is None else timeout
+        limit = self.clock() + span
+        with self.lock:
+            self.send(mtype, payload, what=what, timeout=span)
+            return self.receive(accept, what=f"reply to {what}",
+                                timeout=max(0.0, limit - self.clock()))
+
+    def fetch(self) -> bool:
+        """Read SM1 once; True when a message came (it is dispatched or queued)."""
+        req = self.scheduler.submit([self._read_datagram()])[0]
+        self.scheduler.wait([req])
+        self.stats.fetches += 1
+        return self._take_read(req)
+
+    def poll(self) -> bool:
+        """Fetch whatever the slave posted, without waiting; True when something came."""
+        status = self._status(0.0)
+        if status is not None and status & reg.SM_STATUS_MAILBOX_FULL:
+            return self.fetch()
+        return False
+
+    def drop(self, accept: Accept) -> int:
+        """Throw away queued messages ``accept`` takes (late answers); returns how many."""
+        with self._io:
+            stale = [m for m in self._inbox if isinstance(m, MailboxMessage) and accept(m)]
+            for m in stale:
+                self._inbox.remove(m)
+            return len(stale)
+
+    def pending(self) -> list[MailboxMessage]:
+        """Take every queued message (those no transaction asked for)."""
+        with self._io:
+            out = [m for m in self._inbox if isinstance(m, MailboxMessage)]
+            self._inbox.clear()
+            return out
+
+    # -- repeat ---------------------------------------------------------------------------
+
+    def repeat_request(self, limit: float | None = None) -> None:
+        """Ask the slave to post its last message again (facts 6.6).
+
+        Toggles SM1 activate bit 1, waits for the repeat acknowledge (PDI
+        control bit 1 equal to it); the caller then polls and reads as usual.
+        """
+        if limit is None:
+            limit = self.clock() + self.timeout
+        self.stats.repeat_requests += 1
+        act = self._read_register(self.activate_address, 1, "SM activate")[0]
+        new = act ^ reg.SM_ACTIVATE_REPEAT
+        reply = self.scheduler.transact_one(
+            Datagram.device(Command.FPWR, self.station, self.activate_address, bytes([new])))
+        if reply.wkc != 1:
+            raise WorkingCounterError(f"{self.label}: repeat request (SM{self.tx_sm} activate)",
+                                      1, reply.wkc)
+        _log.info("%s: mailbox reply lost, repeat requested", self.label)
+        want = bool(new & reg.SM_ACTIVATE_REPEAT)
+        waited = 0.0
+        while True:
+            pdi = self._read_register(self.pdi_control_address, 1, "SM PDI control")[0]
+            if bool(pdi & reg.SM_PDI_REPEAT_ACK) == want:
+                return
+            if self.clock() >= limit:
+                raise EcTimeoutError(f"{self.label}: no repeat acknowledge from the slave "
+                                     f"(SM{self.tx_sm} PDI control)")
+            waited = self._pause(waited)
+
+    # -- internals --------------------------------------------------------------------------
+
+    def _read_datagram(self) -> Datagram:
+        return Datagram.device(Command.FPRD, self.station, self.tx_offset, self.tx_size)
+
+    def _read_register(self, address: int, size: int, what: str) -> bytes:
+        reply = self.scheduler.transact_one(
+            Datagram.device(Command.FPRD, self.station, address, size))
+        if reply.wkc != 1:
+            raise WorkingCounterError(f"{self.label}: reading {what} at 0x{address:04X}", 1,
+                                      reply.wkc)
+        return bytes(reply.data)
+
+    def _pause(self, waited: float) -> float:
+        """Pause between polls: none at first, then growing (never on deterministic links)."""
+        if self.deterministic:
+            return waited
+        pause = 0.0 if waited < _BUSY_POLL else min(_MAX_POLL_PAUSE, max(0.0001, waited / 8))
+        if pause:
+            self._sleep(pause)
+        return waited + max(pause, 0.0001)
+
+    def _status(self, budget: float) -> int | None:
+        source = self.status_source
+        if source is not None:
+            status = source()
+            if status is not None and status & reg.SM_STATUS_MAILBOX_FULL:
+                return status
+            if self.status_wait is not None and budget > 0:
+                self.status_wait(budget)
+                return source()
+            return status
+        self.stats.status_polls += 1
+        return self.poller.status(self)
+
+    def _take_read(self, req: Request, early: bool = False) -> bool:
+        """Handle a finished SM1 read: deliver the message or note a possible loss."""
+        if req.error is not None:
+            if isinstance(req.error, EcTimeoutError):
+                # One of the attempts may have emptied SM1 on its way.
+                self._lost = True
+                return False
+            raise _named(req.error, f"{self.label}: reading the mailbox")
+        reply = req.reply
+        assert reply is not None
+        if reply.wkc != 1:
+            if req.attempts > 1:
+                # An earlier attempt may have read (and emptied) SM1; its frame was lost.
+                self._lost = True
+            return False
+        if early:
+            self.stats.early_replies += 1
+        self._deliver(bytes(reply.data))
+        return True
+
+    def _deliver(self, raw: bytes) -> None:
+        try:
+            header = MailboxHeader.decode(raw)
+        except MailboxError as exc:
+            raise MailboxError(f"{self.label}: {exc}") from None
+        if header.length > len(raw) - MAILBOX_HEADER_SIZE:
+            raise MailboxError(f"{self.label}: mailbox length {header.length} exceeds the "
+                               f"{len(raw) - MAILBOX_HEADER_SIZE} bytes of SM{self.tx_sm}")
+        with self._io:
+            if is_repeated_counter(self._last_in, header.counter):
+                self.stats.duplicates += 1
+                _log.debug("%s: mailbox counter %d repeated, dropped", self.label,
+                           header.counter)
+                return
+            self._last_in = header.counter
+            self.stats.received += 1
+            msg = MailboxMessage(header, raw[MAILBOX_HEADER_SIZE:MAILBOX_HEADER_SIZE +
+                                             header.length])
+            if header.type == MailboxType.ERR:
+                self.stats.error_replies += 1
+                try:
+                    err = decode_mailbox_error(msg.payload)
+                except MailboxError as exc:
+                    err = MailboxErrorReply(0, f"malformed error reply ({exc})")
+                self._inbox.append(err)
+                return
+            for handler in list(self._handlers):
+                if handler(self, msg):
+                    self.stats.unsolicited += 1
+                    return
+            self._inbox.append(msg)
+
+    def _from_inbox(self, accept: Accept | None, what: str) -> MailboxMessage | None:
+        with self._io:
+            for item in list(self._inbox):
+                if isinstance(item, MailboxErrorReply):
+                    self._inbox.remove(item)
+                    err = MailboxErrorReply(item.code, item.name)
+                    err.args = (f"{self.label}: {err} (answering {what})",)
+                    raise err
+                if accept is None or accept(item):
+                    self._inbox.remove(item)
+                    return item
+        return None
+
+    def __repr__(self) -> str:
+        return (f"<Mailbox {self.label} SM{self.rx_sm} 0x{self.rx_offset:04X}+{self.rx_size} "
+                f"SM{self.tx_sm} 0x{self.tx_offset:04X}+{self.tx_size}>")
+
+
+def _named(error: EtherCATError, where: str) -> EtherCATError:
+    """An error like ``error`` with ``where`` in front of its message.
+
+    A new object: the scheduler may hand one error to every request of a frame.
+    """
+    if isinstance(error, EcTimeoutError):
+        return EcTimeoutError(f"{where}: {error}")
+    if isinstance(error, FrameError):
+        return FrameError(f"{where}: {error}")
+    return error
