@@ -112,6 +112,14 @@ class DeviceApp:
         """
         return 0
 
+    def process_data_sizes(self) -> tuple[int, int] | None:
+        """(output bytes, input bytes) of the current PDO mapping, or None to use the SII's.
+
+        A CoE device whose 0x1C12/0x1C13 mapping can change overrides this: the
+        ESC compares SM2/SM3 lengths with it on PREOP -> SAFEOP (0x001D/0x001E).
+        """
+        return None
+
     def on_state_change(self, old: AlState, new: AlState) -> None:
         """The AL state changed (also on error fall-backs)."""
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 from pyethercat.errors import MailboxError
 from pyethercat.sim.device import DeviceApp
 from pyethercat.sim.devices.builtin import BUILTINS, VENDOR_ID, BuiltinDevice, get_builtin
+from pyethercat.sim.devices.coe_io import coe_builtins
 from pyethercat.wire.mailbox.header import (
     MailboxErrorCode,
     MailboxHeader,
@@ -66,8 +67,14 @@ class MailboxErrorApp(IoTerminal):
         self.pdi.post_mailbox(reply)
 
 
+# CoE built-ins (coe-io, seed002-drive) join the catalogue.
+BUILTINS.update(coe_builtins())
+
+
 def make_app(builtin: BuiltinDevice | None, info: SiiInfo) -> DeviceApp:
     """The device application for a slave (built-in device or SII image)."""
+    if builtin is not None and builtin.app_factory is not None:
+        return builtin.app_factory(info)
     if builtin is not None:
         return MailboxErrorApp() if builtin.mailbox is not None else IoTerminal()
     if info.rx_mailbox_size and info.tx_mailbox_size:

@@ -29,7 +29,9 @@ configured initial inputs at power-on.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from pyethercat.errors import ConfigError
 from pyethercat.wire.sii import (
@@ -50,6 +52,9 @@ from pyethercat.wire.sii import (
     build_sii,
 )
 from pyethercat.wire.sii.model import CategoryType
+
+if TYPE_CHECKING:
+    from pyethercat.sim.device import DeviceApp
 
 __all__ = [
     "BUILTINS",
@@ -144,6 +149,13 @@ class BuiltinDevice:
     ebus_current_ma: int = 0
     pdi_control: int = _PDI_CONTROL_IO
     description: str = ""
+    # Devices with a mailbox protocol (sim.devices.coe_io): SII CoE details and
+    # protocols, their own identity, and the application that serves them.
+    coe_details: int = 0
+    mailbox_protocols: int = 0
+    vendor_id: int = VENDOR_ID
+    revision: int = REVISION
+    app_factory: Callable[[SiiInfo], DeviceApp] | None = None
 
     @property
     def input_bits(self) -> int:
@@ -215,7 +227,7 @@ class BuiltinDevice:
             group_index=group_i,
             order_index=order_i,
             name_index=name_i,
-            coe_details=CoeDetails.NONE,
+            coe_details=CoeDetails(self.coe_details),
             ebus_current_ma=self.ebus_current_ma,
             physical_ports=physical_ports,
         )
@@ -243,9 +255,9 @@ class BuiltinDevice:
         info = SiiInfo(
             pdi_control=self.pdi_control,
             station_alias=alias,
-            vendor_id=VENDOR_ID,
+            vendor_id=self.vendor_id,
             product_code=self.product_code,
-            revision=REVISION,
+            revision=self.revision,
             serial=serial,
             eeprom_size_code=0x000F,  # 2 KiB (16 Kbit), like EL/EK terminals
             version=1,
@@ -256,7 +268,7 @@ class BuiltinDevice:
             info.tx_mailbox_offset, info.tx_mailbox_size = tx_off, tx_size
             info.boot_rx_mailbox_offset, info.boot_rx_mailbox_size = rx_off, rx_size
             info.boot_tx_mailbox_offset, info.boot_tx_mailbox_size = tx_off, tx_size
-            info.mailbox_protocols = MailboxProtocol.NONE
+            info.mailbox_protocols = MailboxProtocol(self.mailbox_protocols)
         info.categories = categories  # type: ignore[assignment]
         return info
 

@@ -1,0 +1,309 @@
+"""Built-in CoE devices: ``builtin:coe-io`` and the seed 002 drive's communication objects.
+
+``coe-io`` is a test device with everything CoE has: IO in dynamically
+mappable PDOs whose inputs echo the outputs (so loopback tests can check
+them), a writable configuration area with value ranges, a 4 KiB octet string
+for segmented transfers, write-only and PREOP-only parameters, the mapping
+objects, 0x1C32/0x1C33, and SII CoE details announcing SDO, SDO information,
+PDO assignment, PDO configuration and complete access. Its objects are
+listed in ``docs/coe.md``.
+
+``seed002-drive`` carries the communication objects of the servo controller
+described in seed 002 (0x1000, 0x1018, 0x1100, 0x1600-0x1603,
+0x1A00-0x1A03, 0x1C00, 0x1C10-0x1C13 with the values of the seed's tables),
+identity vendor 0xE4, product 0x264860d2, revision 0x20000 (issue 6), plus
+the four CiA 402 objects its default PDOs map. :func:`add_seed002_objects`
+is the reusable builder a CiA 402 drive model starts from.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from pyethercat.sim.coe import (
+    CoeDevice,
+    add_device_info,
+    add_identity,
+    add_pdo_assignment,
+    add_pdo_mapping,
+    add_sync_manager_objects,
+    add_sync_parameters,
+)
+from pyethercat.sim.device import Pdi
+from pyethercat.sim.devices.builtin import BuiltinDevice, Pdo, PdoEntry, SyncManager
+from pyethercat.sim.od import RO, RW, RW_PREOP, RXPDO, TXPDO, WO, ObjectDictionary, OdEntry
+from pyethercat.wire import registers as R
+from pyethercat.wire.mailbox.datatypes import DataType
+from pyethercat.wire.sii import (
+    CoeDetails,
+    FmmuUsage,
+    MailboxProtocol,
+    PortType,
+    SiiInfo,
+    SyncManagerType,
+)
+
+__all__ = [
+    "COE_IO",
+    "SEED002_DRIVE",
+    "CoeIoApp",
+    "Seed002DriveApp",
+    "add_seed002_objects",
+    "coe_builtins",
+    "coe_io_dictionary",
+]
+
+_COE_ALL = int(CoeDetails.SDO | CoeDetails.SDO_INFO | CoeDetails.PDO_ASSIGN
+               | CoeDetails.PDO_CONFIG | CoeDetails.SDO_COMPLETE_ACCESS)
+_MBX = (0x1000, 128, 0x1080, 128)  # standard mailbox: SM0 0x1000, SM1 0x1080, 128 bytes each
+_SMS_STANDARD = (
+    SyncManager(0x1000, 128, R.SM_CONTROL_MAILBOX_OUT, SyncManagerType.MAILBOX_OUT),
+    SyncManager(0x1080, 128, R.SM_CONTROL_MAILBOX_IN, SyncManagerType.MAILBOX_IN),
+)
+_PD_CAPACITY = 128  # SM2 at 0x1100 and SM3 at 0x1180: room for 128 bytes each
+_EBUS2 = (PortType.EBUS, PortType.EBUS, PortType.NOT_USED, PortType.NOT_USED)
+_MII2 = (PortType.MII, PortType.MII, PortType.NOT_USED, PortType.NOT_USED)
+
+#: Size of the octet-string object 0x2000 (segmented transfers).
+DATA_BLOCK_SIZE = 4096
+
+
+# --- coe-io ---------------------------------------------------------------------------
+
+
+def coe_io_dictionary(vendor: int, product: int, revision: int, serial: int = 0) -> ObjectDictionary:
+    """The object dictionary of ``builtin:coe-io`` with its default mapping."""
+    od = ObjectDictionary()
+    u8, u16, u32 = DataType.UNSIGNED8, DataType.UNSIGNED16, DataType.UNSIGNED32
+    add_device_info(od, 0x00000191, "PEC-COEIO CoE test IO", "1.0", "pyethercat sim 1.0")
+    add_identity(od, vendor, product, revision, serial)
+    od.record(0x10F1, "Error settings", [
+        OdEntry(1, "Local error reaction", u32, RW, 1, maximum=2),
+        OdEntry(2, "Sync error counter limit", u16, RW, 4),
+    ])
+    add_pdo_mapping(od, 0x1600, "DO outputs", [(0x7000, 1, 8)])
+    add_pdo_mapping(od, 0x1601, "Value outputs", [(0x7000, 2, 16), (0x7000, 3, 32)])
+    add_pdo_mapping(od, 0x1602, "Spare RxPDO", [])
+    add_pdo_mapping(od, 0x1603, "Spare RxPDO 2", [])
+    add_pdo_mapping(od, 0x1A00, "DI inputs", [(0x6000, 1, 8)])
+    add_pdo_mapping(od, 0x1A01, "Value inputs", [(0x6000, 2, 16), (0x6000, 3, 32)])
+    add_pdo_mapping(od, 0x1A02, "Status", [(0x6000, 4, 16)])
+    add_pdo_mapping(od, 0x1A03, "Spare TxPDO", [])
+    add_sync_manager_objects(od, (1, 2, 3, 4))
+    add_pdo_assignment(od, 0x1C12, [0x1600, 0x1601])
+    add_pdo_assignment(od, 0x1C13, [0x1A00, 0x1A01])
+    add_sync_parameters(od, 0x1C32, mode=1)
+    add_sync_parameters(od, 0x1C33, mode=0x22)
+    od.var(0x2000, "Data block", DataType.OCTET_STRING, RW,
+           bytes(i & 0xFF for i in range(DATA_BLOCK_SIZE)), max_length=DATA_BLOCK_SIZE)
+    od.var(0x2001, "Command", u32, WO, 0)
+    od.var(0x2002, "PREOP parameter", u16, RW_PREOP, 100, minimum=1, maximum=1000)
+    od.record(0x6000, "Inputs", [
+        OdEntry(1, "Digital inputs", u8, RO | TXPDO, 0),
+        OdEntry(2, "Value 16", u16, RO | TXPDO, 0),
+        OdEntry(3, "Value 32", u32, RO | TXPDO, 0),
+        OdEntry(4, "Cycle counter", u16, RO | TXPDO, 0),
+        OdEntry(5, "Bit input", DataType.BOOLEAN, RO | TXPDO, False),
+    ])
+    od.record(0x7000, "Outputs", [
+        OdEntry(1, "Digital outputs", u8, RW | RXPDO, 0),
+        OdEntry(2, "Value 16", u16, RW | RXPDO, 0),
+        OdEntry(3, "Value 32", u32, RW | RXPDO, 0),
+        OdEntry(4, "Bit output", DataType.BOOLEAN, RW | RXPDO, False),
+    ])
+    od.record(0x8000, "Settings", [
+        OdEntry(1, "Filter time", u16, RW, 10, maximum=10000),
+        OdEntry(2, "Offset", DataType.INTEGER32, RW, 0, minimum=-1_000_000, maximum=1_000_000),
+        OdEntry(3, "Invert digital", DataType.BOOLEAN, RW, False),
+        OdEntry(4, "Mode", u8, RW, 0, allowed=frozenset({0, 1, 2})),
+        OdEntry(5, "Gain", DataType.REAL32, RW, 1.0, minimum=0.0, maximum=100.0),
+        OdEntry(6, "Channel name", DataType.VISIBLE_STRING, RW, "channel 1", max_length=32),
+    ])
+    od.record(0x8001, "Limits", [
+        OdEntry(1, "Low", DataType.INTEGER16, RW, -100),
+        OdEntry(2, "High", DataType.INTEGER16, RW, 100),
+    ])
+    return od
+
+
+class CoeIoApp(CoeDevice):
+    """``builtin:coe-io``: inputs echo outputs through the current PDO mapping.
+
+    Digital inputs = digital outputs (inverted when 0x8000:03 is set), value 16
+    = value 16, value 32 = value 32 + offset 0x8000:02 (mod 2^32), bit input =
+    bit output, cycle counter +1 per output buffer.
+    """
+
+    def __init__(self, info: SiiInfo) -> None:
+        od = coe_io_dictionary(info.vendor_id, info.product_code, info.revision, info.serial)
+        super().__init__(od, details=_COE_ALL, capacity_out=_PD_CAPACITY,
+                         capacity_in=_PD_CAPACITY)
+        e = od.entry
+        self._in = [e(0x6000, s) for s in range(1, 6)]
+        self._out = [e(0x7000, s) for s in range(1, 5)]
+        self._invert = e(0x8000, 3)
+        self._offset = e(0x8000, 2)
+
+    def update(self) -> None:
+        di, v16, v32, counter, bit = self._in
+        do, o16, o32, obit = self._out
+        digital = do.raw[0] ^ (0xFF if self._invert.raw[0] else 0)
+        di.raw[:] = bytes([digital])
+        v16.raw[:] = o16.raw
+        offset = int.from_bytes(self._offset.raw, "little", signed=True)
+        value = (int.from_bytes(o32.raw, "little") + offset) & 0xFFFFFFFF
+        v32.raw[:] = value.to_bytes(4, "little")
+        bit.raw[:] = obit.raw
+        count = (int.from_bytes(counter.raw, "little") + 1) & 0xFFFF
+        counter.raw[:] = count.to_bytes(2, "little")
+
+
+COE_IO = BuiltinDevice(
+    key="coe-io",
+    product_code=0x00050001,
+    order="PEC-COEIO",
+    name="PEC-COEIO CoE test IO (dynamic PDOs)",
+    group="CoE",
+    profile="ET1100",
+    ports=_EBUS2,
+    sync_managers=_SMS_STANDARD + (
+        SyncManager(0x1100, 7, R.SM_CONTROL_OUTPUTS, SyncManagerType.OUTPUTS),
+        SyncManager(0x1180, 7, R.SM_CONTROL_INPUTS, SyncManagerType.INPUTS),
+    ),
+    fmmus=(FmmuUsage.OUTPUTS, FmmuUsage.INPUTS, FmmuUsage.MAILBOX_STATE),
+    rx_pdos=(
+        Pdo(0x1600, 2, "DO outputs", (PdoEntry(0x7000, 1, 8, "Digital outputs", 0x0005),)),
+        Pdo(0x1601, 2, "Value outputs", (PdoEntry(0x7000, 2, 16, "Value 16", 0x0006),
+                                          PdoEntry(0x7000, 3, 32, "Value 32", 0x0007))),
+    ),
+    tx_pdos=(
+        Pdo(0x1A00, 3, "DI inputs", (PdoEntry(0x6000, 1, 8, "Digital inputs", 0x0005),)),
+        Pdo(0x1A01, 3, "Value inputs", (PdoEntry(0x6000, 2, 16, "Value 16", 0x0006),
+                                         PdoEntry(0x6000, 3, 32, "Value 32", 0x0007))),
+    ),
+    mailbox=_MBX,
+    ebus_current_ma=120,
+    pdi_control=0x0C05,  # PDI: SPI (a microcontroller runs the CoE stack)
+    description="CoE IO: 8 DI/8 DO, 16/32-bit values each way (inputs echo outputs), "
+                "dynamic PDOs, 4 KiB octet string 0x2000, settings 0x8000",
+    coe_details=_COE_ALL,
+    mailbox_protocols=int(MailboxProtocol.COE),
+    app_factory=CoeIoApp,
+)
+
+
+# --- seed 002 drive ---------------------------------------------------------------------
+
+SEED002_VENDOR = 0x000000E4
+SEED002_PRODUCT = 0x264860D2
+SEED002_REVISION = 0x00020000
+
+
+def add_seed002_objects(od: ObjectDictionary, *, serial: int = 0,
+                        station_address: Callable[[], int] | None = None,
+                        assigned_rx: int = 0, assigned_tx: int = 0,
+                        profile_objects: bool = True) -> None:
+    """The seed 002 drive's CoE communication objects (seed 002 chapter 6.1.2).
+
+    0x1000 device type (CiA 402 servo drive), 0x1018 identity, 0x1100 fixed
+    station address (read-only, the live register 0x0010 when
+    ``station_address`` is given), four RxPDO and four TxPDO mapping objects
+    (0x1600 = controlword 0x6040 + modes of operation 0x6060 as in the seed's
+    ESI example; 0x1A00 = statusword 0x6041 + modes display 0x6061),
+    0x1C00 = 4 channels of types 1, 2, 3, 4 (read-only), 0x1C10/0x1C11 with no
+    PDO, 0x1C12/0x1C13 with 0x1600-0x1603 / 0x1A00-0x1A03 in subindices 1-4
+    and subindex 0 = ``assigned_rx``/``assigned_tx`` (the seed's default is 0:
+    the master assigns). 0x1008-0x100A are absent, as the seed says.
+    ``profile_objects`` adds 0x6040/0x6041/0x6060/0x6061 when missing, so
+    the default mapping validates.
+    """
+    od.var(0x1000, "Device type", DataType.UNSIGNED32, RO, 0x00020192)
+    od.var(0x1001, "Error register", DataType.UNSIGNED8, RO, 0)
+    add_identity(od, SEED002_VENDOR, SEED002_PRODUCT, SEED002_REVISION, serial)
+    hook = None
+    if station_address is not None:
+        def hook() -> bytes:
+            return (station_address() & 0xFFFF).to_bytes(2, "little")
+    od.var(0x1100, "EtherCAT fixed station address", DataType.UNSIGNED16, RO, 0, on_read=hook)
+    if profile_objects:
+        for index, name, dtype, access in (
+                (0x6040, "Controlword", DataType.UNSIGNED16, RW | RXPDO),
+                (0x6041, "Statusword", DataType.UNSIGNED16, RO | TXPDO),
+                (0x6060, "Modes of operation", DataType.INTEGER8, RW | RXPDO),
+                (0x6061, "Modes of operation display", DataType.INTEGER8, RO | TXPDO)):
+            if index not in od:
+                od.var(index, name, dtype, access, 0)
+    add_pdo_mapping(od, 0x1600, "1. RxPDO mapping", [(0x6040, 0, 16), (0x6060, 0, 8)])
+    for n in range(1, 4):
+        add_pdo_mapping(od, 0x1600 + n, f"{n + 1}. RxPDO mapping", [])
+    add_pdo_mapping(od, 0x1A00, "1. TxPDO mapping", [(0x6041, 0, 16), (0x6061, 0, 8)])
+    for n in range(1, 4):
+        add_pdo_mapping(od, 0x1A00 + n, f"{n + 1}. TxPDO mapping", [])
+    add_sync_manager_objects(od, (1, 2, 3, 4))
+    od.find(0x1C00).name = "Sync manager communication type"  # type: ignore[union-attr]
+    od.find(0x1C10).name = "Sync manager channel 0 (mailbox receive)"  # type: ignore[union-attr]
+    od.find(0x1C11).name = "Sync manager channel 1 (mailbox send)"  # type: ignore[union-attr]
+    rx = add_pdo_assignment(od, 0x1C12, [0x1600, 0x1601, 0x1602, 0x1603], assigned=assigned_rx)
+    rx.name = "Sync manager channel 2 (process data output)"
+    tx = add_pdo_assignment(od, 0x1C13, [0x1A00, 0x1A01, 0x1A02, 0x1A03], assigned=assigned_tx)
+    tx.name = "Sync manager channel 3 (process data input)"
+
+
+class Seed002DriveApp(CoeDevice):
+    """``builtin:seed002-drive``: the seed's communication objects, nothing of CiA 402 yet.
+
+    The modes-of-operation display follows modes of operation; a CiA 402
+    drive model replaces :meth:`update`.
+    """
+
+    def __init__(self, info: SiiInfo) -> None:
+        od = ObjectDictionary()
+        add_seed002_objects(od, serial=info.serial, station_address=self._station)
+        super().__init__(od, details=_COE_ALL & ~int(CoeDetails.SDO_COMPLETE_ACCESS),
+                         capacity_out=_PD_CAPACITY, capacity_in=_PD_CAPACITY)
+
+    def _station(self) -> int:
+        if self.pdi is None:
+            return 0
+        return int.from_bytes(self.pdi.read(R.STATION_ADDRESS, 2), "little")
+
+    def on_attach(self, pdi: Pdi) -> None:
+        self.od.set_value(0x6041, 0, 0x0250)  # switch on disabled
+
+    def update(self) -> None:
+        self.od.entry(0x6061, 0).raw[:] = self.od.entry(0x6060, 0).raw
+
+
+SEED002_DRIVE = BuiltinDevice(
+    key="seed002-drive",
+    product_code=SEED002_PRODUCT,
+    order="item C-Serie EtherCAT",
+    name="item Servo Positioning Controller C Series (seed 002)",
+    group="Drive",
+    profile="IPCORE",
+    ports=_MII2,
+    sync_managers=_SMS_STANDARD + (
+        SyncManager(0x1100, 3, R.SM_CONTROL_OUTPUTS, SyncManagerType.OUTPUTS),
+        SyncManager(0x1180, 3, R.SM_CONTROL_INPUTS, SyncManagerType.INPUTS),
+    ),
+    fmmus=(FmmuUsage.OUTPUTS, FmmuUsage.INPUTS, FmmuUsage.MAILBOX_STATE),
+    rx_pdos=(Pdo(0x1600, 2, "Outputs", (PdoEntry(0x6040, 0, 16, "Controlword", 0x0006),
+                                         PdoEntry(0x6060, 0, 8, "Mode_Of_Operation", 0x0002))),),
+    tx_pdos=(Pdo(0x1A00, 3, "Inputs", (PdoEntry(0x6041, 0, 16, "Statusword", 0x0006),
+                                        PdoEntry(0x6061, 0, 8, "Mode_Of_Operation_Display",
+                                                 0x0002))),),
+    mailbox=_MBX,
+    pdi_control=0x0C05,
+    description="seed 002 servo controller: CoE communication objects 0x1000-0x1C13 "
+                "(0x1C12/0x1C13 subindex 0 = 0 until the master assigns PDOs)",
+    coe_details=_COE_ALL & ~int(CoeDetails.SDO_COMPLETE_ACCESS),
+    mailbox_protocols=int(MailboxProtocol.COE),
+    vendor_id=SEED002_VENDOR,
+    revision=SEED002_REVISION,
+    app_factory=Seed002DriveApp,
+)
+
+
+def coe_builtins() -> dict[str, BuiltinDevice]:
+    """The CoE built-ins by topology name."""
+    return {d.key: d for d in (COE_IO, SEED002_DRIVE)}

@@ -1,0 +1,195 @@
+"""Per-slave mailbox engine of a simulated device (the firmware side of SM0/SM1).
+
+:class:`MailboxEngine` takes what the master wrote into SM0 (the ESC hands the
+whole SM buffer to ``DeviceApp.on_mailbox``), checks the header, drops a
+request whose counter repeats the previous one (facts 6.3: a frame the master
+sent twice is not executed twice), and dispatches by mailbox type to the
+protocol handlers registered with it. What cannot be served is answered with
+a mailbox error reply (type 0, facts 6.4):
+
+===========================  ======================================================
+0x0002 unsupported protocol  no handler for the type (AoE, EoE, FoE, SoE, VoE ...)
+0x0003 invalid channel       channel field not 0
+0x0004 service not supported the handler does not know the service (raised by it)
+0x0005 invalid header        type 0 (an error reply) sent to the slave
+0x0006 size too short        length 0, or shorter than the protocol header
+0x0007 no more memory        the reply queue is full
+0x0008 invalid size          length beyond the SM0 buffer
+===========================  ======================================================
+
+Replies go out through ``Pdi.post_mailbox`` numbered with the engine's own
+counter (1..7, then 1). When SM1 is still full they wait in a queue and are
+posted, in order, as soon as the master has read SM1 (the ESC calls
+``on_mailbox_read``). The ESC keeps the last posted mailbox and re-posts it on
+a repeat request (facts 6.6), so a reply lost on the wire is recovered
+without the engine's help; :attr:`MailboxEngine.last_reply` holds the same
+bytes for tests.
+
+:class:`MailboxDevice` is a :class:`~pyethercat.sim.device.DeviceApp` with an
+engine wired to the ESC events; protocol servers (``sim.coe``) register on it.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable
+
+from pyethercat.errors import MailboxError, MailboxErrorReply
+from pyethercat.sim.device import DeviceApp, Pdi
+from pyethercat.wire.al import AlState
+from pyethercat.wire.mailbox.header import (
+    MAILBOX_HEADER_SIZE,
+    MailboxErrorCode,
+    MailboxHeader,
+    MailboxType,
+    encode_mailbox,
+    encode_mailbox_error,
+    is_repeated_counter,
+    mailbox_error_name,
+    next_counter,
+)
+
+__all__ = ["MailboxDevice", "MailboxEngine", "MailboxHandler", "service_error"]
+
+MailboxHandler = Callable[[MailboxHeader, bytes], None]
+"""``handler(header, payload)``: serve one request; raise :func:`service_error` to refuse it."""
+
+#: Replies the engine holds while SM1 is full before it answers "no more memory".
+QUEUE_LIMIT = 256
+
+
+def service_error(code: int) -> MailboxErrorReply:
+    """The exception a handler raises to have the engine send mailbox error ``code``."""
+    return MailboxErrorReply(code, mailbox_error_name(code))
+
+
+class MailboxEngine:
+    """Header checks, duplicate detection, dispatch and the reply queue of one slave."""
+
+    def __init__(self, pdi: Pdi | None = None) -> None:
+        self.pdi = pdi
+        self.handlers: dict[int, MailboxHandler] = {}
+        self.queue: deque[bytes] = deque()
+        self.last_reply = b""
+        self._last_in = 0
+        self._out_counter = 0
+        #: Requests dropped because their counter repeated the previous one.
+        self.duplicates = 0
+        #: Requests served (handed to a handler or answered with an error reply).
+        self.requests = 0
+
+    def register(self, mtype: int, handler: MailboxHandler) -> None:
+        """Serve mailbox type ``mtype`` with ``handler``."""
+        self.handlers[int(mtype)] = handler
+
+    def reset(self) -> None:
+        """Forget counters and queued replies (the mailbox was stopped, back in INIT)."""
+        self.queue.clear()
+        self._last_in = 0
+        self._out_counter = 0
+
+    # --- receive -------------------------------------------------------------------
+
+    def receive(self, data: bytes) -> None:
+        """One mailbox the master wrote into SM0 (padded to the SM length)."""
+        if len(data) < MAILBOX_HEADER_SIZE:
+            self.send_error(MailboxErrorCode.SYNTAX)
+            return
+        try:
+            header = MailboxHeader.decode(data)
+        except MailboxError:
+            self.send_error(MailboxErrorCode.SYNTAX)
+            return
+        if is_repeated_counter(self._last_in, header.counter):
+            self.duplicates += 1
+            return
+        self._last_in = header.counter
+        self.requests += 1
+        if len(self.queue) >= QUEUE_LIMIT:
+            self.send_error(MailboxErrorCode.NO_MORE_MEMORY, header.address, force=True)
+            return
+        code = self._header_problem(header, len(data))
+        if code:
+            self.send_error(code, header.address)
+            return
+        handler = self.handlers.get(int(header.type))
+        if handler is None:
+            self.send_error(MailboxErrorCode.UNSUPPORTED_PROTOCOL, header.address)
+            return
+        payload = bytes(data[MAILBOX_HEADER_SIZE: MAILBOX_HEADER_SIZE + header.length])
+        try:
+            handler(header, payload)
+        except MailboxErrorReply as exc:
+            self.send_error(exc.code, header.address)
+
+    @staticmethod
+    def _header_problem(header: MailboxHeader, size: int) -> int:
+        if header.length > size - MAILBOX_HEADER_SIZE:
+            return MailboxErrorCode.INVALID_SIZE
+        if header.length == 0:
+            return MailboxErrorCode.SIZE_TOO_SHORT
+        if header.channel != 0:
+            return MailboxErrorCode.INVALID_CHANNEL
+        if header.type == MailboxType.ERR:
+            return MailboxErrorCode.INVALID_HEADER
+        return 0
+
+    # --- send ------------------------------------------------------------------------
+
+    def send(self, mtype: int, payload: bytes, *, address: int = 0, priority: int = 0) -> None:
+        """Queue one reply (or unsolicited message) for SM1 with the next counter."""
+        self._out_counter = next_counter(self._out_counter)
+        frame = encode_mailbox(mtype, payload, counter=self._out_counter, address=address,
+                               priority=priority)
+        self.queue.append(frame)
+        self.flush()
+
+    def send_error(self, code: int, address: int = 0, force: bool = False) -> None:
+        """Queue a mailbox error reply carrying ``code``."""
+        if force and len(self.queue) >= QUEUE_LIMIT:
+            self.queue.pop()  # make room: the error must get through
+        self.send(MailboxType.ERR, encode_mailbox_error(code), address=address)
+
+    def flush(self) -> None:
+        """Post queued replies while SM1 takes them (one at a time: the ESC holds one)."""
+        pdi = self.pdi
+        if pdi is None:
+            return
+        while self.queue:
+            frame = self.queue[0]
+            if not pdi.post_mailbox(frame):
+                return
+            self.queue.popleft()
+            self.last_reply = frame
+
+
+class MailboxDevice(DeviceApp):
+    """A device application with a mailbox engine wired to the ESC events.
+
+    Subclasses register protocol handlers on :attr:`mailbox` (``sim.coe``
+    registers CoE). Types without a handler get "protocol not supported".
+    """
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.mailbox = MailboxEngine()
+
+    def attach(self, pdi: Pdi) -> None:
+        super().attach(pdi)
+        self.mailbox.pdi = pdi
+
+    def on_mailbox(self, data: bytes) -> None:
+        self.mailbox.receive(data)
+
+    def on_mailbox_read(self) -> None:
+        """The master read SM1 (called by the ESC): post the next queued reply."""
+        self.mailbox.flush()
+
+    def on_state_change(self, old: AlState, new: AlState) -> None:
+        if new == AlState.INIT:
+            self.mailbox.reset()
+        elif old == AlState.INIT:
+            self.mailbox.flush()
+
+    def on_power_on(self) -> None:
+        self.mailbox.reset()
