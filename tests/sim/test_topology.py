@@ -135,7 +135,7 @@ def test_examples_load() -> None:
         ("[[slave]]\nname = 'a'\ndevice = 'di8'", "must be \"builtin:<name>\""),
         ("[[slave]]\nname = 'a'\ndevice = 'builtin:di8'\ncolour = 1", "unknown key\\(s\\) colour"),
         ("[[slave]]\nname = 'a'\nsii = 'missing.bin'", "slave 'a': cannot read SII file"),
-        ("[[slave]]\nname = 'a'\nesi = 'x.xml'\nproduct = 1", "slave 'a': ESI"),
+        ("[[slave]]\nname = 'a'\nesi = 'x.xml'\nproduct = 1", "slave 'a': ESI x.xml"),
         ("[[slave]]\nname = 'a'\ndevice = 'builtin:di8'\nprofile = 'ET9999'", "unknown ESC profile"),
         ("[[slave]]\nname = 'a'\ndevice = 'builtin:di8'\nalias = 70000", "alias: 70000 is out of range"),
         ("[[slave]]\nname = 'a'\ndevice = 'builtin:di8'\ninputs = 'zz'", "not hex"),

@@ -107,8 +107,21 @@ def test_initial_inputs_and_faults_from_file(corpus_dir: Path) -> None:
     assert status.data[0] & 0x0F == 0x01
 
 
-def test_esi_is_not_supported_yet() -> None:
+def test_esi_device(corpus_dir: Path) -> None:
     from pyethercat.errors import ConfigError
 
-    with pytest.raises(ConfigError, match="slave 'x'"):
+    esi = corpus_dir / "esi" / "beckhoff_EL1xxx.xml"
+    topo = parse_topology(
+        '[[slave]]\nname = "c"\ndevice = "builtin:coupler"\n'
+        f'[[slave]]\nname = "el1004"\nesi = "{esi}"\nproduct = 0x03EC3052\n'
+        "revision = 0x00130000\n"
+    )
+    s = topo.slaves[1]
+    assert (s.info.vendor_id, s.info.product_code, s.info.revision) == (2, 0x03EC3052, 0x00130000)
+    assert s.input_bits == 4 and s.profile.name == "ET1200"
+    seg = topo.build(clock=VirtualClock())
+    assert _sii_word(seg, 1, 0x0A) == 0x3052
+    with pytest.raises(ConfigError, match="slave 'x': ESI nothere.xml.*cannot read"):
         parse_topology('[[slave]]\nname = "x"\nesi = "nothere.xml"\n', source="t.toml")
+    with pytest.raises(ConfigError, match="slave 'x': ESI"):
+        parse_topology(f'[[slave]]\nname = "x"\nesi = "{esi}"\nproduct = 0x1\n', source="t.toml")

@@ -357,23 +357,18 @@ def _parse_slave(raw: dict[str, Any], i: int, topo: Topology, base: Path) -> Sla
 
 
 def _sii_from_esi(raw: dict[str, Any], path: Path, where: str) -> bytes:
-    """SII image of an ESI device, when pyethercat.esi can make one."""
-    try:
-        from pyethercat.esi import sii_from_esi  # type: ignore[attr-defined]
-    except ImportError:
-        raise ConfigError(f"{where}: ESI devices not supported yet (use sii = or device =)") from None
-    make = getattr(sii_from_esi, "sii_image_from_file", None)
-    if make is None:
-        raise ConfigError(f"{where}: ESI devices not supported yet (use sii = or device =)")
+    """SII image of an ESI device (``product``/``revision`` pick it from the file)."""
+    from pyethercat.errors import EsiError
+    from pyethercat.esi.sii_from_esi import sii_image_from_file
+
     product = _int(raw["product"], f"{where}: product") if "product" in raw else None
     revision = _int(raw["revision"], f"{where}: revision") if "revision" in raw else None
     try:
-        image = make(path, product=product, revision=revision)
-    except Exception as exc:  # the ESI layer raises EsiError; say where it came from
+        return sii_image_from_file(path, product=product, revision=revision)
+    except (EsiError, SiiError, ConfigError) as exc:
         raise ConfigError(f"{where}: ESI {path}: {exc}") from exc
-    if not isinstance(image, bytes | bytearray):
-        raise ConfigError(f"{where}: ESI {path}: no SII image produced")
-    return bytes(image)
+    except OSError as exc:
+        raise ConfigError(f"{where}: cannot read ESI file {path}: {exc.strerror or exc}") from exc
 
 
 def _place(topo: Topology) -> None:
