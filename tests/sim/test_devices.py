@@ -41,9 +41,9 @@ def test_image_parses_strictly_with_identity(key: str) -> None:
     assert info.checksum_ok and info.end_marker and not info.warnings
     assert image[14] == sii_crc(image[:14]) and image[15] == 0
     assert (info.vendor_id, info.product_code, info.revision, info.serial) == (
-        VENDOR_ID,
+        dev.vendor_id,
         dev.product_code,
-        0x00010000,
+        dev.revision,
         7,
     )
     assert info.device_name == dev.name
@@ -52,15 +52,24 @@ def test_image_parses_strictly_with_identity(key: str) -> None:
     assert info.input_bits == dev.input_bits
     assert info.output_bits == dev.output_bits
     # Image bytes 0x10/0x14 hold vendor id/product code, little endian.
-    assert struct.unpack_from("<II", image, 0x10) == (VENDOR_ID, dev.product_code)
+    assert struct.unpack_from("<II", image, 0x10) == (dev.vendor_id, dev.product_code)
 
 
 def test_vendor_id_is_pec_ascii() -> None:
     assert VENDOR_ID.to_bytes(4, "big")[1:] == b"PEC"
 
 
+IO_BUILTINS = ("coupler", "di8", "do8", "di2", "ai2")
+
+
+def test_io_builtins_carry_our_vendor_id() -> None:
+    for key in IO_BUILTINS:
+        assert parse_sii(BUILTINS[key].sii_image()).vendor_id == VENDOR_ID
+        assert BUILTINS[key].revision == 0x00010000
+
+
 def test_process_data_sizes() -> None:
-    assert {k: (d.input_bits, d.output_bits) for k, d in BUILTINS.items()} == {
+    assert {k: (BUILTINS[k].input_bits, BUILTINS[k].output_bits) for k in IO_BUILTINS} == {
         "coupler": (0, 0),
         "di8": (8, 0),
         "do8": (0, 8),
@@ -131,7 +140,7 @@ def test_strings_are_shared_not_repeated() -> None:
 
 
 def test_unknown_builtin_names_the_choices() -> None:
-    with pytest.raises(ConfigError, match="ai2, coupler, di2, di8, do8"):
+    with pytest.raises(ConfigError, match="choose one of ai2, .*coupler, di2, di8, do8"):
         get_builtin("di16")
 
 
