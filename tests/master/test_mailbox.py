@@ -6,6 +6,7 @@ import struct
 import threading
 
 import pytest
+from mini_coe import MiniCoe, coe_segment
 
 from pyethercat.errors import MailboxError, MailboxErrorReply, SdoAbort
 from pyethercat.errors import TimeoutError as EcTimeoutError
@@ -16,8 +17,6 @@ from pyethercat.wire.datagram import Command
 from pyethercat.wire.frame import decode_frame
 from pyethercat.wire.mailbox.coe import SdoAbortCode, SdoAbortTransfer
 from pyethercat.wire.mailbox.header import MailboxHeader, MailboxType, encode_mailbox
-
-from mini_coe import MiniCoe, coe_segment
 
 
 def _master(count: int = 1, **kw: object) -> tuple[Master, list[MiniCoe], object]:
