@@ -123,7 +123,7 @@ class CoeServer:
         self.details = CoeDetails(details)
         self._upload: SdoUploadServer | None = None
         self._download: SdoDownloadServer | None = None
-        self._download_exact = True
+        self._download_flags = (True, False)
 
     def handle(self, header: MailboxHeader, payload: bytes) -> None:
         """One CoE request (mailbox payload, CoE header first)."""
@@ -222,8 +222,9 @@ class CoeServer:
             return
         server = SdoDownloadServer(msg)
         event = server.start()
+        self._download_flags = (msg.size_indicated, msg.expedited)
         if event.data is not None:
-            self._store(index, sub, event.data, ca, exact=msg.size_indicated, reply=event.reply)
+            self._store(index, sub, event.data, ca, reply=event.reply)
             return
         self._download = server
         self._reply(event.reply)
@@ -238,14 +239,14 @@ class CoeServer:
             self._download = None
         if event.data is not None:
             self._store(server.index, server.subindex, event.data, server.complete_access,
-                        exact=True, reply=event.reply)
+                        reply=event.reply)
             return
         self._reply(event.reply)
 
-    def _store(self, index: int, sub: int, data: bytes, ca: bool, *, exact: bool,
-               reply: CoeMessage) -> None:
+    def _store(self, index: int, sub: int, data: bytes, ca: bool, *, reply: CoeMessage) -> None:
+        size_indicated, expedited = self._download_flags
         try:
-            self.od.download(index, sub, data, self.state(), ca, exact=exact)
+            self.od.download(index, sub, data, self.state(), ca, size_indicated, expedited)
         except SdoAbort as exc:
             self._abort(exc, index, sub)
             return

@@ -413,11 +413,13 @@ class ObjectDictionary:
                             f"{size} bytes, capacity {e.max_length}")
 
     def download(self, index: int, subindex: int, data: bytes, state: AlState,
-                 complete_access: bool = False, exact: bool = True) -> None:
+                 complete_access: bool = False, size_indicated: bool = True,
+                 expedited: bool = False) -> None:
         """Store an SDO download; raises :class:`SdoAbort` and then stores nothing.
 
-        ``exact`` is False for an expedited download without size indication
-        (4 bytes, the low ones count).
+        Without size indication an expedited download carries 4 bytes (the low
+        ones count); a normal one whose length does not fit a fixed-size entry
+        aborts with 0x06070010 (with size indication: 0x06070012/0x06070013).
         """
         obj = self.get(index)
         if complete_access:
@@ -427,7 +429,10 @@ class ObjectDictionary:
         self._check_writable(obj, e, state)
         raw = bytes(data)
         size = e.byte_size
-        if not exact and size is not None and len(raw) > size:
+        if not size_indicated and size is not None and len(raw) != size:
+            if not (expedited and len(raw) > size):
+                raise sdo_abort(SdoAbortCode.LENGTH_MISMATCH, index, subindex,
+                                f"{len(raw)} bytes for {e.data_type.name}")
             raw = raw[:size]
         e.check_value(raw, index)
         changes = {subindex: raw}
@@ -484,6 +489,8 @@ class ObjectDictionary:
             changes[0] = data[:1]
             count = data[0]
             pos = 16
+            if obj.entries[0].writable(state):
+                obj.entries[0].check_value(changes[0], obj.index)  # the count first
         else:
             count = obj.count()
         entries = obj.ca_entries(count)
