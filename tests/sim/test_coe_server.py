@@ -5,8 +5,8 @@ from __future__ import annotations
 import struct
 
 import pytest
-
 from coehelp import MBX_SIZE, CoeSlave, coe_of
+
 from pyethercat.errors import MailboxErrorReply
 from pyethercat.wire import registers as R
 from pyethercat.wire.al import AlState

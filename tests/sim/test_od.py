@@ -14,7 +14,7 @@ from pyethercat.wire.al import AlState
 from pyethercat.wire.mailbox.coe import ObjectCode, SdoAbortCode
 from pyethercat.wire.mailbox.datatypes import DataType
 
-P, S, O = AlState.PREOP, AlState.SAFEOP, AlState.OP
+P, S, OP = AlState.PREOP, AlState.SAFEOP, AlState.OP
 
 
 def make() -> ObjectDictionary:
@@ -48,14 +48,14 @@ def code(fn: object, *args: object, **kw: object) -> int:
 def test_upload_values_and_missing() -> None:
     od = make()
     assert od.upload(0x1000, 0, P) == struct.pack("<I", 0x191)
-    assert od.upload(0x2000, 0, O) == b"abc"
+    assert od.upload(0x2000, 0, OP) == b"abc"
     assert od.upload(0x3000, 0, P) == b"\x04"
     assert od.upload(0x3001, 0, P) == b"\x03"
     assert code(od.upload, 0x4000, 0, P) == SdoAbortCode.NO_OBJECT
     assert code(od.upload, 0x3000, 9, P) == SdoAbortCode.NO_SUBINDEX
     assert code(od.upload, 0x2001, 0, P) == SdoAbortCode.WRITE_ONLY
     assert code(od.upload, 0x2008, 0, P) == SdoAbortCode.DEVICE_STATE
-    assert od.upload(0x2008, 0, O) == b"\x09"
+    assert od.upload(0x2008, 0, OP) == b"\x09"
 
 
 def test_download_access_rights_per_state() -> None:
@@ -64,8 +64,8 @@ def test_download_access_rights_per_state() -> None:
     od.download(0x2002, 0, b"\x07\x00", P)
     assert od.value(0x2002) == 7
     assert code(od.download, 0x2002, 0, b"\x08\x00", S) == SdoAbortCode.DEVICE_STATE
-    assert code(od.download, 0x2002, 0, b"\x08\x00", O) == SdoAbortCode.DEVICE_STATE
-    od.download(0x2001, 0, b"\1\0\0\0", O)  # write-only: writable everywhere
+    assert code(od.download, 0x2002, 0, b"\x08\x00", OP) == SdoAbortCode.DEVICE_STATE
+    od.download(0x2001, 0, b"\1\0\0\0", OP)  # write-only: writable everywhere
     assert od.entry(0x2001, 0).raw == b"\1\0\0\0"
 
 
@@ -195,7 +195,7 @@ def test_u16_round_trip_through_sdo_access(value: int) -> None:
     od = ObjectDictionary()
     od.var(0x2000, "x", DataType.UNSIGNED16, RW, 0)
     od.download(0x2000, 0, struct.pack("<H", value), P)
-    assert od.upload(0x2000, 0, O) == struct.pack("<H", value)
+    assert od.upload(0x2000, 0, OP) == struct.pack("<H", value)
 
 
 @given(st.lists(st.integers(0, 0xFFFFFFFF), min_size=0, max_size=8))
