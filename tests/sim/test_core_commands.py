@@ -124,11 +124,15 @@ def test_missing_registers_answer_wkc_zero() -> None:
     assert one(seg, Datagram.positional(Command.APRD, 0, R.fmmu_address(7), 2)).wkc == 0
 
 
-def test_read_only_bytes_ignore_writes_but_count() -> None:
-    seg = line(1)
+def test_read_only_registers_ignore_writes_without_counting() -> None:
+    seg = line(2)
     d = one(seg, Datagram.positional(Command.APWR, 0, R.TYPE, b"\x99"))
     assert seg.slaves[0].read(R.TYPE, 1) == b"\x11"
-    assert d.wkc == 1  # the register exists; the write is simply not taken
+    assert d.wkc == 0  # real ESCs: BWR of read-only 0x092C returns WKC 0
+    assert one(seg, Datagram.device(Command.BWR, 0, R.DC_SYSTEM_TIME_DIFFERENCE, bytes(4))).wkc == 0
+    # a write that covers some writable byte counts; the read-only bytes keep their value
+    d = one(seg, Datagram.positional(Command.APWR, 0, R.STATION_ADDRESS - 2, b"\xaa\xbb\x34\x12"))
+    assert d.wkc == 1 and seg.slaves[0].u16(R.STATION_ADDRESS) == 0x1234
 
 
 def test_mixed_profiles_broadcast_counts_only_implementing_slaves() -> None:

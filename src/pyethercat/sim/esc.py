@@ -119,6 +119,17 @@ def _side_effect_mask() -> BoolArray:
 SIDE_EFFECT_MASK = _side_effect_mask()
 
 
+def _write_trigger_mask() -> BoolArray:
+    """Bytes that take writes without storing them (DC latch, system time)."""
+    mask = np.zeros(R.ADDRESS_SPACE, dtype=np.bool_)
+    mask[R.DC_RECEIVE_TIME_PORT0: R.DC_SYSTEM_TIME + 8] = True
+    mask.setflags(write=False)
+    return mask
+
+
+_WRITE_TRIGGER = _write_trigger_mask()
+
+
 class SmView:
     """Decoded registers of one sync manager (a snapshot)."""
 
@@ -265,6 +276,7 @@ class Esc:
         return out
 
     def set_ecat_event(self, bits: int) -> None:
+        self.seg._event_bits |= int(bits)
         row = self.row
         value = self.u16(R.ECAT_EVENT_REQUEST) | bits
         row[R.ECAT_EVENT_REQUEST] = value & 0xFF
@@ -312,8 +324,11 @@ class Esc:
 
     def _sii_load(self) -> None:
         """Apply the SII configuration words (power-up and reload)."""
-        control = R.SiiControl.READ_8_BYTES if self.profile.sii_read_bytes == 8 else 0
-        control |= R.SiiControl.TWO_ADDRESS_BYTES
+        control = int(R.SiiControl.READ_8_BYTES) if self.profile.sii_read_bytes == 8 else 0
+        control |= self.profile.sii_control_static
+        # EEPROMs of 32 Kbit and more need two address bytes (1-16 Kbit: one).
+        if self.sii_info is not None and self.sii_info.eeprom_size_kbit >= 32:
+            control |= R.SiiControl.TWO_ADDRESS_BYTES
         ok = len(self.sii) >= 16 and sii_crc(bytes(self.sii[:14])) == self.sii[14]
         if not ok:
             control |= R.SiiControl.CHECKSUM_ERROR
@@ -330,8 +345,11 @@ class Esc:
         self.set_u16(R.STATION_ALIAS, alias)
         # DL status bit 0: the PDI is operational once the EEPROM was loaded.
         dl = self.u16(R.DL_STATUS)
-        dl = (dl | R.DlStatus.PDI_OPERATIONAL | R.DlStatus.PDI_WATCHDOG_OK) if ok else (
-            dl & ~int(R.DlStatus.PDI_OPERATIONAL))
+        # Bit 1 (PDI watchdog reloaded) stays 0 on chips without a PDI
+        # microcontroller (device emulation), as real EK1100/ELxxxx read.
+        pdi_ok = int(R.DlStatus.PDI_WATCHDOG_OK) if not self.device_emulation else 0
+        dl &= ~int(R.DlStatus.PDI_OPERATIONAL | R.DlStatus.PDI_WATCHDOG_OK)
+        dl |= (int(R.DlStatus.PDI_OPERATIONAL) | pdi_ok) if ok else 0
         self.set_u16(R.DL_STATUS, dl)
         self.seg.addressing_dirty = True
 
@@ -382,10 +400,14 @@ class Esc:
                 return False  # full mailbox: refused
             if not s.ecat_writes:
                 return False  # the master may not write a slave->master buffer
+        w = self.writable[lo:hi]
+        if not w.any() and not _WRITE_TRIGGER[lo:hi].any():
+            # Read-only registers: the write is not performed and not counted
+            # (real ESCs answer e.g. a BWR of 0x092C with working counter 0).
+            return False
         row = self.row
         old = row[lo:hi].copy()
         new = np.frombuffer(data, np.uint8)
-        w = self.writable[lo:hi]
         row[lo:hi] = np.where(w, new, old)
         if SIDE_EFFECT_MASK[lo:hi].any():
             self._write_side_effects(lo, hi, old, new)
@@ -399,7 +421,8 @@ class Esc:
         if (lo < R.SII_CONTROL + 2 and hi > R.SII_CONTROL and self.sii_busy_until
                 and self.now_ns() >= self.sii_busy_until):
                 self.sii_busy_until = 0
-                self.set_u16(R.SII_CONTROL, self.u16(R.SII_CONTROL) & ~int(R.SiiControl.BUSY))
+                self.set_u16(R.SII_CONTROL, self.u16(R.SII_CONTROL)
+                             & ~(int(R.SiiControl.BUSY) | R.SII_COMMAND_MASK))
         if lo < R.DC_SYSTEM_TIME + 8 and hi > R.DC_SYSTEM_TIME and self.profile.dc_supported:
             self.seg.refresh_system_time(np.array([self.index]))
 
@@ -581,7 +604,8 @@ class Esc:
         else:
             status |= R.SiiControl.ACK_ERROR
         if cmd and self.seg.sii_busy_ns > 0 and not status & R.SiiControl.ACK_ERROR:
-            status |= R.SiiControl.BUSY
+            # Real ESCs show busy together with the running command (e.g. 0x8140).
+            status |= R.SiiControl.BUSY | cmd
             self.sii_busy_until = self.now_ns() + self.seg.sii_busy_ns
         self.set_u16(R.SII_CONTROL, status | we)
 

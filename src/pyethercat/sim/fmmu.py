@@ -251,6 +251,7 @@ class LogicalMap:
         rvals = flat[plan.r_phys] if plan.r_phys is not None else None
         tvals = None
         if plan.t_pbyte is not None:
+            assert plan.t_shift is not None
             tvals = (flat[plan.t_pbyte] >> plan.t_shift) & 1
         if plan.w_phys is not None:
             flat[plan.w_phys] = data[plan.w_rel]
@@ -323,59 +324,6 @@ class LogicalMap:
             nw = self._count(self.f_pos[hit & self.f_write])
             wkc += 2 * nw if reads else nw
         return wkc
-
-    def execute(self, flat: U8, lo: int, data: U8, reads: bool, writes: bool) -> I64:
-        """Apply a logical datagram at ``lo`` to ``data`` (in place) and memory.
-
-        Returns the slaves whose buffered write SM got its last byte written.
-        """
-        hi = lo + len(data)
-        if self.empty:
-            return np.zeros(0, np.int64)
-        if len(self.conflicts):
-            c0, c1 = np.searchsorted(self.conflicts, (lo, hi))
-            if c1 > c0:
-                return self._execute_ordered(flat, lo, data, reads, writes)
-        orig = data.copy() if writes and reads else data
-        # Reads gather before writes scatter: a slave reads its memory as it was.
-        if reads:
-            r0, r1 = np.searchsorted(self.rb_log, (lo, hi))
-            rvals = flat[self.rb_phys[r0:r1]] if r1 > r0 else None
-            if self.has_bits:
-                t0, t1 = np.searchsorted(self.rt_lbit, (lo * 8, hi * 8))
-                tvals = (flat[self.rt_pbyte[t0:t1]] >> self.rt_shift[t0:t1]) & 1 if t1 > t0 else None
-            else:
-                t0 = t1 = 0
-                tvals = None
-        done_parts: list[I64] = []
-        if writes:
-            w0, w1 = np.searchsorted(self.wb_log, (lo, hi))
-            if w1 > w0:
-                flat[self.wb_phys[w0:w1]] = orig[self.wb_log[w0:w1] - lo]
-                d = self.wb_done[w0:w1]
-                if d.any():
-                    done_parts.append(self.wb_slave[w0:w1][d])
-            if self.has_bits:
-                b0, b1 = np.searchsorted(self.wt_lbit, (lo * 8, hi * 8))
-                if b1 > b0:
-                    lb = self.wt_lbit[b0:b1] - lo * 8
-                    vals = ((orig[lb >> 3] >> (lb & 7)) & 1).astype(np.uint8)
-                    pb = self.wt_pbyte[b0:b1]
-                    np.bitwise_and.at(flat, pb, self.wt_clear[b0:b1])
-                    np.bitwise_or.at(flat, pb, (vals << self.wt_shift[b0:b1]).astype(np.uint8))
-                    d = self.wt_done[b0:b1]
-                    if d.any():
-                        done_parts.append(self.wt_slave[b0:b1][d])
-        if reads:
-            if rvals is not None:
-                data[self.rb_log[r0:r1] - lo] = rvals
-            if tvals is not None:
-                bits = np.unpackbits(data, bitorder="little")
-                bits[self.rt_lbit[t0:t1] - lo * 8] = tvals
-                data[:] = np.packbits(bits, bitorder="little")
-        if not done_parts:
-            return np.zeros(0, np.int64)
-        return np.unique(np.concatenate(done_parts))
 
     def _execute_ordered(self, flat: U8, lo: int, data: U8, reads: bool, writes: bool) -> I64:
         """Pass-by-pass processing in route order (only for datagrams over conflicting bytes)."""

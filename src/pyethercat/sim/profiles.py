@@ -19,9 +19,10 @@ from dataclasses import dataclass
 
 from pyethercat.wire.registers import Feature, PortType
 
+# Real EK1100/EL2828/EL2889/EL2004 (corpus captures) read 0x0008 = 0x00FC.
 _DC_FULL = (Feature.DC_SUPPORTED | Feature.DC_64BIT | Feature.LOW_JITTER_EBUS
             | Feature.ENHANCED_LINK_EBUS | Feature.ENHANCED_LINK_MII
-            | Feature.SEPARATE_FCS_ERRORS | Feature.ENHANCED_DC_SYNC)
+            | Feature.SEPARATE_FCS_ERRORS)
 
 
 @dataclass(frozen=True)
@@ -46,6 +47,9 @@ class EscProfile:
     features: int
     sii_read_bytes: int = 8
     forwarding_delay_ns: int | None = None
+    #: Extra static bits of SII control 0x0502 some chips show (e.g. the
+    #: EL2828 in the corpus reads bit 4 = 0x0010, meaning not documented).
+    sii_control_static: int = 0
 
     def replace(self, **changes: object) -> EscProfile:
         """A copy with some fields changed (e.g. ports of a particular board)."""

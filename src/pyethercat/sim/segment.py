@@ -42,7 +42,7 @@ import numpy.typing as npt
 from pyethercat.errors import ConfigError
 from pyethercat.sim.clock import Clock, VirtualClock
 from pyethercat.sim.device import DeviceApp
-from pyethercat.sim.esc import SIDE_EFFECT_MASK, Esc
+from pyethercat.sim.esc import _WRITE_TRIGGER, SIDE_EFFECT_MASK, Esc
 from pyethercat.sim.fmmu import SLAVE_STRIDE, LogicalMap, parse_fmmus
 from pyethercat.sim.memory import EscMemory
 from pyethercat.sim.profiles import EscProfile
@@ -78,6 +78,24 @@ FCS_SIZE = 4
 _WKC = struct.Struct("<H")
 _EMPTY = np.zeros(0, np.int64)
 _NEVER = 1 << 62
+_WIDE: dict[int, str] = {1: "u1", 2: "<u2", 4: "<u4", 8: "<u8"}
+_EV_DL_STATUS = int(R.EcatEvent.DL_STATUS)
+_EV_AL_STATUS = int(R.EcatEvent.AL_STATUS)
+
+
+class _BrdPlan:
+    """Cached work of one BRD shape (address, length, route length)."""
+
+    __slots__ = ("slow", "rows", "contiguous", "systime", "block", "column", "clear")
+
+    def __init__(self) -> None:
+        self.slow = False
+        self.rows: I64 = _EMPTY
+        self.contiguous = False
+        self.systime = False
+        self.block: npt.NDArray[np.uint8] | None = None
+        self.column: npt.NDArray[np.unsignedinteger[Any]] | None = None
+        self.clear = 0
 
 
 def _status_after_write_table() -> npt.NDArray[np.uint8]:
@@ -154,6 +172,15 @@ class Route:
     delay_ns: int              # forwarding + cable delays of the whole walk
     contiguous: bool           # passes == arange(len(passes)) (fast slicing)
 
+    @property
+    def closed_idx(self) -> list[int]:
+        """Pass indices where the slave's port 0 is closed (cached)."""
+        cached: list[int] | None = self.__dict__.get("_closed_idx")
+        if cached is None:
+            cached = [i for i, c in enumerate(self.port0_closed) if c]
+            self.__dict__["_closed_idx"] = cached
+        return cached
+
 
 class Segment:
     """A segment of simulated slaves; :meth:`process` answers one frame."""
@@ -203,7 +230,9 @@ class Segment:
         self._sm_areas = np.zeros(0, bool)
         self._bw: dict[str, Any] = {}
         self._wire_idx: tuple[I64, I64, I64, I64] | None = None
-        self._bplan: dict[tuple[int, int, int], tuple[I64, int, bool]] = {}
+        self._bplan: dict[tuple[int, int, int], _BrdPlan] = {}
+        #: ECAT event bits that may be set in some slave (cleared by vectorised reads).
+        self._event_bits = 0xFFFF
         self._cur_passes: I64 = _EMPTY
         self._frame_t0 = 0
         self._complete_plans: dict[bytes, tuple[I64, I64, I64, npt.NDArray[np.uint8], I64]] = {}
@@ -924,7 +953,7 @@ class Segment:
         passes = route.passes
         destroy = False
         set_c = False
-        closed_idx = [i for i, c in enumerate(route.port0_closed) if c]
+        closed_idx = route.closed_idx
         if closed_idx:
             if any_c:
                 passes, destroy = passes[: closed_idx[0]], True
@@ -1062,19 +1091,25 @@ class Segment:
         wkc += self._multi_write(after, ado, data.tobytes())
         return wkc
 
-    def _rows_implementing(self, rows: I64, lo: int, hi: int) -> I64:
+    def _rows_implementing(self, rows: I64, lo: int, hi: int, write: bool = False) -> I64:
+        """The slaves of ``rows`` whose chip implements (or, for writes, takes) a byte of [lo, hi)."""
+
+        def hit(esc: Esc) -> bool:
+            if write:
+                return bool(esc.writable[lo:hi].any() or _WRITE_TRIGGER[lo:hi].any())
+            return bool(esc.impl[lo:hi].any())
+
+        if not len(rows):
+            return _EMPTY
         if len(self._profiles) == 1:
-            impl = self.slaves[int(rows[0])].esc.impl if len(rows) else None
-            if impl is None or not impl[lo:hi].any():
-                return _EMPTY
-            return rows
+            return rows if hit(self.slaves[int(rows[0])].esc) else _EMPTY
         keep = np.zeros(len(rows), bool)
         pids = self.profile_id[rows]
         for pid, prof in enumerate(self._profiles):
             sel = pids == pid
             if sel.any():
-                impl = next(sl.esc.impl for sl in self.slaves if sl.spec.profile == prof)
-                if impl[lo:hi].any():
+                esc = next(sl.esc for sl in self.slaves if sl.spec.profile == prof)
+                if hit(esc):
                     keep |= sel
         return rows[keep]
 
@@ -1109,7 +1144,7 @@ class Segment:
                 if self.slaves[s].esc.ecat_write(ado, data):
                     wkc += 1
             return wkc
-        rows = self._rows_implementing(rows, lo, hi)
+        rows = self._rows_implementing(rows, lo, hi, write=True)
         if not len(rows):
             return 0
         mem = self.memory.mem
@@ -1167,17 +1202,9 @@ class Segment:
         key = (lo, hi, len(passes))
         plan = self._bplan.get(key)
         if plan is None:
-            if self.sm_dirty:
-                self._refresh_sm_state()
-            sm_lo, sm_hi = self._sm_span
-            slow = (lo < sm_hi and hi > sm_lo) or (
-                self.sii_busy_ns > 0 and lo < R.SII_CONTROL + 2 and hi > R.SII_CONTROL)
-            rows = self._rows_implementing(passes, lo, hi)
-            contig = route.contiguous and len(rows) == len(passes)
-            plan = (rows, 1 if contig else 0, bool(slow))
+            plan = self._brd_plan(route, passes, lo, hi)
             self._bplan[key] = plan
-        rows, contiguous, slow = plan
-        if slow:
+        if plan.slow:
             wkc = 0
             for s in passes.tolist():
                 r = self.slaves[s].esc.ecat_read(ado, n)
@@ -1185,35 +1212,54 @@ class Segment:
                     data |= np.frombuffer(r, np.uint8)
                     wkc += 1
             return wkc
+        rows = plan.rows
         if not len(rows):
             return 0
-        mem = self.memory.mem
-        if lo < R.DC_SYSTEM_TIME + 8 and hi > R.DC_SYSTEM_TIME:
+        if plan.systime:
             self.refresh_system_time(rows)
-        block = mem[: len(rows), lo:hi] if contiguous else mem[rows, lo:hi]
-        if n == 1:
-            data |= np.bitwise_or.reduce(block[:, 0])
+        if plan.column is not None:
+            # 1/2/4/8-byte reads: OR one strided column of wide integers.
+            red = np.bitwise_or.reduce(plan.column)
+            if red:
+                dv = data.view(plan.column.dtype.str)
+                dv |= red
         else:
-            data |= np.bitwise_or.reduce(block, axis=0)
+            data |= np.bitwise_or.reduce(plan.block if plan.block is not None
+                                         else self.memory.mem[rows, lo:hi], axis=0)
+        clear = plan.clear
+        if clear and self._event_bits & clear:
+            mem = self.memory.mem
+            if plan.contiguous:
+                mem[: len(rows), R.ECAT_EVENT_REQUEST] &= np.uint8(~clear & 0xFF)
+            else:
+                mem[rows, R.ECAT_EVENT_REQUEST] &= np.uint8(~clear & 0xFF)
+            self._event_bits &= ~clear
+            self.irq_dirty = True
+        return len(rows)
+
+    def _brd_plan(self, route: Route, passes: I64, lo: int, hi: int) -> _BrdPlan:
+        if self.sm_dirty:
+            self._refresh_sm_state()
+        sm_lo, sm_hi = self._sm_span
+        plan = _BrdPlan()
+        plan.slow = bool((lo < sm_hi and hi > sm_lo) or (
+            self.sii_busy_ns > 0 and lo < R.SII_CONTROL + 2 and hi > R.SII_CONTROL))
+        plan.rows = rows = self._rows_implementing(passes, lo, hi)
+        plan.contiguous = contiguous = bool(route.contiguous and len(rows) == len(passes))
+        plan.systime = lo < R.DC_SYSTEM_TIME + 8 and hi > R.DC_SYSTEM_TIME
+        mem = self.memory.mem
+        n = hi - lo
+        if contiguous and len(rows):
+            plan.block = mem[: len(rows), lo:hi]
+            if n in _WIDE:
+                plan.column = plan.block.view(_WIDE[n])[:, 0]
         clear = 0
         if lo < R.DL_STATUS + 2 and hi > R.DL_STATUS:
-            clear |= R.EcatEvent.DL_STATUS
+            clear |= _EV_DL_STATUS
         if lo < R.AL_STATUS + 2 and hi > R.AL_STATUS:
-            clear |= R.EcatEvent.AL_STATUS
-        if clear and self._irq & clear:
-            col = mem[: len(rows), R.ECAT_EVENT_REQUEST] if contiguous else None
-            if col is not None:
-                col &= np.uint8(~int(clear) & 0xFF)
-            else:
-                mem[rows, R.ECAT_EVENT_REQUEST] &= np.uint8(~int(clear) & 0xFF)
-            self.irq_dirty = True
-        elif clear:
-            # Events not in any mask: clear them without touching the IRQ cache.
-            if contiguous:
-                mem[: len(rows), R.ECAT_EVENT_REQUEST] &= np.uint8(~int(clear) & 0xFF)
-            else:
-                mem[rows, R.ECAT_EVENT_REQUEST] &= np.uint8(~int(clear) & 0xFF)
-        return len(rows)
+            clear |= _EV_AL_STATUS
+        plan.clear = clear
+        return plan
 
     def _logical(self, cmd: int, address: int, data: npt.NDArray[np.uint8], n: int) -> int:
         if self.sm_dirty:
