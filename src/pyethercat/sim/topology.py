@@ -49,6 +49,7 @@ from typing import Any
 
 from pyethercat.errors import ConfigError, SiiError
 from pyethercat.sim.devices.builtin import BuiltinDevice, get_builtin
+from pyethercat.sim.devices.esi_device import EsiSlave, load_esi_device
 from pyethercat.sim.profiles import PROFILES, EscProfile
 from pyethercat.wire.registers import PortType as RegPortType
 from pyethercat.wire.sii import PortType, SiiInfo, parse_sii
@@ -105,6 +106,8 @@ class SlaveConfig:
     inputs: bytes | None = None
     parent: str | None = None  # resolved: every slave but the first has one
     port: int | None = None
+    #: The ESI device when the slave was made from ``esi = ...`` (its app serves the OD).
+    esi: EsiSlave | None = None
 
     @property
     def input_bits(self) -> int:
@@ -304,7 +307,8 @@ def _parse_slave(raw: dict[str, Any], i: int, topo: Topology, base: Path) -> Sla
             ) from exc
     else:
         source = _str(raw["esi"], f"{where}: esi")
-        image = _sii_from_esi(raw, base / source, where)
+        esi_slave = _esi_slave(raw, base / source, where, serial)
+        image = esi_slave.sii
     if "product" in raw and kind != "esi":
         raise ConfigError(f"{where}: product/revision only go with esi = ...")
     try:
@@ -326,6 +330,8 @@ def _parse_slave(raw: dict[str, Any], i: int, topo: Topology, base: Path) -> Sla
         name=name, source=source, sii=image, info=info, profile=profile, builtin=builtin
     )
     cfg.sii_path = sii_path
+    if kind == "esi":
+        cfg.esi = esi_slave
     if "alias" in raw:
         cfg.alias = _int(raw["alias"], f"{where}: alias", 0, 0xFFFF)
     if "drift_ppm" in raw:
@@ -356,19 +362,14 @@ def _parse_slave(raw: dict[str, Any], i: int, topo: Topology, base: Path) -> Sla
     return cfg
 
 
-def _sii_from_esi(raw: dict[str, Any], path: Path, where: str) -> bytes:
-    """SII image of an ESI device (``product``/``revision`` pick it from the file)."""
-    from pyethercat.errors import EsiError
-    from pyethercat.esi.sii_from_esi import sii_image_from_file
-
+def _esi_slave(raw: dict[str, Any], path: Path, where: str, serial: int) -> EsiSlave:
+    """The ESI device (product/revision) of a slave, with its SII image."""
     product = _int(raw["product"], f"{where}: product") if "product" in raw else None
     revision = _int(raw["revision"], f"{where}: revision") if "revision" in raw else None
     try:
-        return sii_image_from_file(path, product=product, revision=revision)
-    except (EsiError, SiiError, ConfigError) as exc:
-        raise ConfigError(f"{where}: ESI {path}: {exc}") from exc
-    except OSError as exc:
-        raise ConfigError(f"{where}: cannot read ESI file {path}: {exc.strerror or exc}") from exc
+        return load_esi_device(path, product, revision, serial)
+    except ConfigError as exc:
+        raise ConfigError(f"{where}: {exc}") from exc
 
 
 def _place(topo: Topology) -> None:
@@ -463,6 +464,7 @@ def _parse_fault(raw: dict[str, Any], i: int, topo: Topology) -> FaultConfig:
 def build_segment(topo: Topology, clock: Any = None) -> Any:
     """Make a :class:`pyethercat.sim.segment.Segment` from a parsed topology."""
     from pyethercat.sim.devices import make_app
+    from pyethercat.sim.devices.esi_device import esi_app
     from pyethercat.sim.segment import Segment, SlaveSpec
 
     seg = Segment(clock=clock)
@@ -473,7 +475,8 @@ def build_segment(topo: Topology, clock: Any = None) -> Any:
             name=s.name,
             sii=s.sii,
             profile=s.profile,
-            app=make_app(s.builtin, s.info),
+            app=(esi_app(s.esi, s.info) if s.esi is not None else None)
+            or make_app(s.builtin, s.info),
             alias=s.alias,
             drift_ppm=s.drift_ppm,
             forwarding_delay_ns=s.forwarding_delay_ns,

@@ -1,0 +1,199 @@
+"""Simulated slaves made from ESI files: ``esi = "file.xml"`` in a topology file.
+
+:func:`load_esi_device` picks the device (product code / revision) of an ESI
+file and builds its SII image with :mod:`pyethercat.esi.sii_from_esi`;
+:func:`esi_app` gives the device application: an IO terminal for a device
+without mailbox, a :class:`~pyethercat.sim.coe.CoeDevice` serving the ESI's
+object dictionary when the ESI speaks CoE and has a ``Dictionary``, and a
+mailbox device that answers "protocol not supported" otherwise.
+
+The dictionary is the ESI's, made consistent with the SII: the identity object
+carries the SII identity, every PDO the ESI declares has its mapping object
+with the ESI's entries, 0x1C12/0x1C13 hold the default assignment, and an
+object a PDO maps that the dictionary lacks is added as a plain variable. So
+any master (ours, SOEM) that reads the PDO layout over CoE finds the layout
+the ESI declares, and the SM lengths it computes match what the ESC checks.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from pyethercat.errors import ConfigError, EtherCATError
+from pyethercat.esi.model import EsiDevice, EsiDictionary, EsiFlags, EsiOdEntry
+from pyethercat.esi.parse import load_esi
+from pyethercat.esi.sii_from_esi import esi_to_sii, pick_device
+from pyethercat.sim.coe import CoeDevice, add_identity, add_pdo_assignment, add_pdo_mapping
+from pyethercat.sim.device import DeviceApp
+from pyethercat.sim.od import (
+    RO,
+    RW,
+    RW_PREOP,
+    RXPDO,
+    TXPDO,
+    WO,
+    ObjectDictionary,
+    OdEntry,
+    OdObject,
+)
+from pyethercat.wire.mailbox.coe import ObjectCode
+from pyethercat.wire.mailbox.datatypes import DataType
+from pyethercat.wire.sii import CoeDetails, SiiInfo
+
+__all__ = ["EsiSlave", "esi_app", "esi_dictionary", "load_esi_device"]
+
+# Room for process data when the ESI gives no SM sizes (bytes per direction).
+_PD_CAPACITY = 1024
+
+
+@dataclass
+class EsiSlave:
+    """An ESI device chosen for a simulated slave, with its SII image."""
+
+    path: Path
+    vendor_id: int
+    device: EsiDevice
+    sii: bytes
+
+
+def load_esi_device(
+    path: Path, product: int | None, revision: int | None, serial: int = 0
+) -> EsiSlave:
+    """Read ``path``, choose the device and build its SII (errors: :class:`ConfigError`)."""
+    try:
+        esi = load_esi(path)
+        device = pick_device(esi, product, revision)
+        image = esi_to_sii(device, vendor_id=esi.vendor.id, serial=serial).image
+    except EtherCATError as exc:
+        raise ConfigError(f"ESI {path}: {exc}") from exc
+    return EsiSlave(path=path, vendor_id=esi.vendor.id, device=device, sii=image)
+
+
+def _access(flags: EsiFlags) -> int:
+    acc = (flags.access or "ro").lower()
+    restr = (flags.write_restrictions or "").lower()
+    if acc == "wo":
+        value = WO
+    elif acc == "rw":
+        value = RW_PREOP if restr == "preop" else RW
+    else:
+        value = RO
+    if flags.rx_mappable:
+        value |= RXPDO
+    if flags.tx_mappable:
+        value |= TXPDO
+    return value
+
+
+def _entry(e: EsiOdEntry) -> OdEntry:
+    code = e.code
+    if code is None or code not in DataType.__members__.values():
+        code = DataType.OCTET_STRING
+    dt = DataType(code)
+    size = dt.byte_size
+    max_length = None if size is not None else max(0, e.bit_size // 8)
+    entry = OdEntry(e.subindex, e.name, dt, _access(e.flags), None, max_length=max_length)
+    if e.default is not None:
+        raw = e.default
+        want = size if size is not None else max_length
+        if want is not None:
+            raw = (raw + bytes(want))[:want]
+        entry.raw[:] = raw
+    return entry
+
+
+def esi_dictionary(device: EsiDevice, *, vendor_id: int, serial: int = 0) -> ObjectDictionary:
+    """The device's object dictionary, consistent with its SII (see the module text)."""
+    od = ObjectDictionary()
+    esi_od: EsiDictionary | None = device.dictionary
+    if esi_od is not None:
+        for obj in esi_od.objects:
+            flat = esi_od.entries(obj)
+            if not flat:
+                continue
+            entries = {e.subindex: _entry(e) for e in flat}
+            dt = esi_od.data_types.get(obj.type)
+            if dt is None or not dt.sub_items:
+                ocode = ObjectCode.VAR
+            elif dt.array_elements is not None or len({s.type for s in dt.sub_items[1:]}) == 1:
+                ocode = ObjectCode.ARRAY
+            else:
+                ocode = ObjectCode.RECORD
+            if 0 not in entries:
+                entries[0] = OdEntry(0, "SubIndex 000", DataType.UNSIGNED8, RO, max(entries))
+            first = entries.get(1, entries[0])
+            od.add(OdObject(obj.index, str(obj.name), ocode, int(first.data_type), entries))
+    # Identity as the SII says.
+    if 0x1018 not in od:
+        add_identity(od, vendor_id, device.product_code, device.revision, serial)
+    else:
+        ident = od.get(0x1018)
+        for sub, value in ((1, vendor_id), (2, device.product_code), (3, device.revision),
+                           (4, serial)):  # fmt: skip
+            slot = ident.entries.get(sub)
+            if slot is not None and slot.data_type.byte_size == 4:
+                slot.raw[:] = value.to_bytes(4, "little")
+    # Mapped objects, mapping objects and the default assignment as the ESI declares.
+    for pdo in device.pdos:
+        for pe in pdo.entries:
+            if pe.is_padding or (pe.index in od and pe.subindex in od.get(pe.index).entries):
+                continue
+            info = pe.type_info
+            code: DataType | None = info.code if info is not None and info.code.byte_size else None
+            if code is None:
+                code = {8: DataType.UNSIGNED8, 16: DataType.UNSIGNED16, 32: DataType.UNSIGNED32,
+                        64: DataType.UNSIGNED64}.get(pe.bit_len, DataType.UNSIGNED8)  # fmt: skip
+            acc = RW | RXPDO if pdo.direction == "rx" else RO | TXPDO
+            name = str(pe.name) or f"0x{pe.index:04X}"
+            if pe.subindex == 0 and pe.index not in od:
+                od.var(pe.index, name, code, acc)
+            elif pe.index not in od:
+                od.record(pe.index, f"0x{pe.index:04X}", [OdEntry(pe.subindex, name, code, acc)])
+            else:
+                od.get(pe.index).entries[pe.subindex] = OdEntry(pe.subindex, name, code, acc)
+        words = [(e.index, e.subindex, e.bit_len) for e in pdo.entries]
+        existing = od.find(pdo.index)
+        size = max(8, len(words), existing.max_subindex if existing is not None else 0)
+        add_pdo_mapping(od, pdo.index, pdo.name.pick() or f"PDO 0x{pdo.index:04X}", words,
+                        max_entries=size)  # fmt: skip
+    layout = device.pdo_layout()
+    for assign, direction in ((0x1C12, "Outputs"), (0x1C13, "Inputs")):
+        pdos = [p.index for s in layout.sms if s.sm.kind == direction for p in s.pdos]
+        existing = od.find(assign)
+        if not pdos and existing is None:
+            continue
+        size = max(4, len(pdos), existing.max_subindex if existing is not None else 0)
+        add_pdo_assignment(od, assign, pdos, max_entries=size)
+    return od
+
+
+def _capacity(device: EsiDevice, kind: str) -> int:
+    sizes = [s.max_size or s.default_size or 0 for s in device.sms if s.kind == kind]
+    return max([_PD_CAPACITY, *sizes])
+
+
+class EsiCoeApp(CoeDevice):
+    """A CoE slave serving its ESI dictionary; inputs keep their defaults."""
+
+    def __init__(self, od: ObjectDictionary, details: int, device: EsiDevice) -> None:
+        super().__init__(
+            od,
+            details=details,
+            capacity_out=_capacity(device, "Outputs"),
+            capacity_in=_capacity(device, "Inputs"),
+        )
+
+
+def esi_app(slave: EsiSlave, info: SiiInfo) -> DeviceApp | None:
+    """The device application for an ESI slave; None: the caller's default (IO / no CoE)."""
+    device = slave.device
+    mbx = device.mailbox
+    if mbx is None or mbx.coe is None or device.dictionary is None:
+        return None
+    gen = info.general
+    details = int(gen.coe_details) if gen is not None else int(CoeDetails.SDO)
+    # The dictionary decides what the mapping objects allow; the server honours
+    # SDO information / complete access only where the ESI announces them.
+    od = esi_dictionary(device, vendor_id=slave.vendor_id, serial=info.serial)
+    return EsiCoeApp(od, details, device)
