@@ -23,6 +23,7 @@ mailbox layer needs across slaves:
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import queue
 import threading
@@ -297,19 +298,7 @@ class CoeMasterMixin:
 
     def _read_mapping(self, s: Slave) -> dict[int, list[Pdo]]:
         client = self.coe(s)
-        entry, pdo = pdo_names_from_sii(s.sii)
-        info = _has_sdo_info(s)
-
-        def names(index: int, sub: int, pdo_index: int) -> tuple[str, int]:
-            name, dtype = entry(index, sub, pdo_index)
-            if (not name or not dtype) and info:
-                try:
-                    d = client.entry_description(index, sub)
-                    name, dtype = name or d.description, dtype or d.data_type
-                except EtherCATError:
-                    pass
-            return name, dtype
-
+        names, pdo = _namers(s, client)
         return client.read_pdos(process_data_sms(s.sii), names, pdo)
 
     def _mapping_changed(self, slave: Slave) -> None:
@@ -344,6 +333,32 @@ def _speaks_coe(s: Slave) -> bool:
             and bool(s.mailbox.protocols & MailboxProtocol.COE))
 
 
+def _namers(s: Slave, client: CoeClient) -> tuple[Callable[[int, int, int], tuple[str, int]],
+                                                  Callable[[int], str]]:
+    """Entry and PDO name look-ups: the SII first, then the slave's SDO information."""
+    entry, pdo = pdo_names_from_sii(s.sii)
+    info = _has_sdo_info(s)
+
+    def names(index: int, sub: int, pdo_index: int) -> tuple[str, int]:
+        name, dtype = entry(index, sub, pdo_index)
+        if (not name or not dtype) and info:
+            try:
+                d = client.entry_description(index, sub, value_info=0)
+                name, dtype = name or d.description, dtype or d.data_type
+            except EtherCATError:
+                pass
+        return name, dtype
+
+    def pdo_name(index: int) -> str:
+        name = pdo(index)
+        if not name and info:
+            with contextlib.suppress(EtherCATError):
+                name = client.object_description(index).name
+        return name
+
+    return names, pdo_name
+
+
 def _has_sdo_info(s: Slave) -> bool:
     gen = s.sii.general if s.sii is not None else None
     return gen is not None and bool(gen.coe_details & CoeDetails.SDO_INFO)
@@ -360,7 +375,7 @@ def set_pdo_mapping(master_hook: Callable[[Slave], None] | None, slave: Slave,
         raise ConfigError(f"{slave.describe()} is in {slave.al_state_name}: PDO mapping is "
                           "written in PRE-OP")
     sms = process_data_sms(slave.sii)
-    entry_name, pdo_name = pdo_names_from_sii(slave.sii)
+    entry_name, pdo_name = _namers(slave, client)
     writes: list[tuple[int, int, bytes]] = []
     result: dict[int, list[Pdo]] = {}
     for key, items in mapping.items():
@@ -382,10 +397,12 @@ def set_pdo_mapping(master_hook: Callable[[Slave], None] | None, slave: Slave,
                     writes.append((pdo_index, k, mapping_word(i, sub, bits).to_bytes(4, "little")))
                 writes.append((pdo_index, 0, bytes([len(entries)])))
             indices.append(pdo_index)
-            pdos.append(Pdo(pdo_index, pdo_name(pdo_index), tuple(
-                PdoEntry(i, sub, bits, (entry_name(i, sub, pdo_index)[1] or _bits_type(bits))
-                         if i else 0, entry_name(i, sub, pdo_index)[0])
-                for i, sub, bits in entries), direction, sm))
+            made: list[PdoEntry] = []
+            for i, sub, bits in entries:
+                name, dtype = entry_name(i, sub, pdo_index) if i else ("", 0)
+                made.append(PdoEntry(i, sub, bits, (dtype or _bits_type(bits)) if i else 0,
+                                     name))
+            pdos.append(Pdo(pdo_index, pdo_name(pdo_index), tuple(made), direction, sm))
         obj = PDO_ASSIGN_BASE + sm
         writes.append((obj, 0, b"\x00"))
         for k, idx in enumerate(indices, start=1):

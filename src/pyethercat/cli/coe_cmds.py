@@ -1,0 +1,188 @@
+"""CoE commands: ``upload``, ``download`` and ``sdos`` (in the style of IgH's ``ethercat`` tool).
+
+``upload -p POS INDEX SUBINDEX [--type T]`` reads an object and prints it by
+its type (given, or taken from the slave's SDO information; raw hex when
+neither is known). ``download -p POS INDEX SUBINDEX VALUE [--type T]`` writes
+one. ``sdos [-p POS]`` lists the object dictionary as IgH prints it::
+
+    SDO 0x1018, "Identity"
+      0x1018:00, r-r-r-, uint8, 8 bit, "Number of entries"
+
+The slaves are scanned without a reset; a slave still in INIT (or BOOT) is
+brought to PRE-OP first, because the mailbox works only from there.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import click
+
+from pyethercat.cli._connect import connect
+from pyethercat.errors import ConfigError, SdoAbort
+from pyethercat.master.coe import CoeClient, resolve_dtype
+from pyethercat.master.master import Master
+from pyethercat.master.slave import Slave
+from pyethercat.wire.al import AlState
+from pyethercat.wire.mailbox.datatypes import (
+    TYPE_NAMES,
+    DataType,
+    Value,
+    format_value,
+    parse_value,
+)
+
+__all__ = ["register", "format_sdos", "type_name", "format_upload"]
+
+# IgH spellings first in TYPE_NAMES: the first name of each type is what we print.
+_IGH_NAMES: dict[int, str] = {}
+for _name, _dt in TYPE_NAMES.items():
+    _IGH_NAMES.setdefault(int(_dt), _name)
+
+
+def type_name(code: int) -> str:
+    """IgH's name of a data type (``uint16``), or ``type 0xNNNN``."""
+    if code in _IGH_NAMES:
+        return _IGH_NAMES[code]
+    try:
+        return DataType(code).name.lower()
+    except ValueError:
+        return f"type 0x{code:04x}"
+
+
+def _number(text: str, what: str, maximum: int) -> int:
+    try:
+        value = int(text, 0)
+    except ValueError:
+        raise ConfigError(f"{what}: not a number: {text!r}") from None
+    if not 0 <= value <= maximum:
+        raise ConfigError(f"{what} {text} out of range 0..0x{maximum:X}")
+    return value
+
+
+def _slave(m: Master, position: str) -> tuple[Slave, CoeClient]:
+    pos = _number(position, "position", 0xFFFF)
+    m.scan(reset=False)
+    s = m.slave(pos)
+    if s.coe is None:
+        raise ConfigError(f"{s.describe()} has no mailbox: no CoE")
+    if s.al_state in (AlState.INIT, AlState.BOOT, AlState.NONE):
+        m.set_state(AlState.PREOP, [s])
+    return s, s.coe
+
+
+def _entry_type(client: CoeClient, index: int, subindex: int) -> DataType | None:
+    """The data type the slave's SDO information gives for an entry (None if unknown)."""
+    try:
+        desc = client.entry_description(index, subindex, value_info=0)
+        return DataType(desc.data_type)
+    except (SdoAbort, ValueError):
+        return None
+    except Exception:  # noqa: BLE001 - no SDO information service: type unknown
+        return None
+
+
+def format_upload(dtype: DataType | None, raw: bytes) -> str:
+    """How ``upload`` prints a value: by type, or the bytes in hex."""
+    if dtype is None:
+        return raw.hex(" ")
+    from pyethercat.wire.mailbox.datatypes import decode_value
+
+    value: Value = decode_value(dtype, raw)
+    return format_value(dtype, value)
+
+
+def format_sdos(client: CoeClient, quiet: bool = False) -> list[str]:
+    """The ``sdos`` listing of one slave (IgH layout)."""
+    lines: list[str] = []
+    od = client.od
+    for index in od:
+        try:
+            obj = od[index]
+        except (KeyError, SdoAbort) as exc:
+            lines.append(f"SDO 0x{index:04X}, (no description: {exc})")
+            continue
+        lines.append(f"SDO 0x{index:04X}, \"{obj.name}\"")
+        if quiet:
+            continue
+        for e in obj.entries:
+            lines.append(f"  0x{index:04X}:{e.subindex:02X}, {e.access_text}, "
+                         f"{type_name(e.data_type)}, {e.bit_length} bit, \"{e.name}\"")
+    return lines
+
+
+def register(cli: click.Group) -> None:
+    """Add ``upload``, ``download`` and ``sdos``."""
+
+    @cli.command("upload")
+    @click.option("-p", "--position", metavar="POS", required=True, help="Ring position.")
+    @click.option("-t", "--type", "dtype", metavar="T",
+                  help="Data type (uint8..uint64, int8..int64, float, double, string, "
+                       "octet_string, bool ...); default: from the slave's SDO information.")
+    @click.option("--complete-access", "-c", is_flag=True, help="Read all subindices at once.")
+    @click.argument("index")
+    @click.argument("subindex")
+    @click.pass_obj
+    def upload_cmd(obj: dict[str, Any], position: str, dtype: str | None,
+                   complete_access: bool, index: str, subindex: str) -> None:
+        """Read an object with an SDO upload and print its value."""
+        idx = _number(index, "index", 0xFFFF)
+        sub = _number(subindex, "subindex", 0xFF)
+        dt = resolve_dtype(dtype) if dtype is not None else None
+        with connect(obj) as conn:
+            _s, client = _slave(conn.master, position)
+            raw = client.upload(idx, sub, complete_access=complete_access)
+            if dt is None and not complete_access:
+                dt = _entry_type(client, idx, sub)
+            click.echo(format_upload(dt, raw))
+
+    @cli.command("download")
+    @click.option("-p", "--position", metavar="POS", required=True, help="Ring position.")
+    @click.option("-t", "--type", "dtype", metavar="T",
+                  help="Data type of VALUE; default: from the slave's SDO information.")
+    @click.option("--complete-access", "-c", is_flag=True, help="Write all subindices at once.")
+    @click.argument("index")
+    @click.argument("subindex")
+    @click.argument("value")
+    @click.pass_obj
+    def download_cmd(obj: dict[str, Any], position: str, dtype: str | None,
+                     complete_access: bool, index: str, subindex: str, value: str) -> None:
+        """Write VALUE to an object with an SDO download."""
+        idx = _number(index, "index", 0xFFFF)
+        sub = _number(subindex, "subindex", 0xFF)
+        dt = resolve_dtype(dtype) if dtype is not None else None
+        with connect(obj) as conn:
+            _s, client = _slave(conn.master, position)
+            if dt is None:
+                dt = _entry_type(client, idx, sub) if not complete_access else None
+                if dt is None:
+                    dt = DataType.OCTET_STRING if complete_access else None
+            if dt is None:
+                raise ConfigError(f"the slave does not describe 0x{idx:04X}:{sub:02X}: "
+                                  "give --type")
+            client.write(idx, sub, parse_value(dt, value), dt,
+                         complete_access=complete_access)
+
+    @cli.command("sdos")
+    @click.option("-p", "--position", metavar="POS", help="Only this slave.")
+    @click.option("-q", "--quiet", is_flag=True, help="Objects only, no entries.")
+    @click.pass_obj
+    def sdos_cmd(obj: dict[str, Any], position: str | None, quiet: bool) -> None:
+        """List the object dictionary (SDO information service)."""
+        with connect(obj) as conn:
+            m = conn.master
+            m.scan(reset=False)
+            chosen = ([m.slave(_number(position, "position", 0xFFFF))] if position is not None
+                      else [s for s in m.slaves if s.coe is not None and s.has_coe])
+            if position is None and not chosen:
+                raise ConfigError("no slave speaks CoE")
+            low = [s for s in chosen if s.al_state in (AlState.INIT, AlState.BOOT, AlState.NONE)]
+            if low:
+                m.set_state(AlState.PREOP, low)
+            for s in chosen:
+                if s.coe is None:
+                    raise ConfigError(f"{s.describe()} has no mailbox: no CoE")
+                if len(chosen) > 1 or position is None:
+                    click.echo(f"=== slave {s.position} ({s.address_text}, {s.name or '?'}) ===")
+                for line in format_sdos(s.coe, quiet):
+                    click.echo(line)
