@@ -318,6 +318,15 @@ class SimServer:
             return {}
         if cmd == "outputs":
             return {"data": _pdi(seg.slaves[self._slave(request)]).outputs().hex()}
+        if cmd == "emergency":
+            # a CoE device (sim.coe.CoeDevice) sends an emergency through its mailbox
+            app = seg.slaves[self._slave(request)].spec.app
+            send = getattr(app, "emergency", None)
+            if send is None:
+                raise ValueError("that slave has no CoE emergency")
+            sent = send(int(request["code"]), int(request.get("register", 0)),
+                        bytes.fromhex(str(request.get("data", ""))))
+            return {"sent": bool(sent)}
         raise ValueError(f"unknown command {cmd!r}")
 
     def _close_control(self) -> None:
