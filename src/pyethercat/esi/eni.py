@@ -378,13 +378,12 @@ def eni_slave_device(slave: EniSlave) -> EsiDevice:
     Its default PDO assignment is the ENI's; :func:`esi_to_sii` turns it into
     the SII model the master configures from when it starts from an ENI.
     """
-    control = {"MBoxOut": 0x26, "MBoxIn": 0x22, "Outputs": 0x64, "Inputs": 0x20}
     sms = tuple(
         EsiSm(
             index=s.index,
             name=s.kind if s.kind != "Unused" else "",
             start_address=s.start,
-            control_byte=s.control if s.control else control.get(s.kind, 0),
+            control_byte=s.control,
             default_size=s.size,
             enable=s.enable,
         )
