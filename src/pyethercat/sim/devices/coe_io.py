@@ -66,6 +66,8 @@ _MII2 = (PortType.MII, PortType.MII, PortType.NOT_USED, PortType.NOT_USED)
 
 #: Size of the octet-string object 0x2000 (segmented transfers).
 DATA_BLOCK_SIZE = 4096
+#: Size of the octet-string object 0x2003 (segmented-transfer throughput benchmarks).
+LARGE_BLOCK_SIZE = 65536
 
 
 # --- coe-io ---------------------------------------------------------------------------
@@ -97,6 +99,8 @@ def coe_io_dictionary(vendor: int, product: int, revision: int, serial: int = 0)
     od.var(0x2000, "Data block", DataType.OCTET_STRING, RW,
            bytes(i & 0xFF for i in range(DATA_BLOCK_SIZE)), max_length=DATA_BLOCK_SIZE)
     od.var(0x2001, "Command", u32, WO, 0)
+    od.var(0x2003, "Large data block", DataType.OCTET_STRING, RW,
+           bytes(i * 7 & 0xFF for i in range(LARGE_BLOCK_SIZE)), max_length=LARGE_BLOCK_SIZE)
     od.var(0x2002, "PREOP parameter", u16, RW_PREOP, 100, minimum=1, maximum=1000)
     od.record(0x6000, "Inputs", [
         OdEntry(1, "Digital inputs", u8, RO | TXPDO, 0),
