@@ -275,7 +275,10 @@ class CoeServer:
         assert isinstance(msg, SdoInfoGetEntryDescriptionRequest)
         e = od.entry(msg.index, msg.subindex)
         vi = msg.value_info
-        size = (e.bit_length + 7) // 8
+        # The bit length is a 16-bit field: larger entries (domains, big octet
+        # strings) are described with length 0, "no fixed length".
+        bit_length = e.bit_length if e.bit_length <= 0xFFFF else 0
+        size = (bit_length + 7) // 8
 
         def field(value: object, fallback: bytes) -> bytes:
             raw = fallback
@@ -286,9 +289,9 @@ class CoeServer:
                     raw = fallback
             return raw[:size].ljust(size, b"\x00")
 
-        lo, hi = _type_limits(e)
+        lo, hi = _type_limits(e) if bit_length else (b"", b"")
         return SdoInfoGetEntryDescriptionResponse(
-            msg.index, msg.subindex, vi, int(e.data_type), e.bit_length,
+            msg.index, msg.subindex, vi, int(e.data_type), bit_length,
             e.access & 0x03FF, e.name,
             unit_type=e.unit if vi & ValueInfo.UNIT_TYPE else None,
             default_value=field(e.default, bytes(size)) if vi & ValueInfo.DEFAULT_VALUE else None,

@@ -121,6 +121,10 @@ class MailboxEngine:
             handler(header, payload)
         except MailboxErrorReply as exc:
             self.send_error(exc.code, header.address)
+        except MailboxError:
+            # A request the handler's codecs could not serve must not stop the
+            # segment: the master gets "service not supported".
+            self.send_error(MailboxErrorCode.SERVICE_NOT_SUPPORTED, header.address)
 
     @staticmethod
     def _header_problem(header: MailboxHeader, size: int) -> int:
