@@ -45,7 +45,6 @@ from pyethercat.master.mailbox import Mailbox, MailboxMessage
 from pyethercat.wire.al import AlState
 from pyethercat.wire.mailbox.coe import (
     COE_HEADER_SIZE,
-    CoeHeader,
     CoeMessage,
     CoeService,
     Emergency,
@@ -174,7 +173,7 @@ class EmergencyEvent:
 def _coe_service(msg: MailboxMessage) -> int | None:
     if msg.header.type != MailboxType.COE or len(msg.payload) < COE_HEADER_SIZE:
         return None
-    return int(CoeHeader.decode(msg.payload).service)
+    return msg.payload[1] >> 4  # CoE header bits 15:12 (little-endian u16)
 
 
 def _is_sdo(msg: MailboxMessage) -> bool:

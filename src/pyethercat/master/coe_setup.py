@@ -259,10 +259,13 @@ class CoeMasterMixin:
     def _finish_step(self, scheduler: Scheduler, step: AlState, group: Sequence[Slave]) -> None:
         """After reaching ``step``: the start-up commands that run after it (IP, BP)."""
         frm: dict[int, AlState] = self._coe_state()["from"]
-        if step == AlState.INIT:
-            for s in group:
-                if s.mbx is not None:
-                    s.mbx.reset()
+        for s in group:
+            if s.mbx is None:
+                continue
+            if step == AlState.INIT:
+                s.mbx.reset()
+            elif step == AlState.PREOP and frm.get(s.position) in (AlState.INIT, AlState.BOOT):
+                s.mbx.drain()  # whatever an earlier session left in SM1
         self._run_startup(group, lambda s: _transition(frm.get(s.position), step), after=True)
 
     # -- PDO mapping over CoE ------------------------------------------------------------------

@@ -225,6 +225,8 @@ class Mailbox:
         self._handlers: list[UnsolicitedHandler] = []
         # A fetch may have emptied SM1 without its reply reaching us.
         self._lost = False
+        # Whether SM1 was emptied of what an earlier session left there.
+        self._drained = False
         #: Reads SM1's status byte from the cyclic process image (None: poll with frames).
         self.status_source: Callable[[], int | None] | None = None
         #: Waits up to the given seconds for the next cycle (with ``status_source``).
@@ -268,6 +270,27 @@ class Mailbox:
             self._last_in = 0
             self._inbox.clear()
             self._lost = False
+            self._drained = False
+
+    def drain(self, limit: int = 4) -> int:
+        """Read and discard what SM1 holds from before (another master, an earlier session).
+
+        Emergencies among it still reach the handlers. Returns the number of
+        stale messages dropped. Transactions do this once by themselves.
+        """
+        dropped = 0
+        for _ in range(limit):
+            if not self.fetch():
+                break
+        with self._io:
+            dropped = sum(1 for m in self._inbox)
+            self._inbox.clear()
+            self._lost = False
+            self._drained = True
+        if dropped:
+            _log.info("%s: %d stale mailbox message%s dropped", self.label, dropped,
+                      "s" if dropped != 1 else "")
+        return dropped
 
     def next_counter(self) -> int:
         """The counter of the next message (1..7, wrapping to 1)."""
@@ -287,6 +310,8 @@ class Mailbox:
         if len(payload) > self.max_payload:
             raise MailboxError(f"{self.label}: {what} needs {len(payload)} bytes, the mailbox "
                                f"carries {self.max_payload}")
+        if not self._drained:
+            self.drain()
         cnt = self.next_counter() if counter is None else counter
         frame = encode_mailbox(mtype, payload, counter=cnt, size=self.rx_size)
         limit = self.clock() + (self.timeout if timeout is None else timeout)
