@@ -9,11 +9,14 @@ from pathlib import Path
 
 import pytest
 from click.testing import CliRunner, Result
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
+from pyethercat.cli.decode import DecodeStats, decode_records
 from pyethercat.cli.main import cli
 from pyethercat.wire.datagram import Command, Datagram
 from pyethercat.wire.frame import encode_frame, encode_mailbox_frame, encode_udp_payload
-from pyethercat.wire.pcap import PcapngWriter, PcapWriter
+from pyethercat.wire.pcap import CaptureRecord, PcapngWriter, PcapWriter
 
 SRC = b"\x02\x00\x00\x00\x00\x01"
 T0 = 1_700_000_000_000_000_000
@@ -191,3 +194,35 @@ def test_unreadable_and_bad_files(tmp_path: Path) -> None:
     assert cut.exit_code == 1
     assert len(cut.stdout.splitlines()) == 1  # the first frame was printed before the error
     assert "truncated pcap record data" in cut.stderr
+
+
+def test_frame_cut_inside_the_ethercat_header_is_malformed_not_a_crash(tmp_path: Path) -> None:
+    header_only = b"\xff" * 6 + SRC + b"\x88\xa4"
+    path = _write(tmp_path / "h.pcap", [header_only, header_only + b"\x0e", encode_frame([BRD], SRC)])
+    result = _run(str(path))
+    assert result.exit_code == 3, result.output
+    assert result.exception is None or isinstance(result.exception, SystemExit)
+    assert len(result.stdout.splitlines()) == 1
+    assert "frame 1: malformed EtherCAT frame: EtherCAT header truncated" in result.stderr
+    assert "frame 2: malformed EtherCAT frame: EtherCAT header truncated" in result.stderr
+
+
+_PREFIXES = [
+    b"\xff" * 6 + SRC + b"\x88\xa4",
+    b"\xff" * 6 + SRC + b"\x81\x00\x00\x01\x88\xa4",
+    b"\xff" * 6 + SRC + b"\x88\xa8\x00\x01\x81\x00\x00\x01\x88\xa4",
+    _udp(b""),
+    _udp(b"", v6=True),
+]
+
+
+@settings(max_examples=500)
+@given(st.sampled_from(_PREFIXES), st.binary(max_size=80))
+def test_any_packet_is_decoded_counted_or_reported(prefix: bytes, tail: bytes) -> None:
+    stats = DecodeStats()
+    rows = list(decode_records([CaptureRecord(0, prefix + tail)], stats))
+    assert stats.packets == 1
+    assert len(rows) == stats.datagrams
+    # Exactly one verdict per packet.
+    verdicts = (stats.ethercat - stats.other_types - len(stats.malformed) > 0) + stats.non_ethercat
+    assert verdicts + stats.other_types + len(stats.malformed) == 1

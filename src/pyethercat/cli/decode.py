@@ -158,6 +158,8 @@ def _decode_datagram_frame(ecat: bytes, base: int, stats: DecodeStats) -> list[D
     try:
         return decode_ecat_payload(ecat, base_offset=base).datagrams
     except FrameError:
+        if len(ecat) < ECAT_HEADER_SIZE:
+            raise  # not even a header: nothing to tolerate
         (word,) = struct.unpack_from("<H", ecat)
         length = word & ECAT_LENGTH_MASK
         body = ecat[ECAT_HEADER_SIZE : ECAT_HEADER_SIZE + length]
