@@ -189,9 +189,6 @@ def _replay(corpus: Path, capture: str, devices: tuple[str, ...]) -> tuple[int, 
     )
     clock = VirtualClock(1_000_000_000)
     topo = parse_topology(toml, source=capture)
-    for slave, dev in zip(topo.slaves, devices, strict=True):
-        if dev in CHIP_FEATURES:
-            slave.profile = slave.profile.replace(features=CHIP_FEATURES[dev])
     segment = topo.build(clock=clock)
     pairs = _pairs(corpus / "pcap" / capture)
     assert pairs, f"{capture}: no sent/returned frame pairs"

@@ -113,7 +113,8 @@ def test_ek1100_dump_gets_its_sii_ports(corpus_dir: Path) -> None:
     ek = corpus_dir / "sii" / "ethercrab_ek1100.bin"
     topo = parse_topology(f'[[slave]]\nname = "ek"\nsii = "{ek}"\n')
     p = topo.slaves[0].profile
-    assert p.name == "ET1100"
+    assert p.name == "EK1100"  # known device: the real EK1100's profile
+    assert p.family == "ET1100"
     # EK1100 SII: port 0 MII, 1 E-Bus, 2 MII, 3 unused
     assert p.ports == (PortType.MII, PortType.EBUS, PortType.MII, PortType.NOT_IMPLEMENTED)
 

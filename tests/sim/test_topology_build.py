@@ -118,7 +118,8 @@ def test_esi_device(corpus_dir: Path) -> None:
     )
     s = topo.slaves[1]
     assert (s.info.vendor_id, s.info.product_code, s.info.revision) == (2, 0x03EC3052, 0x00130000)
-    assert s.input_bits == 4 and s.profile.name == "ET1200"
+    # a known device: the profile of the real EL1004 (an ET1200 chip)
+    assert s.input_bits == 4 and s.profile.name == "EL1004" and s.profile.family == "ET1200"
     seg = topo.build(clock=VirtualClock())
     assert _sii_word(seg, 1, 0x0A) == 0x3052
     with pytest.raises(ConfigError, match="slave 'x': ESI nothere.xml.*cannot read"):

@@ -47,6 +47,9 @@ __all__ = ["PROFILES", "Esc", "EscProfile", "profile", "register_masks"]
 BoolArray = npt.NDArray[np.bool_]
 
 _VALID_STATES = {int(s) for s in (AlState.INIT, AlState.PREOP, AlState.BOOT, AlState.SAFEOP, AlState.OP)}
+_BELOW_SAFEOP = (AlState.INIT, AlState.PREOP, AlState.BOOT)
+# AL control bits a chip in device emulation copies into AL status (state + error ack).
+_AL_EMULATION_COPY = R.AL_STATE_MASK | R.AL_ERROR_FLAG
 _SM_MODE_MAILBOX = int(R.SmMode.MAILBOX)
 _SM_MODE_BUFFERED = int(R.SmMode.BUFFERED)
 _SM_STATUS_BUFFER_NONE = 3 << R.SM_STATUS_BUFFER_SHIFT
@@ -93,6 +96,9 @@ def register_masks(prof: EscProfile) -> tuple[BoolArray, BoolArray]:
     impl[R.sm_address(prof.sm_count): R.SM_BASE + 16 * R.SM_SIZE] = False
     if not prof.dc_supported:
         impl[R.DC_RECEIVE_TIME_PORT0: R.DC_RECEIVE_TIME_PORT0 + 0x100] = False
+    elif not prof.dc_system_time:
+        # Receive-time latches only (real EL2828/EL1004): nothing from 0x0910 on.
+        impl[R.DC_SYSTEM_TIME: R.DC_RECEIVE_TIME_PORT0 + 0x100] = False
     impl[R.RAM_START: prof.ram_end] = True
     for reg in R.REGISTERS:
         if reg.access & R.Access.W:
@@ -308,6 +314,8 @@ class Esc:
         row[R.RAM_SIZE] = p.ram_kib & 0xFF
         row[R.PORT_DESCRIPTOR] = p.port_descriptor
         self.set_u16(R.FEATURES, p.features)
+        if p.dc_supported:
+            self.set_bytes(R.DC_RECEIVE_TIME_PORT0, p.dc_receive_time_reset)
         self.set_u16(R.AL_STATUS, int(AlState.INIT))
         self.set_u16(R.WATCHDOG_DIVIDER, R.WATCHDOG_DIVIDER_DEFAULT)
         self.set_u16(R.WATCHDOG_TIME_PDI, R.WATCHDOG_TIME_DEFAULT)
@@ -325,7 +333,8 @@ class Esc:
     def _sii_load(self) -> None:
         """Apply the SII configuration words (power-up and reload)."""
         control = int(R.SiiControl.READ_8_BYTES) if self.profile.sii_read_bytes == 8 else 0
-        control |= self.profile.sii_control_static
+        if self.al_state() in _BELOW_SAFEOP:
+            control |= self.profile.sii_control_static
         # EEPROMs of 32 Kbit and more need two address bytes (1-16 Kbit: one).
         if self.sii_info is not None and self.sii_info.eeprom_size_kbit >= 32:
             control |= R.SiiControl.TWO_ADDRESS_BYTES
@@ -345,9 +354,10 @@ class Esc:
         self.set_u16(R.STATION_ALIAS, alias)
         # DL status bit 0: the PDI is operational once the EEPROM was loaded.
         dl = self.u16(R.DL_STATUS)
-        # Bit 1 (PDI watchdog reloaded) stays 0 on chips without a PDI
-        # microcontroller (device emulation), as real EK1100/ELxxxx read.
-        pdi_ok = int(R.DlStatus.PDI_WATCHDOG_OK) if not self.device_emulation else 0
+        # Bit 1 (PDI watchdog reloaded) needs a PDI: the real EK1100 (PDI
+        # control 0x00, none) reads 0, EL1004/EL2828/EL2889 (0x04, digital
+        # I/O) read 1, in device emulation all of them.
+        pdi_ok = int(R.DlStatus.PDI_WATCHDOG_OK) if self.row[R.PDI_CONTROL] else 0
         dl &= ~int(R.DlStatus.PDI_OPERATIONAL | R.DlStatus.PDI_WATCHDOG_OK)
         dl |= (int(R.DlStatus.PDI_OPERATIONAL) | pdi_ok) if ok else 0
         self.set_u16(R.DL_STATUS, dl)
@@ -401,7 +411,7 @@ class Esc:
             if not s.ecat_writes:
                 return False  # the master may not write a slave->master buffer
         w = self.writable[lo:hi]
-        if not w.any() and not _WRITE_TRIGGER[lo:hi].any():
+        if not w.any() and not (_WRITE_TRIGGER[lo:hi] & self.impl[lo:hi]).any():
             # Read-only registers: the write is not performed and not counted
             # (real ESCs answer e.g. a BWR of 0x092C with working counter 0).
             return False
@@ -423,7 +433,8 @@ class Esc:
                 self.sii_busy_until = 0
                 self.set_u16(R.SII_CONTROL, self.u16(R.SII_CONTROL)
                              & ~(int(R.SiiControl.BUSY) | R.SII_COMMAND_MASK))
-        if lo < R.DC_SYSTEM_TIME + 8 and hi > R.DC_SYSTEM_TIME and self.profile.dc_supported:
+        if (lo < R.DC_SYSTEM_TIME + 8 and hi > R.DC_SYSTEM_TIME and self.profile.dc_supported
+                and self.profile.dc_system_time):
             self.seg.refresh_system_time(np.array([self.index]))
 
     def after_read(self, lo: int, hi: int) -> None:
@@ -530,7 +541,7 @@ class Esc:
             self._sm_registers_written(lo, hi, old)
         if hit(R.DC_RECEIVE_TIME_PORT0, 16):
             seg.latch_receive_times(np.array([self.index], dtype=np.int64))
-        if hit(R.DC_SYSTEM_TIME, 8):
+        if hit(R.DC_SYSTEM_TIME, 8) and self.profile.dc_system_time:
             off = max(0, R.DC_SYSTEM_TIME - lo)
             start = max(lo, R.DC_SYSTEM_TIME)
             end = min(hi, R.DC_SYSTEM_TIME + 8)
@@ -704,6 +715,11 @@ class Esc:
                                 AlState(state & R.AL_STATE_MASK))
 
     def _state_changed(self, old: AlState, new: AlState) -> None:
+        extra = self.profile.sii_control_static
+        if extra and (old in _BELOW_SAFEOP) != (new in _BELOW_SAFEOP):
+            # The chip's undocumented SII control bits show only below SAFEOP.
+            ctrl = self.u16(R.SII_CONTROL)
+            self.set_u16(R.SII_CONTROL, ctrl | extra if new in _BELOW_SAFEOP else ctrl & ~extra)
         self.seg.state_changed(self.index, old, new)
         if new in (AlState.INIT, AlState.PREOP, AlState.BOOT):
             self.pending_op = False
@@ -728,10 +744,15 @@ class Esc:
         current = status & R.AL_STATE_MASK
         error = bool(status & R.AL_ERROR_FLAG)
         if self.device_emulation:
-            # No firmware: AL status follows AL control; a set error stays until acknowledged.
-            keep_error = error and not ack
+            # No firmware: AL status is a copy of AL control bits 4:0, the
+            # acknowledge bit included (real EK1100/EL1004/EL28xx read 0x0011
+            # after AL control 0x0011). An error the ESC set itself (watchdog)
+            # stays, with its code, until the master acknowledges it.
             if requested in _VALID_STATES:
-                self._set_status(requested, keep_error, None if keep_error else 0)
+                copied = control & _AL_EMULATION_COPY
+                own_error = error and not ack and bool(self.u16(R.AL_STATUS_CODE))
+                self._set_status(requested, bool(copied & R.AL_ERROR_FLAG) or own_error,
+                                 None if own_error else 0)
             return
         if error and not ack and requested != AlState.INIT:
             return  # a request without acknowledge is ignored while the error flag is set

@@ -10,6 +10,12 @@ Values follow the public descriptions of the chips (Beckhoff ET1100/ET1200,
 Microchip LAN9252, an FPGA IP core); where a value was not found in a public
 source it is a plausible default and can be overridden per device with
 :meth:`EscProfile.replace`.
+
+Board profiles (``EK1100``, ``EL1004``, ``EL2828``, ``EL2889``) are a chip
+family with the values the real devices read in the corpus captures
+(../shared/corpus): identity registers, port descriptor, features, which DC
+registers exist, SII control quirks. ``DEVICE_PROFILES`` maps SII identities
+to them, so a slave built from such a device's SII dump behaves like it.
 """
 
 from __future__ import annotations
@@ -19,7 +25,7 @@ from dataclasses import dataclass
 
 from pyethercat.wire.registers import Feature, PortType
 
-# Real EK1100/EL2828/EL2889/EL2004 (corpus captures) read 0x0008 = 0x00FC.
+# Real EK1100 and EL2889 (corpus captures) read 0x0008 = 0x00FC (EL2828, EL1004: 0x01FC).
 _DC_FULL = (Feature.DC_SUPPORTED | Feature.DC_64BIT | Feature.LOW_JITTER_EBUS
             | Feature.ENHANCED_LINK_EBUS | Feature.ENHANCED_LINK_MII
             | Feature.SEPARATE_FCS_ERRORS)
@@ -47,9 +53,23 @@ class EscProfile:
     features: int
     sii_read_bytes: int = 8
     forwarding_delay_ns: int | None = None
-    #: Extra static bits of SII control 0x0502 some chips show (e.g. the
-    #: EL2828 in the corpus reads bit 4 = 0x0010, meaning not documented).
+    #: Undocumented bits of SII control 0x0502 some chips show while the
+    #: slave is below SAFEOP (INIT, PREOP, BOOT): the EL1004 and EL2828 of the
+    #: corpus read 0x0050 idle there (bit 4), the EL1004 0x0040 in SAFEOP.
     sii_control_static: int = 0
+    #: False: the DC unit has the port receive-time latches 0x0900-0x090F
+    #: only, no system time, offset, delay or cyclic unit (0x0910-0x09FF are
+    #: not implemented: reads, writes and FRMW there are not counted). Real
+    #: EL2828, EL1004, EL3004 and EK1914 answer 0x0900 but not 0x0910 though
+    #: 0x0008 says "DC supported"; the features register does not tell.
+    dc_system_time: bool = True
+    #: Power-on content of the receive-time latches 0x0900-0x090F; a port
+    #: that never saw a latching frame keeps it (Beckhoff ASICs read "hoff"
+    #: at port 1 and "Verl" at port 3, SOEM slaveinfo and ethercrab captures).
+    dc_receive_time_reset: bytes = bytes(16)
+    #: ESC family ("ET1100", "ET1200", ...) of a board profile; "" = the
+    #: profile is the family itself.
+    family: str = ""
 
     def replace(self, **changes: object) -> EscProfile:
         """A copy with some fields changed (e.g. ports of a particular board)."""
@@ -94,6 +114,13 @@ class EscProfile:
 
 _MII, _EBUS, _NONE = PortType.MII, PortType.EBUS, PortType.NOT_IMPLEMENTED
 
+# Receive-time latches of Beckhoff ASICs before any latching frame passed a
+# port: port 1 reads "hoff", port 3 "Verl" (port 0 always latches; port 2 reads 0).
+_BECKHOFF_LATCH_RESET = bytes(4) + b"hoff" + bytes(4) + b"Verl"
+_NOT_CONFIGURED = PortType.NOT_CONFIGURED
+# ET1200 terminals of the corpus read features 0x01FC (bit 8 enhanced DC SYNC).
+_DC_FULL_SYNC = int(_DC_FULL | Feature.ENHANCED_DC_SYNC)
+
 PROFILES: dict[str, EscProfile] = {
     # Beckhoff ET1100: 4 ports, 8 FMMU, 8 SM, 8 KiB, 64-bit DC (EK1100 uses
     # MII on port 0 and 3 and E-Bus on 1; port 2 unused by the coupler).
@@ -114,6 +141,43 @@ PROFILES: dict[str, EscProfile] = {
                          int(Feature.DC_SUPPORTED | Feature.DC_64BIT
                              | Feature.ENHANCED_LINK_MII | Feature.SEPARATE_FCS_ERRORS
                              | Feature.ENHANCED_DC_SYNC)),
+    # --- boards: chip family + what the real devices of the corpus read -----
+    # EK1100 (twincat-scan-boxes, soem-sdinfo-*): 0x0000-0x0009 =
+    # 11 00 0003 08 08 08 3B 00FC: ET1100 rev 0 build 3, ports 0 MII, 1 E-Bus,
+    # 2 MII, 3 not implemented; full 64-bit DC.
+    "EK1100": EscProfile("EK1100", 0x11, 0x00, 0x0003, 8, 8, 8,
+                         (_MII, _EBUS, _MII, _NONE), int(_DC_FULL),
+                         dc_receive_time_reset=_BECKHOFF_LATCH_RESET, family="ET1100"),
+    # EL1004 (twincat-scan-boxes, soem-sdinfo-ek1100-el1004): type 0x12 rev 1
+    # build 1, ports 0x4A (E-Bus 0/1, port 2 absent, port 3 not configured),
+    # features 0x01FC, DC receive times only, SII control 0x0050 below SAFEOP.
+    "EL1004": EscProfile("EL1004", 0x12, 0x01, 0x0001, 3, 4, 1,
+                         (_EBUS, _EBUS, _NONE, _NOT_CONFIGURED), _DC_FULL_SYNC,
+                         sii_control_static=0x0010, dc_system_time=False,
+                         dc_receive_time_reset=_BECKHOFF_LATCH_RESET, family="ET1200"),
+    # EL2828 (replay-* captures): 3 FMMUs, 4 SMs (BWR 0x0600-0x083F working
+    # counters), features 0x01FC, no system time (0x0910.. not counted, 0x0918
+    # read with WKC 0), SII control 0x0050 idle, DL status PDI watchdog bit 1.
+    # Type/revision/build are not read singly in the captures (BRD 0x0000 of
+    # the three slaves ORs to 0x13): taken from the EL1004's ET1200.
+    "EL2828": EscProfile("EL2828", 0x12, 0x01, 0x0001, 3, 4, 1,
+                         (_EBUS, _EBUS, _NONE, _NOT_CONFIGURED), _DC_FULL_SYNC,
+                         sii_control_static=0x0010, dc_system_time=False,
+                         dc_receive_time_reset=_BECKHOFF_LATCH_RESET, family="ET1200"),
+    # EL2889 (replay-* captures): 3 FMMUs, 4 SMs, features 0x00FC, full DC
+    # (system time, offset, delay, 0x092C), SII control 0x0040 idle.
+    "EL2889": EscProfile("EL2889", 0x12, 0x01, 0x0001, 3, 4, 1,
+                         (_EBUS, _EBUS, _NONE, _NOT_CONFIGURED), int(_DC_FULL),
+                         dc_receive_time_reset=_BECKHOFF_LATCH_RESET, family="ET1200"),
+}
+
+#: Profiles of known devices, by SII identity (vendor, product code): a slave
+#: built from an SII dump without an explicit ``profile`` gets this one.
+DEVICE_PROFILES: dict[tuple[int, int], str] = {
+    (0x0000_0002, 0x044C_2C52): "EK1100",
+    (0x0000_0002, 0x03EC_3052): "EL1004",
+    (0x0000_0002, 0x0B0C_3052): "EL2828",
+    (0x0000_0002, 0x0B49_3052): "EL2889",
 }
 
 

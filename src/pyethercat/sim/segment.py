@@ -1096,7 +1096,7 @@ class Segment:
 
         def hit(esc: Esc) -> bool:
             if write:
-                return bool(esc.writable[lo:hi].any() or _WRITE_TRIGGER[lo:hi].any())
+                return bool(esc.writable[lo:hi].any() or (_WRITE_TRIGGER[lo:hi] & esc.impl[lo:hi]).any())
             return bool(esc.impl[lo:hi].any())
 
         if not len(rows):

@@ -50,7 +50,7 @@ from typing import Any
 from pyethercat.errors import ConfigError, SiiError
 from pyethercat.sim.devices.builtin import BuiltinDevice, get_builtin
 from pyethercat.sim.devices.esi_device import EsiSlave, load_esi_device
-from pyethercat.sim.profiles import PROFILES, EscProfile
+from pyethercat.sim.profiles import DEVICE_PROFILES, PROFILES, EscProfile
 from pyethercat.wire.registers import PortType as RegPortType
 from pyethercat.wire.sii import PortType, SiiInfo, parse_sii
 
@@ -510,12 +510,18 @@ def build_segment(topo: Topology, clock: Any = None) -> Any:
 def default_profile(builtin: BuiltinDevice | None, info: SiiInfo) -> str:
     """ESC profile name for a slave whose topology entry names none.
 
-    Built-ins carry their own. For an SII image the ports decide: at most two
-    ports, all E-Bus, is an ET1200-class chip (Beckhoff terminals); more ports
-    or MII ports an ET1100 (couplers, junctions, MII devices).
+    Built-ins carry their own. An SII image of a device whose real chip is
+    known (``profiles.DEVICE_PROFILES``, by vendor and product code: EK1100,
+    EL1004, EL2828, EL2889) gets that device's profile. Otherwise the ports
+    decide: at most two ports, all E-Bus, is an ET1200-class chip (Beckhoff
+    terminals); more ports or MII ports an ET1100 (couplers, junctions, MII
+    devices).
     """
     if builtin is not None:
         return builtin.profile
+    known = DEVICE_PROFILES.get((info.vendor_id, info.product_code))
+    if known is not None:
+        return known
     gen = info.general
     if gen is None or gen.physical_ports == 0:
         return "ET1100"
@@ -536,8 +542,10 @@ def profile_for(profile: EscProfile, info: SiiInfo) -> EscProfile:
 
     The chip decides which ports exist; the board (as its SII says) decides
     which of them are wired and whether as MII or E-Bus, so the SII wins: a
-    port it marks unused becomes "not implemented", a port it wires exists.
-    An SII without port information keeps the chip's ports.
+    port it marks unused becomes "not implemented" (or stays "not configured"
+    where the chip reports its unused port so, as the ET1200's port 3 of a
+    real EL1004 reads), a port it wires exists. An SII without port
+    information keeps the chip's ports.
     """
     gen = info.general
     if gen is None or gen.physical_ports == 0:
@@ -545,7 +553,11 @@ def profile_for(profile: EscProfile, info: SiiInfo) -> EscProfile:
     ports = list(profile.ports)
     for n, sii_type in enumerate(gen.ports):
         reg = _SII_TO_REG_PORT.get(sii_type) if isinstance(sii_type, PortType) else None
-        ports[n] = RegPortType.NOT_IMPLEMENTED if reg is None else reg
+        if reg is None:
+            keep = ports[n] == RegPortType.NOT_CONFIGURED
+            ports[n] = RegPortType.NOT_CONFIGURED if keep else RegPortType.NOT_IMPLEMENTED
+        else:
+            ports[n] = reg
     if tuple(ports) == profile.ports:
         return profile
     return profile.replace(ports=tuple(ports))
