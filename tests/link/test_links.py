@@ -21,7 +21,13 @@ from pyethercat.errors import LinkClosedError, LinkError
 from pyethercat.link import CaptureLink, PairLink, RawLink, UdpLink, UnixLink
 from pyethercat.link.udp import frame_to_udp_payload, parse_hostport, udp_payload_to_frame
 from pyethercat.wire.datagram import Command, Datagram
-from pyethercat.wire.frame import decode_frame, encode_frame, encode_udp_payload
+from pyethercat.wire.frame import (
+    MASTER_MAC,
+    decode_frame,
+    encode_frame,
+    encode_udp_payload,
+    returned_source_mac,
+)
 from pyethercat.wire.pcap import CaptureFormat, Direction, read_capture
 
 
@@ -160,9 +166,10 @@ def test_udp_wire_form_is_the_ecat_payload_without_padding() -> None:
         payload, addr = server.recvfrom(2000)
         assert payload == encode_udp_payload(dgrams)
         assert addr == link.address
-        # Answer from the right peer: delivered with a synthetic Ethernet header.
+        # Answer from the right peer: delivered with a synthetic Ethernet header whose
+        # source looks returned by a slave (locally administered bit set).
         server.sendto(payload, addr)
-        assert link.recv(2) == encode_frame(dgrams)
+        assert link.recv(2) == encode_frame(dgrams, src=returned_source_mac(MASTER_MAC))
         # A datagram from another address is ignored.
         other = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         other.sendto(payload, addr)
@@ -177,9 +184,26 @@ def test_udp_server_answers_last_sender_and_refuses_early_send() -> None:
             server.send(_frame(1))
         with UdpLink(peer=server.address) as client:
             client.send(_frame(1))
-            assert server.recv(2) == _frame(1)
+            assert server.recv(2) == _frame(1)  # source: the master's MAC
             assert server.peer == client.address
+            server.send(_frame(2))
+            reply = client.recv(2)
         assert server.peer is not None
+    # What the client gets back carries the returned-frame source MAC, so a master
+    # using the default MAC does not take the reply for its own frame looped back.
+    assert reply == b"\xff" * 6 + returned_source_mac(MASTER_MAC) + _frame(2)[12:]
+    assert reply[6:12] != MASTER_MAC
+
+
+def test_udp_synthetic_macs_are_configurable_and_checked() -> None:
+    src, dst = b"\x02\x00\x00\x00\x00\x07", b"\x02\x00\x00\x00\x00\x08"
+    with UdpLink(bind="127.0.0.1:0", rx_src=src, rx_dst=dst) as server, UdpLink(
+        peer=server.address
+    ) as client:
+        client.send(_frame(3))
+        assert server.recv(2) == dst + src + _frame(3)[12:]
+    with pytest.raises(LinkError, match="6-byte"):
+        UdpLink(rx_src=b"\x01")
 
 
 def test_udp_edge_conversion_helpers() -> None:

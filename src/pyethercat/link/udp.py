@@ -9,11 +9,16 @@ Ethernet frames, so this link converts at the edge:
   drops the 14-byte Ethernet header and the padding after the EtherCAT length,
   and sends the rest to the peer;
 * ``recv()`` puts a synthetic Ethernet header in front of a received payload
-  (destination ``rx_dst``, default broadcast; source ``rx_src``, default
-  ``01:01:01:01:01:01``; EtherType 0x88A4) and zero-pads it to 60 bytes, so the
-  frame looks like one sent by a SOEM-style master on a raw interface.
+  (destination ``rx_dst``, default broadcast; source ``rx_src``; EtherType
+  0x88A4) and zero-pads it to 60 bytes.
 
-The MAC addresses of sent frames are therefore not transported.
+The MAC addresses of sent frames are therefore not transported. The default
+``rx_src`` depends on the role, so that received frames look as they would on
+a wire: a link with a fixed ``peer`` (a master) receives frames that slaves
+have returned, so their source is the master's MAC with the locally
+administered bit set (``12:10:10:10:10:10``; a master drops frames carrying
+its own, unmodified MAC as looped back); a server link (no peer) receives
+frames a master sent, with source ``10:10:10:10:10:10``.
 
 A master gives ``peer`` (the simulator's or gateway's address) and binds an
 ephemeral port on 127.0.0.1 by default; it then accepts datagrams from that
@@ -40,6 +45,7 @@ from pyethercat.wire.frame import (
     MASTER_MAC,
     MIN_FRAME_SIZE,
     UDP_PORT,
+    returned_source_mac,
 )
 
 __all__ = ["UdpLink", "parse_hostport", "frame_to_udp_payload", "udp_payload_to_frame"]
@@ -105,14 +111,24 @@ class UdpLink(Link):
         peer: tuple[str, int] | str | None = None,
         bind: tuple[str, int] | str = ("127.0.0.1", 0),
         name: str | None = None,
-        rx_src: bytes = MASTER_MAC,
+        rx_src: bytes | None = None,
         rx_dst: bytes = BROADCAST_MAC,
     ) -> None:
+        """Bind a UDP socket; ``peer`` fixes where frames go (see the module docstring).
+
+        ``rx_src``/``rx_dst`` are the MACs of the synthetic Ethernet header put on
+        received frames; ``rx_src`` defaults by role as the module docstring says.
+        """
         bind_addr = parse_hostport(bind, 0) if isinstance(bind, str) else bind
         self._peer: tuple[str, int] | None = None
         self._fixed_peer = peer is not None
         if peer is not None:
             self._peer = _resolve(*(parse_hostport(peer) if isinstance(peer, str) else peer))
+        if rx_src is None:
+            rx_src = returned_source_mac(MASTER_MAC) if peer is not None else MASTER_MAC
+        if len(rx_src) != 6 or len(rx_dst) != 6:
+            raise LinkError("rx_src and rx_dst must be 6-byte MAC addresses")
+        #: Source and destination MACs of the synthetic header on received frames.
         self.rx_src = rx_src
         self.rx_dst = rx_dst
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
