@@ -327,10 +327,11 @@ def _eni_slave_of(master: Master, slave: Slave) -> EniSlave:
                 for e in p.entries), bool(p.flags & 0x10), bool(p.flags & 0x01))  # fmt: skip
     for mapped in mapping.values():
         for q in mapped:
+            known = pdos_seen.get(q.index)  # keep the SII's Fixed/Mandatory flags
             add(q.index, "rx" if q.direction is Direction.OUTPUTS else "tx", q.name, tuple(
                 EniPdoEntry(index=e.index, subindex=e.subindex, bit_len=e.bit_length,
                             name=e.name, data_type=_dtype_name(e.data_type))
-                for e in q.entries), False, False)  # fmt: skip
+                for e in q.entries), bool(known and known.fixed), bool(known and known.mandatory))  # fmt: skip
     # PDOs the configuration assigns that neither SII nor CoE described (none expected).
     mbx = None
     if slave.mailbox is not None and slave.mailbox.rx_size and slave.mailbox.tx_size:

@@ -4,8 +4,9 @@
 file and builds its SII image with :mod:`pyethercat.esi.sii_from_esi`;
 :func:`esi_app` gives the device application: an IO terminal for a device
 without mailbox, a :class:`~pyethercat.sim.coe.CoeDevice` serving the ESI's
-object dictionary when the ESI speaks CoE and has a ``Dictionary``, and a
-mailbox device that answers "protocol not supported" otherwise.
+object dictionary when the ESI speaks CoE (an ESI without ``Dictionary`` gets
+the objects its PDOs imply), and a mailbox device that answers "protocol not
+supported" for other mailbox protocols.
 
 The dictionary is the ESI's, made consistent with the SII: the identity object
 carries the SII identity, every PDO the ESI declares has its mapping object
@@ -21,10 +22,16 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from pyethercat.errors import ConfigError, EtherCATError
-from pyethercat.esi.model import EsiDevice, EsiDictionary, EsiFlags, EsiOdEntry
+from pyethercat.esi.model import EsiDevice, EsiDictionary, EsiFile, EsiFlags, EsiOdEntry
 from pyethercat.esi.parse import load_esi
 from pyethercat.esi.sii_from_esi import esi_to_sii, pick_device
-from pyethercat.sim.coe import CoeDevice, add_identity, add_pdo_assignment, add_pdo_mapping
+from pyethercat.sim.coe import (
+    CoeDevice,
+    add_identity,
+    add_pdo_assignment,
+    add_pdo_mapping,
+    add_sync_manager_objects,
+)
 from pyethercat.sim.device import DeviceApp
 from pyethercat.sim.od import (
     RO,
@@ -62,12 +69,28 @@ def load_esi_device(
 ) -> EsiSlave:
     """Read ``path``, choose the device and build its SII (errors: :class:`ConfigError`)."""
     try:
-        esi = load_esi(path)
+        esi = _load_cached(path)
         device = pick_device(esi, product, revision)
         image = esi_to_sii(device, vendor_id=esi.vendor.id, serial=serial).image
     except EtherCATError as exc:
         raise ConfigError(f"ESI {path}: {exc}") from exc
     return EsiSlave(path=path, vendor_id=esi.vendor.id, device=device, sii=image)
+
+
+_CACHE: dict[tuple[str, int, int], EsiFile] = {}
+
+
+def _load_cached(path: Path) -> EsiFile:
+    """Parse each ESI file once per process (a topology may use one catalogue 100 times)."""
+    st = path.stat()
+    key = (str(path.resolve()), st.st_mtime_ns, st.st_size)
+    esi = _CACHE.get(key)
+    if esi is None:
+        esi = load_esi(path)
+        if len(_CACHE) > 32:
+            _CACHE.clear()
+        _CACHE[key] = esi
+    return esi
 
 
 def _access(flags: EsiFlags) -> int:
@@ -122,6 +145,9 @@ def esi_dictionary(device: EsiDevice, *, vendor_id: int, serial: int = 0) -> Obj
                 ocode = ObjectCode.RECORD
             if 0 not in entries:
                 entries[0] = OdEntry(0, "SubIndex 000", DataType.UNSIGNED8, RO, max(entries))
+            elif ocode != ObjectCode.VAR and flat[0].subindex == 0 and flat[0].default is None:
+                # No default for "number of entries": all of them are in use.
+                entries[0].raw[:] = bytes([max(entries) & 0xFF])
             first = entries.get(1, entries[0])
             od.add(OdObject(obj.index, str(obj.name), ocode, int(first.data_type), entries))
     # Identity as the SII says.
@@ -157,6 +183,19 @@ def esi_dictionary(device: EsiDevice, *, vendor_id: int, serial: int = 0) -> Obj
         size = max(8, len(words), existing.max_subindex if existing is not None else 0)
         add_pdo_mapping(od, pdo.index, pdo.name.pick() or f"PDO 0x{pdo.index:04X}", words,
                         max_entries=size)  # fmt: skip
+    # SM communication types (0x1C00): SOEM reads them before the assignment.
+    kinds = {"MBoxOut": 1, "MBoxIn": 2, "Outputs": 3, "Inputs": 4}
+    types = [kinds.get(s.kind or "", 0) for s in device.sms]
+    if 0x1C00 not in od and device.sms:
+        add_sync_manager_objects(od, types)
+    elif device.sms:
+        sm_types = od.get(0x1C00)
+        if not any(any(e.raw) for n, e in sm_types.entries.items() if n):
+            # The ESI lists 0x1C00 without values: take them from the SMs.
+            for n, t in enumerate(types, start=1):
+                if n in sm_types.entries:
+                    sm_types.entries[n].raw[:] = t.to_bytes(len(sm_types.entries[n].raw) or 1,
+                                                            "little")  # fmt: skip
     layout = device.pdo_layout()
     for assign, direction in ((0x1C12, "Outputs"), (0x1C13, "Inputs")):
         pdos = [p.index for s in layout.sms if s.sm.kind == direction for p in s.pdos]
@@ -189,8 +228,10 @@ def esi_app(slave: EsiSlave, info: SiiInfo) -> DeviceApp | None:
     """The device application for an ESI slave; None: the caller's default (IO / no CoE)."""
     device = slave.device
     mbx = device.mailbox
-    if mbx is None or mbx.coe is None or device.dictionary is None:
+    if mbx is None or mbx.coe is None:
         return None
+    # Without a Dictionary the device still speaks CoE: it serves the objects
+    # the ESI implies (identity, PDO mapping and assignment, mapped entries).
     gen = info.general
     details = int(gen.coe_details) if gen is not None else int(CoeDetails.SDO)
     # The dictionary decides what the mapping objects allow; the server honours

@@ -1,0 +1,136 @@
+"""Benchmark: ESI parsing and start-up from an ENI file versus a full SII scan.
+
+1. Parse time of the 4 MB Beckhoff EL1xxx catalogue (median of ``--repeat``;
+   ``benchmarks/esi_parse.py`` has the finer breakdown).
+2. Start-up of a simulated segment of ``--slaves`` slaves made from ESI files
+   (EL1004 terminals, with every tenth slave the seed 002 CoE drive), over the
+   in-process link: "SII" = scan reading every EEPROM + configure (CoE slaves'
+   PDO mapping read over SDO); "ENI" = scan without SII + identity check +
+   configure from an ENI exported before. Both end with the same process-data
+   configuration (checked).
+
+The last output line is one JSON object of the figures.
+
+Usage: python benchmarks/esi.py [--slaves N] [--repeat N]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+from pyethercat.esi import load_esi, parse_esi
+from pyethercat.esi.bundled import bundled_esi
+from pyethercat.esi.eni import build_eni, parse_eni
+from pyethercat.link.pair import PairLink
+from pyethercat.master.esi_config import eni_from_master, start_from_eni
+from pyethercat.master.master import Master
+from pyethercat.sim.topology import load_topology
+
+CORPUS = Path(__file__).resolve().parents[2] / "shared" / "corpus" / "esi"
+CATALOGUE = CORPUS / "beckhoff_EL1xxx.xml"
+
+
+def _topology(n: int, folder: Path) -> Path:
+    parts = []
+    for i in range(n):
+        if i % 10 == 9:
+            parts.append(f'[[slave]]\nname = "drive{i}"\nesi = "{bundled_esi()}"\n')
+        else:
+            parts.append(
+                f'[[slave]]\nname = "in{i}"\nesi = "{CATALOGUE}"\n'
+                "product = 0x03EC3052\nrevision = 0x00130000\n"
+            )
+    path = folder / "bench.toml"
+    path.write_text("\n".join(parts))
+    return path
+
+
+def _master(topo: Path) -> Master:
+    seg = load_topology(topo).build()
+    return Master(PairLink.responder_link(seg.process), deterministic=True)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--slaves", type=int, default=100)
+    ap.add_argument("--repeat", type=int, default=3)
+    args = ap.parse_args()
+
+    data = CATALOGUE.read_bytes()
+    parse_s = []
+    for _ in range(args.repeat):
+        t0 = time.perf_counter()
+        esi = parse_esi(data, CATALOGUE.name)
+        parse_s.append(time.perf_counter() - t0)
+    print(
+        f"parse {CATALOGUE.name}: {len(data)} bytes, {len(esi)} devices, "
+        f"median {statistics.median(parse_s) * 1e3:.1f} ms"
+    )
+
+    load_esi(CATALOGUE)  # warm caches of the file system
+    with tempfile.TemporaryDirectory() as tmp:
+        topo = _topology(args.slaves, Path(tmp))
+        sii_s, eni_s, bare_s = [], [], []
+        eni_xml = b""
+        for _ in range(args.repeat):
+            m = _master(topo)
+            t0 = time.perf_counter()
+            m.scan()
+            cfg = m.configure()
+            sii_s.append(time.perf_counter() - t0)
+            eni = eni_from_master(m)
+            eni_xml = build_eni(eni)
+            m.close()
+
+            m2 = _master(topo)
+            t0 = time.perf_counter()
+            start_from_eni(m2, parse_eni(eni_xml))
+            cfg2 = m2.configure()
+            eni_s.append(time.perf_counter() - t0)
+            assert eni_from_master(m2) == eni, "ENI start gave another configuration"
+            assert [g.size for g in cfg2.groups] == [g.size for g in cfg.groups]
+            m2.close()
+
+            m3 = _master(topo)
+            t0 = time.perf_counter()
+            m3.scan(read_sii=False)
+            bare_s.append(time.perf_counter() - t0)
+            m3.close()
+    sii_ms = statistics.median(sii_s) * 1e3
+    eni_ms = statistics.median(eni_s) * 1e3
+    bare_ms = statistics.median(bare_s) * 1e3
+    print(
+        f"start-up of {args.slaves} slaves: SII scan + configure {sii_ms:.1f} ms, "
+        f"ENI {eni_ms:.1f} ms (x{sii_ms / eni_ms:.2f}), ENI file {len(eni_xml)} bytes"
+    )
+    print(
+        f"  of which the bare scan (count, reset to INIT, addresses; no SII) takes "
+        f"{bare_ms:.1f} ms; beyond it: SII {sii_ms - bare_ms:.1f} ms, "
+        f"ENI {eni_ms - bare_ms:.1f} ms"
+    )
+    figures = {
+        "catalogue_bytes": len(data),
+        "catalogue_devices": len(esi),
+        "esi_parse_ms": round(statistics.median(parse_s) * 1e3, 2),
+        "slaves": args.slaves,
+        "startup_sii_ms": round(sii_ms, 2),
+        "startup_eni_ms": round(eni_ms, 2),
+        "startup_speedup_eni_vs_sii": round(sii_ms / eni_ms, 3),
+        "bare_scan_ms": round(bare_ms, 2),
+        "beyond_scan_sii_ms": round(sii_ms - bare_ms, 2),
+        "beyond_scan_eni_ms": round(eni_ms - bare_ms, 2),
+        "beyond_scan_speedup_eni_vs_sii": round(
+            (sii_ms - bare_ms) / max(eni_ms - bare_ms, 1e-3), 3
+        ),
+        "eni_bytes": len(eni_xml),
+    }
+    print(json.dumps(figures))
+
+
+if __name__ == "__main__":
+    main()
