@@ -73,8 +73,14 @@ def bench_soem(iface: str, rounds: int, uploads: int) -> dict[str, float]:
         if m.config_init() < 1:
             raise RuntimeError("pysoem found no slave")
         s = m.slaves[0]
-        for _ in range(20):
-            s.sdo_read(0x1018, 1)
+        for attempt in range(20):
+            try:
+                s.sdo_read(0x1018, 1)
+            except pysoem.WkcError:
+                # right after the other master let go, SOEM's first reads sometimes
+                # come back empty; warm-up only, not timed
+                if attempt == 19:
+                    raise
         t = time.perf_counter()
         for _ in range(rounds):
             s.sdo_read(0x1018, 1)
@@ -83,7 +89,8 @@ def bench_soem(iface: str, rounds: int, uploads: int) -> dict[str, float]:
         for _ in range(uploads):
             data = s.sdo_read(BIG, 0, BIG_SIZE)
         dt = time.perf_counter() - t
-        assert len(data) == BIG_SIZE
+        if len(data) != BIG_SIZE:
+            raise RuntimeError(f"pysoem read {len(data)} bytes of 0x{BIG:04X}, not {BIG_SIZE}")
         m.state = pysoem.INIT_STATE
         m.write_state()
         return {"sdo_round_trips_per_s": rt, "upload_64k_kib_per_s": uploads * 64 / dt,
@@ -113,33 +120,38 @@ def main() -> None:
     ours_runs: list[dict[str, float]] = []
     soem_runs: list[dict[str, float]] = []
     have_soem = True
+    soem_failures: list[str] = []
     try:
-        # Same treatment for both masters: the simulator on one CPU, the master on another.
-        cpus = sorted(os.sched_getaffinity(0))
-        pid = getattr(getattr(handle, "process", None), "pid", None)
-        if len(cpus) >= 2 and pid is not None:
-            os.sched_setaffinity(pid, {cpus[0]})
-            os.sched_setaffinity(0, {cpus[1]})
         time.sleep(0.3)
         # Alternate the masters so drifts of the machine hit both alike.
         for _ in range(repeat):
             ours_runs.append(bench_ours(b, rounds, uploads))
             if have_soem:
-                try:
-                    soem_runs.append(bench_soem(b, rounds, uploads))
-                except ImportError:
-                    have_soem = False
+                for _attempt in range(3):
+                    try:
+                        soem_runs.append(bench_soem(b, rounds, uploads))
+                        break
+                    except ImportError:
+                        have_soem = False
+                        break
+                    except Exception as exc:  # noqa: BLE001 - pysoem raises its own types
+                        # SOEM against the Python simulator fails a transfer now and then
+                        # (its 2 ms frame timeout vs. the simulator's pauses): run again.
+                        soem_failures.append(repr(exc))
     finally:
         handle.stop()
         subprocess.run(["ip", "link", "del", a], check=False)
     ours = _median(ours_runs)
     soem = _median(soem_runs) if soem_runs else None
     figures: dict[str, object] = {"ours": ours, "pysoem": soem, "rounds": rounds,
-                                  "uploads": uploads, "repeat": repeat}
+                                  "uploads": uploads, "repeat": repeat,
+                                  "pysoem_failed_runs": len(soem_failures)}
     print(f"SDO round trips per second (expedited upload): ours "
           f"{ours['sdo_round_trips_per_s']:.0f}")
     print(f"64 KiB segmented upload: ours {ours['upload_64k_s'] * 1000:.1f} ms "
           f"({ours['upload_64k_kib_per_s']:.0f} KiB/s)")
+    for f in soem_failures:
+        print(f"pysoem run failed and was repeated: {f}")
     if soem is not None:
         print(f"SDO round trips per second: pysoem {soem['sdo_round_trips_per_s']:.0f}")
         print(f"64 KiB segmented upload: pysoem {soem['upload_64k_s'] * 1000:.1f} ms "
@@ -150,7 +162,7 @@ def main() -> None:
         print(f"ratios ours/pysoem: SDO rate {figures['sdo_rate_ratio']:.2f}, "
               f"upload throughput {figures['upload_throughput_ratio']:.2f}")
     else:
-        print("pysoem is not installed: no comparison")
+        print("no pysoem figures (not installed, or every run failed): no comparison")
     print(json.dumps(figures))
 
 

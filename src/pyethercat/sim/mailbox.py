@@ -193,6 +193,10 @@ class MailboxDevice(DeviceApp):
         if new == AlState.INIT:
             self.mailbox.reset()
         elif old == AlState.INIT:
+            # The mailbox starts: a new master session numbers from 1 again, so the
+            # duplicate check must not remember the last session's counter (the slave
+            # may have been left in INIT, when no INIT transition resets it).
+            self.mailbox._last_in = 0
             self.mailbox.flush()
 
     def on_power_on(self) -> None:
