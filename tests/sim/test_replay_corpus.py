@@ -2,28 +2,21 @@
 
 The corpus (../shared/corpus, MANIFEST.md) holds captures taken on real
 Beckhoff slaves together with those slaves' SII dumps. Each master-sent frame
-of a capture is fed, in order and with the capture's timing, into a segment
-built from the same SII dumps; the simulated reply is compared with the reply
-the real slaves gave: every datagram's data and working counter, and the
-reply's source MAC.
+of a capture is fed, in order and with the capture's timing (the segment's
+own wire-time clock advance is off: the capture's time stamps are the clock),
+into a segment built from the same SII dumps; the simulated reply is compared
+with the reply the real slaves gave: every datagram's data and working
+counter, and the reply's source MAC.
 
-Only time-dependent data may differ, and each difference is classified:
+The slaves get their ESC profile from their SII identity (sim.profiles
+DEVICE_PROFILES: EK1100, EL2828, EL2889 board profiles with the identity,
+DC, SII and DL-status behaviour of the real devices; the EL2004 has no board
+profile, the generic ET1200). The segment starts as built (all slaves in INIT,
+no state taken from the capture): every capture begins with the master's
+INIT + acknowledge request.
 
-* ``dc-time``: reads of the distributed-clock registers 0x0900-0x09FF
-  (receive time latches, local system time, system time difference) and
-  ARMW/FRMW of the system time: a real chip's clock is not ours;
-* ``eeprom-busy``: SII control/status (0x0502) read while the real EEPROM
-  was still busy (bit 15) and the simulated one had already finished, or the
-  other way round;
-* ``known gap: ...``: a behaviour of the real chips the simulator does not
-  model yet (see ``KNOWN_GAPS``; each entry says what the real chip does);
-* ``unexplained``: anything else.
-
-Time-dependent differences count as equal for the 99 % bar (their data
-cannot be equal: a real chip's clock is not ours); known gaps and unexplained
-ones count against it. ``test_replay_nothing_unexplained`` requires every
-difference to be time-dependent or a listed gap; ``test_replay_99_percent``
-is the issue's bar and is expected to fail until the gaps are closed.
+Only time-dependent data may differ; ``TIME_DEPENDENT`` lists each class of
+difference with its reason, and anything else is "unexplained" and fails.
 """
 
 from __future__ import annotations
@@ -40,9 +33,7 @@ from pyethercat.wire.datagram import Command, Datagram
 from pyethercat.wire.frame import decode_frame, is_ethercat
 from pyethercat.wire.pcap import parse_capture
 from pyethercat.wire.registers import (
-    AL_STATUS,
     DC_SYSTEM_TIME,
-    DL_STATUS,
     SII_COMMAND_MASK,
     SII_CONTROL,
 )
@@ -56,10 +47,6 @@ CAPTURES = {
     "ethercrab_rs-example-sii-el2004.pcapng": ("ek1100", "el2004", "el2004"),
     "ethercrab_soem-sdinfo-ek1100-only.pcapng": ("ek1100",),
 }
-
-# ESC features (0x0008) the real chips report in these captures; the ESC
-# EL2828 alone has bit 8 (enhanced DC SYNC).
-CHIP_FEATURES = {"ek1100": 0x00FC, "el2828": 0x01FC, "el2889": 0x00FC}
 
 _DC_START, _DC_END = 0x0900, 0x0A00
 _SII_BUSY = 0x8000
@@ -92,77 +79,71 @@ class Diff:
         )
 
 
-# Behaviours of the real chips in these captures that the simulator does not
-# model yet (reported to the core's owner). Each: (name, what the real chip does).
-KNOWN_GAPS = {
-    "el2828-no-dc-system-time": (
-        "the EL2828 latches DC receive times (0x0900 answers) but has no system-time "
-        "unit: 0x0910-0x09FF (BWR/FRMW/FPWR/FPRD) do not count it (wkc one lower)"
+# Each class of difference the replay may show, with its reason.
+TIME_DEPENDENT = {
+    "dc-time": (
+        "distributed-clock times: receive-time latches of ports a frame passed "
+        "(0x0900-0x0907), system time and processing-unit receive time (0x0910-0x091F), "
+        "system time difference (0x092C), SYNC/latch times (0x0990-0x099F, 0x09B0-0x09CF), "
+        "and ARMW/FRMW of the system time: a real chip's clock runs from its power-on "
+        "(minutes before the capture), ours from the segment's creation; every other "
+        "byte of such a datagram (ports that never latched: 'hoff', 0, 'Verl'; offsets "
+        "and delays the master wrote) and the working counter must be equal"
     ),
-    "el2828-sii-control-bit4": "the EL2828's SII control/status reads 0x0050 idle (bit 4 set), others 0x0040",
-    "device-emulation-al-status": (
-        "in device emulation (EK1100, EL2xxx) AL status is a copy of AL control including "
-        "bit 4: after BWR 0x0120 = 0x0011 the chips read 0x0011"
-    ),
-    "dl-status-pdi-watchdog": (
-        "DL status bit 1 (PDI watchdog not expired): the EK1100 (no PDI) reads 0, "
-        "the EL2828 (digital I/O PDI) 1"
-    ),
-    "sii-write-status": (
-        "after ethercrab's SII write commands (0x0201) the EK1100 reads 0x2040: write enable "
-        "(bit 0) cleared and bit 13 (command/acknowledge error) set, though the words were written"
+    "eeprom-busy": (
+        "SII control/status (0x0502) busy bit and running command (bits 15, 10:8) read "
+        "while one EEPROM was still busy and the other had finished: the board profiles "
+        "model the measured EEPROM timing, so this only shows with other timings"
     ),
 }
 
+# DC register bytes that hold times (see TIME_DEPENDENT["dc-time"]).
+_TIME_BYTES = frozenset(
+    [*range(0x0900, 0x0908), *range(0x0910, 0x0920), *range(0x092C, 0x0930),
+     *range(0x0990, 0x09A0), *range(0x09B0, 0x09D0)]
+)
+# A receive-time word of a port that never latched keeps its power-on value
+# on both sides (Beckhoff ASICs: port 1 "hoff"): then it must be equal.
+_UNLATCHED = (bytes(4), b"hoff")
 
-def _known_gap(sent: Datagram, real: Datagram, sim: Datagram, station: int | None) -> str | None:
-    cmd = Command(sent.command)
-    if cmd.is_logical:
-        return None
-    ado = sent.address >> 16
-    r, m = bytes(real.data), bytes(sim.data)
-    if _DC_START + 0x10 <= ado < _DC_END and sim.wkc - real.wkc in (1, 2) and (
-        cmd.is_broadcast or cmd == Command.FRMW or real.wkc == 0
-    ):
-        return "el2828-no-dc-system-time"
-    if ado == SII_CONTROL and len(r) == 2 and real.wkc == sim.wkc:
-        # (bits 15 and 10:8 may differ too: busy, see eeprom-busy)
-        if r[0] ^ m[0] == 0x10 and r[1] & 0x78 == m[1] & 0x78:
-            return "el2828-sii-control-bit4"
-        lo, hi = r[0] ^ m[0], r[1] ^ m[1]
-        if lo in (0x00, 0x01) and not hi & 0x58 and (lo or hi & 0x20):
-            return "sii-write-status"
-    if ado == AL_STATUS and real.wkc == sim.wkc and len(r) >= 1 and r[0] == m[0] | 0x10:
-        return "device-emulation-al-status"
-    if ado == DL_STATUS and real.wkc == sim.wkc and len(r) == 2 and r[0] ^ m[0] == 0x02:
-        return "dl-status-pdi-watchdog"
-    return None
+
+def _dc_time_only(ado: int, real: bytes, sim: bytes) -> bool:
+    """Whether ``real`` and ``sim`` (read at ``ado``) differ only in DC time bytes."""
+    for i, (r, m) in enumerate(zip(real, sim, strict=True)):
+        a = ado + i
+        if r == m:
+            continue
+        if a not in _TIME_BYTES:
+            return False
+        if a < 0x0908:
+            w = a - (a - 0x0900) % 4 - ado
+            if w >= 0 and real[w: w + 4] in _UNLATCHED:
+                return False
+    return True
 
 
 def _classify(sent: Datagram, real: Datagram, sim: Datagram | None) -> str:
     cmd = Command(sent.command)
-    if sim is None:
+    if sim is None or cmd.is_logical or real.wkc != sim.wkc:
         return "unexplained"
-    if not cmd.is_logical:
-        ado = sent.address >> 16
-        end = ado + len(sent.data)
-        if ado < _DC_END and end > _DC_START and cmd.reads and real.wkc == sim.wkc:
+    ado = sent.address >> 16
+    end = ado + len(sent.data)
+    r, m = bytes(real.data), bytes(sim.data)
+    if ado < _DC_END and end > _DC_START and cmd.reads:
+        if cmd in (Command.ARMW, Command.FRMW) and ado == DC_SYSTEM_TIME:
             return "dc-time"
-        if cmd in (Command.ARMW, Command.FRMW) and ado == DC_SYSTEM_TIME and real.wkc == sim.wkc:
+        if _dc_time_only(ado, r, m):
             return "dc-time"
-        if ado <= SII_CONTROL < end and real.wkc == sim.wkc:
-            # While busy, the real chip still shows the command bits (10:8);
-            # the simulated EEPROM finished at once and cleared them.
-            off = SII_CONTROL - ado
-            r = bytearray(real.data)
-            s = bytearray(sim.data)
-            if len(r) >= off + 2 and (r[off + 1] | s[off + 1]) & (_SII_BUSY >> 8):
-                r[off + 1] &= ~(_SII_BUSY_AND_COMMAND >> 8) & 0xFF
-                s[off + 1] &= ~(_SII_BUSY_AND_COMMAND >> 8) & 0xFF
-                if r == s:
-                    return "eeprom-busy"
-    gap = _known_gap(sent, real, sim, None)
-    return f"known gap: {gap}" if gap else "unexplained"
+    if ado <= SII_CONTROL < end:
+        # While busy, the chip shows the command bits (10:8) with bit 15.
+        off = SII_CONTROL - ado
+        rr, ss = bytearray(r), bytearray(m)
+        if len(rr) >= off + 2 and (rr[off + 1] | ss[off + 1]) & (_SII_BUSY >> 8):
+            rr[off + 1] &= ~(_SII_BUSY_AND_COMMAND >> 8) & 0xFF
+            ss[off + 1] &= ~(_SII_BUSY_AND_COMMAND >> 8) & 0xFF
+            if rr == ss:
+                return "eeprom-busy"
+    return "unexplained"
 
 
 def _pairs(path: Path) -> list[tuple[int, bytes, bytes]]:
@@ -190,6 +171,8 @@ def _replay(corpus: Path, capture: str, devices: tuple[str, ...]) -> tuple[int, 
     clock = VirtualClock(1_000_000_000)
     topo = parse_topology(toml, source=capture)
     segment = topo.build(clock=clock)
+    # The capture's time stamps drive the clock; the segment must not add its own wire time.
+    segment.advance_clock = False
     pairs = _pairs(corpus / "pcap" / capture)
     assert pairs, f"{capture}: no sent/returned frame pairs"
     total = 0
@@ -226,7 +209,7 @@ def _result(corpus: Path, capture: str) -> tuple[int, list[Diff], int]:
 
 
 def _report(capture: str, total: int, diffs: list[Diff]) -> str:
-    timed = sum(d.reason in ("dc-time", "eeprom-busy") for d in diffs)
+    timed = sum(d.reason in TIME_DEPENDENT for d in diffs)
     equal = total - len(diffs)
     reasons = Counter(d.reason for d in diffs)
     lines = [
@@ -234,9 +217,9 @@ def _report(capture: str, total: int, diffs: list[Diff]) -> str:
         f"({100.0 * (equal + timed) / total:.2f} % equal or time-dependent)",
         *(f"  {n:5d} x {reason}" for reason, n in reasons.most_common()),
     ]
-    for gap, what in KNOWN_GAPS.items():
-        if reasons.get(f"known gap: {gap}"):
-            lines.append(f"  gap {gap}: {what}")
+    for cls, why in TIME_DEPENDENT.items():
+        if reasons.get(cls):
+            lines.append(f"  {cls}: {why}")
     firsts: dict[str, Diff] = {}
     for d in diffs:
         firsts.setdefault(d.reason, d)
@@ -256,10 +239,20 @@ def test_replay_nothing_unexplained(corpus_dir: Path, capture: str) -> None:
     )
 
 
-@pytest.mark.xfail(reason="the simulator core does not model KNOWN_GAPS yet", strict=False)
 @pytest.mark.parametrize("capture", sorted(CAPTURES))
 def test_replay_99_percent(corpus_dir: Path, capture: str) -> None:
     total, diffs, _ = _result(corpus_dir, capture)
-    timed = sum(d.reason in ("dc-time", "eeprom-busy") for d in diffs)
+    timed = sum(d.reason in TIME_DEPENDENT for d in diffs)
     equal = total - len(diffs) + timed
     assert equal >= 0.99 * total, _report(capture, total, diffs)
+
+
+def test_dc_time_classification_is_strict() -> None:
+    # Latched times may differ; a port that never latched ("hoff"), the unused
+    # ports 2/3 and master-written offsets may not.
+    real = bytes.fromhex("520f623caa11623c000000005665726c")
+    assert _dc_time_only(0x0900, real, bytes.fromhex("51e1a30485e4a304000000005665726c"))
+    assert not _dc_time_only(0x0900, real, bytes.fromhex("51e1a30485e4a30400000000" + "00000000"))
+    unlatched = bytes.fromhex("ec65803c686f6666000000005665726c")
+    assert not _dc_time_only(0x0900, unlatched, bytes.fromhex("b3e3a30412345678000000005665726c"))
+    assert not _dc_time_only(0x0920, bytes(8), bytes([1]) + bytes(7))

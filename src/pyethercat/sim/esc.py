@@ -187,6 +187,7 @@ class Esc:
         self.impl, self.writable = register_masks(prof)
         self.powered = False
         self.sii_busy_until = 0
+        self.sii_write_cycle_until = 0
         self.last_mailbox_in = b""
         self.inputs = bytes(initial_inputs) if initial_inputs else b""
         self.reset_sequence = 0
@@ -325,6 +326,7 @@ class Esc:
         row[R.DC_TIME_FILTER_DEPTH] = R.DC_TIME_FILTER_DEPTH_DEFAULT
         row[R.DC_SPEED_FILTER_DEPTH] = R.DC_SPEED_FILTER_DEPTH_DEFAULT
         self.sii_busy_until = 0
+        self.sii_write_cycle_until = 0
         self.pending_op = False
         self.reset_sequence = 0
         self._sii_load()
@@ -573,6 +575,11 @@ class Esc:
         else:  # the write started at 0x0503
             prev = self.u8(R.SII_CONTROL) | (int(old[0]) << 8)
         written = self.u16(R.SII_CONTROL)
+        now = self.now_ns()
+        if self.sii_busy_until and now >= self.sii_busy_until:
+            # The previous command finished (no read of 0x0502 since to notice).
+            self.sii_busy_until = 0
+            prev &= ~(int(R.SiiControl.BUSY) | R.SII_COMMAND_MASK)
         status_bits = prev & ~(R.SII_COMMAND_MASK | int(R.SiiControl.WRITE_ENABLE))
         if prev & R.SiiControl.BUSY:
             # Writes while busy are ignored.
@@ -581,6 +588,12 @@ class Esc:
         we = written & R.SiiControl.WRITE_ENABLE
         cmd = written & R.SII_COMMAND_MASK
         status = status_bits
+        if cmd and now < self.sii_write_cycle_until:
+            # The EEPROM is still in its internal write cycle and does not
+            # acknowledge: the command is not carried out, bit 13 tells (a real
+            # EK1100 reads 0x2040 after such an attempt), write enable is spent.
+            self.set_u16(R.SII_CONTROL, status | R.SiiControl.ACK_ERROR)
+            return
         owner_pdi = bool(self.u8(R.SII_CONFIG) & R.SII_CONFIG_PDI_OWNS) and not (
             self.u8(R.SII_CONFIG) & R.SII_CONFIG_FORCE_ECAT)
         if cmd == 0:
@@ -605,6 +618,8 @@ class Esc:
                     self.sii.extend(b"\xff" * (off + 2 - len(self.sii)))
                 self.sii[off: off + 2] = self.row[R.SII_DATA: R.SII_DATA + 2].tobytes()
                 status &= ~int(R.SiiControl.ACK_ERROR | R.SiiControl.WRITE_ENABLE_ERROR)
+                if self.profile.sii_write_cycle_ns:
+                    self.sii_write_cycle_until = now + self.profile.sii_write_cycle_ns
                 if off < 16 or off >= 2 * 0x40:
                     self._reparse_sii()
         elif cmd == R.SiiControl.CMD_RELOAD:
@@ -614,11 +629,15 @@ class Esc:
             status = self.u16(R.SII_CONTROL) & ~(R.SII_COMMAND_MASK | int(R.SiiControl.WRITE_ENABLE))
         else:
             status |= R.SiiControl.ACK_ERROR
-        if cmd and self.seg.sii_busy_ns > 0 and not status & R.SiiControl.ACK_ERROR:
+        busy_ns = self.seg.sii_busy_ns or (
+            self.profile.sii_write_ns if cmd == R.SiiControl.CMD_WRITE else self.profile.sii_read_ns)
+        if cmd and busy_ns > 0 and not status & R.SiiControl.ACK_ERROR:
             # Real ESCs show busy together with the running command (e.g. 0x8140).
             status |= R.SiiControl.BUSY | cmd
-            self.sii_busy_until = self.now_ns() + self.seg.sii_busy_ns
-        self.set_u16(R.SII_CONTROL, status | we)
+            self.sii_busy_until = now + busy_ns
+        # A command spends the write enable bit (real chips read it 0 after
+        # a 0x0201 write command); without a command it stays.
+        self.set_u16(R.SII_CONTROL, status | (0 if cmd else we))
 
     def _reparse_sii(self) -> None:
         try:

@@ -70,6 +70,15 @@ class EscProfile:
     #: ESC family ("ET1100", "ET1200", ...) of a board profile; "" = the
     #: profile is the family itself.
     family: str = ""
+    #: EEPROM timing of the board (0: commands complete at once). A read or
+    #: reload keeps SII control busy (bit 15, with the command bits) for
+    #: ``sii_read_ns``, a write for ``sii_write_ns``; after a write the EEPROM
+    #: runs its internal write cycle until ``sii_write_cycle_ns`` after the
+    #: command and does not acknowledge commands meanwhile (bit 13 set, the
+    #: command is not carried out). ``Segment.sii_busy_ns`` overrides the busy times.
+    sii_read_ns: int = 0
+    sii_write_ns: int = 0
+    sii_write_cycle_ns: int = 0
 
     def replace(self, **changes: object) -> EscProfile:
         """A copy with some fields changed (e.g. ports of a particular board)."""
@@ -120,6 +129,11 @@ _BECKHOFF_LATCH_RESET = bytes(4) + b"hoff" + bytes(4) + b"Verl"
 _NOT_CONFIGURED = PortType.NOT_CONFIGURED
 # ET1200 terminals of the corpus read features 0x01FC (bit 8 enhanced DC SYNC).
 _DC_FULL_SYNC = int(_DC_FULL | Feature.ENHANCED_DC_SYNC)
+# EEPROM timing measured in the captures (replay-*, soem-sdinfo-*; master
+# time stamps): an 8-byte read is busy for 676-711 us, a one-word write for
+# 296.8-297.5 us; after a write, commands 2.95 ms later were not acknowledged
+# (0x0502 bit 13) and 3.67 ms later accepted (replay-ek1100-alias-address).
+_EE_READ, _EE_WRITE, _EE_CYCLE = 690_000, 297_000, 3_300_000
 
 PROFILES: dict[str, EscProfile] = {
     # Beckhoff ET1100: 4 ports, 8 FMMU, 8 SM, 8 KiB, 64-bit DC (EK1100 uses
@@ -147,14 +161,18 @@ PROFILES: dict[str, EscProfile] = {
     # 2 MII, 3 not implemented; full 64-bit DC.
     "EK1100": EscProfile("EK1100", 0x11, 0x00, 0x0003, 8, 8, 8,
                          (_MII, _EBUS, _MII, _NONE), int(_DC_FULL),
-                         dc_receive_time_reset=_BECKHOFF_LATCH_RESET, family="ET1100"),
+                         dc_receive_time_reset=_BECKHOFF_LATCH_RESET, family="ET1100",
+                         sii_read_ns=_EE_READ, sii_write_ns=_EE_WRITE,
+                         sii_write_cycle_ns=_EE_CYCLE),
     # EL1004 (twincat-scan-boxes, soem-sdinfo-ek1100-el1004): type 0x12 rev 1
     # build 1, ports 0x4A (E-Bus 0/1, port 2 absent, port 3 not configured),
     # features 0x01FC, DC receive times only, SII control 0x0050 below SAFEOP.
     "EL1004": EscProfile("EL1004", 0x12, 0x01, 0x0001, 3, 4, 1,
                          (_EBUS, _EBUS, _NONE, _NOT_CONFIGURED), _DC_FULL_SYNC,
                          sii_control_static=0x0010, dc_system_time=False,
-                         dc_receive_time_reset=_BECKHOFF_LATCH_RESET, family="ET1200"),
+                         dc_receive_time_reset=_BECKHOFF_LATCH_RESET, family="ET1200",
+                         sii_read_ns=_EE_READ, sii_write_ns=_EE_WRITE,
+                         sii_write_cycle_ns=_EE_CYCLE),
     # EL2828 (replay-* captures): 3 FMMUs, 4 SMs (BWR 0x0600-0x083F working
     # counters), features 0x01FC, no system time (0x0910.. not counted, 0x0918
     # read with WKC 0), SII control 0x0050 idle, DL status PDI watchdog bit 1.
@@ -163,12 +181,16 @@ PROFILES: dict[str, EscProfile] = {
     "EL2828": EscProfile("EL2828", 0x12, 0x01, 0x0001, 3, 4, 1,
                          (_EBUS, _EBUS, _NONE, _NOT_CONFIGURED), _DC_FULL_SYNC,
                          sii_control_static=0x0010, dc_system_time=False,
-                         dc_receive_time_reset=_BECKHOFF_LATCH_RESET, family="ET1200"),
+                         dc_receive_time_reset=_BECKHOFF_LATCH_RESET, family="ET1200",
+                         sii_read_ns=_EE_READ, sii_write_ns=_EE_WRITE,
+                         sii_write_cycle_ns=_EE_CYCLE),
     # EL2889 (replay-* captures): 3 FMMUs, 4 SMs, features 0x00FC, full DC
     # (system time, offset, delay, 0x092C), SII control 0x0040 idle.
     "EL2889": EscProfile("EL2889", 0x12, 0x01, 0x0001, 3, 4, 1,
                          (_EBUS, _EBUS, _NONE, _NOT_CONFIGURED), int(_DC_FULL),
-                         dc_receive_time_reset=_BECKHOFF_LATCH_RESET, family="ET1200"),
+                         dc_receive_time_reset=_BECKHOFF_LATCH_RESET, family="ET1200",
+                         sii_read_ns=_EE_READ, sii_write_ns=_EE_WRITE,
+                         sii_write_cycle_ns=_EE_CYCLE),
 }
 
 #: Profiles of known devices, by SII identity (vendor, product code): a slave

@@ -1242,8 +1242,9 @@ class Segment:
             self._refresh_sm_state()
         sm_lo, sm_hi = self._sm_span
         plan = _BrdPlan()
+        sii_timed = self.sii_busy_ns > 0 or any(p.sii_read_ns or p.sii_write_ns for p in self._profiles)
         plan.slow = bool((lo < sm_hi and hi > sm_lo) or (
-            self.sii_busy_ns > 0 and lo < R.SII_CONTROL + 2 and hi > R.SII_CONTROL))
+            sii_timed and lo < R.SII_CONTROL + 2 and hi > R.SII_CONTROL))
         plan.rows = rows = self._rows_implementing(passes, lo, hi)
         plan.contiguous = contiguous = bool(route.contiguous and len(rows) == len(passes))
         plan.systime = lo < R.DC_SYSTEM_TIME + 8 and hi > R.DC_SYSTEM_TIME
