@@ -82,7 +82,10 @@ _CACHE: dict[tuple[str, int, int], EsiFile] = {}
 
 def _load_cached(path: Path) -> EsiFile:
     """Parse each ESI file once per process (a topology may use one catalogue 100 times)."""
-    st = path.stat()
+    try:
+        st = path.stat()
+    except OSError:
+        return load_esi(path)  # raises EsiError naming the file
     key = (str(path.resolve()), st.st_mtime_ns, st.st_size)
     esi = _CACHE.get(key)
     if esi is None:
