@@ -17,6 +17,7 @@ from pyethercat.errors import FrameError, FrameTooLargeError
 #: Datagram header: cmd, idx, address (u32), length word, irq.
 HEADER = struct.Struct("<BBIHH")
 HEADER_SIZE = HEADER.size  # 10
+_WKC = struct.Struct("<H")
 WKC_SIZE = 2
 OVERHEAD = HEADER_SIZE + WKC_SIZE  # 12 bytes around the data
 LEN_MASK = 0x07FF
@@ -188,11 +189,17 @@ def encode_datagram_into(buf: bytearray, offset: int, dgram: Datagram, more: boo
     if length > LEN_MASK:
         raise FrameTooLargeError(f"datagram data of {length} bytes exceeds the 11-bit length field")
     word = length | (CIRCULATING_BIT if dgram.circulating else 0) | (MORE_BIT if more else 0)
-    HEADER.pack_into(buf, offset, int(dgram.command) & 0xFF, dgram.index & 0xFF,
-                     dgram.address & 0xFFFFFFFF, word, dgram.irq & 0xFFFF)
     start = offset + HEADER_SIZE
+    try:
+        # struct range-checks every field: a value that does not fit its field is
+        # refused, never silently cut (an index of 256 would otherwise go out as 0).
+        HEADER.pack_into(buf, offset, int(dgram.command), dgram.index, dgram.address, word,
+                         dgram.irq)
+        _WKC.pack_into(buf, start + length, dgram.wkc)
+    except struct.error:
+        raise FrameError(f"{dgram!r}: a field does not fit its width (command and index "
+                         "8 bits, address 32, IRQ and WKC 16)", offset) from None
     buf[start:start + length] = dgram.data
-    struct.pack_into("<H", buf, start + length, dgram.wkc & 0xFFFF)
     return start + length + WKC_SIZE
 
 
