@@ -13,7 +13,11 @@ from dataclasses import dataclass
 
 
 class Access(enum.Flag):
-    """Who may write a register from the EtherCAT side."""
+    """What the EtherCAT side (the master) may do with a register.
+
+    Every register is readable; ``W`` marks those a master writes. Registers
+    only the ESC or the PDI (the slave's own controller) writes are ``R``.
+    """
 
     R = enum.auto()  # read by ECAT
     W = enum.auto()  # written by ECAT
@@ -22,6 +26,8 @@ class Access(enum.Flag):
 
 @dataclass(frozen=True, slots=True)
 class Register:
+    """One entry of the register map: start address, size in bytes, name, ECAT access."""
+
     address: int
     size: int
     name: str
@@ -108,7 +114,8 @@ DC_ACTIVATION_STATUS = 0x0984
 DC_SYNC0_STATUS = 0x098E
 DC_SYNC1_STATUS = 0x098F
 DC_START_TIME = 0x0990
-DC_NEXT_SYNC1 = 0x0998
+#: Wireshark calls it "StartTime1"; a "next SYNC1 pulse" reading is unverified (facts 3.14).
+DC_START_TIME1 = 0x0998
 DC_SYNC0_CYCLE = 0x09A0
 DC_SYNC1_CYCLE = 0x09A4
 DC_LATCH0_CONTROL = 0x09A8
@@ -204,6 +211,9 @@ class LoopControl(enum.IntEnum):
 
 DL_CONTROL_FORWARDING_RULE = 1 << 0
 DL_CONTROL_TEMPORARY_LOOP = 1 << 1
+DL_CONTROL_FIFO_SIZE_SHIFT = 16  # bits 18:16, RX FIFO size
+DL_CONTROL_FIFO_SIZE_MASK = 0x7 << 16
+DL_CONTROL_EBUS_LOW_JITTER = 1 << 19
 DL_CONTROL_ALIAS_ENABLE = 1 << 24  # as a bit of the 32-bit DL control
 
 
@@ -254,6 +264,32 @@ class EscConfig(enum.IntFlag):
     ENHANCED_LINK_ALL = 1 << 1
     DC_SYNC_OUT = 1 << 2
     DC_LATCH_IN = 1 << 3
+    ENHANCED_LINK_PORT0 = 1 << 4
+    ENHANCED_LINK_PORT1 = 1 << 5
+    ENHANCED_LINK_PORT2 = 1 << 6
+    ENHANCED_LINK_PORT3 = 1 << 7
+
+
+class PdiType(enum.IntEnum):
+    """PDI control 0x0140: the kind of process data interface (facts 3.6)."""
+
+    NONE = 0
+    DIGITAL_IN_4BIT = 1
+    DIGITAL_OUT_4BIT = 2
+    DIGITAL_IN_OUT_2BIT = 3
+    DIGITAL_IO = 4
+    SPI_SLAVE = 5
+    ETHERCAT_BRIDGE = 7
+    UC_ASYNC_16BIT = 8
+    UC_ASYNC_8BIT = 9
+    UC_SYNC_16BIT = 10
+    UC_SYNC_8BIT = 11
+    DIGITAL_IO_32_0 = 16
+    DIGITAL_IO_24_8 = 17
+    DIGITAL_IO_16_16 = 18
+    DIGITAL_IO_8_24 = 19
+    DIGITAL_IO_0_32 = 20
+    ON_CHIP_BUS = 128
 
 
 class EcatEvent(enum.IntFlag):
@@ -337,6 +373,8 @@ SM_STATUS_READ_OPEN = 1 << 6
 SM_STATUS_WRITE_OPEN = 1 << 7
 SM_ACTIVATE_ENABLE = 1 << 0
 SM_ACTIVATE_REPEAT = 1 << 1
+SM_ACTIVATE_LATCH_ECAT = 1 << 6  # latch DC event time on an ECAT buffer change (0x09F0)
+SM_ACTIVATE_LATCH_PDI = 1 << 7  # latch DC event time on a PDI buffer change (0x09F8)
 SM_PDI_DEACTIVATE = 1 << 0
 SM_PDI_REPEAT_ACK = 1 << 1
 
@@ -354,6 +392,39 @@ def sm_control(mode: SmMode, direction: SmDirection, ecat_event: bool = False,
             | (SM_CONTROL_ECAT_EVENT if ecat_event else 0)
             | (SM_CONTROL_AL_EVENT if al_event else 0)
             | (SM_CONTROL_WATCHDOG if watchdog else 0))
+
+
+class DcCyclicUnitControl(enum.IntFlag):
+    """DC cyclic unit control 0x0980: which side controls a unit (1 = PDI, 0 = ECAT)."""
+
+    SYNC_UNIT_PDI = 1 << 0
+    LATCH0_PDI = 1 << 4
+    LATCH1_PDI = 1 << 5
+
+
+class DcActivationStatus(enum.IntFlag):
+    """DC activation status 0x0984."""
+
+    SYNC0_PENDING = 1 << 0
+    SYNC1_PENDING = 1 << 1
+    START_TIME_OUT_OF_RANGE = 1 << 2
+
+
+class DcLatchStatus(enum.IntFlag):
+    """DC latch status 0x09AE / 0x09AF."""
+
+    POSITIVE_EDGE = 1 << 0
+    NEGATIVE_EDGE = 1 << 1
+    PIN_STATE = 1 << 2
+
+
+#: DC latch control 0x09A8 / 0x09A9: 1 = single event, 0 = continuous, per edge.
+DC_LATCH_CONTROL_POSITIVE_SINGLE = 1 << 0
+DC_LATCH_CONTROL_NEGATIVE_SINGLE = 1 << 1
+#: DC SYNC0/SYNC1 status 0x098E / 0x098F bit 0: a pulse was generated.
+DC_SYNC_STATUS_PULSE = 1 << 0
+#: Process-data watchdog status 0x0440 bit 0: 1 = running or disabled, 0 = expired.
+WATCHDOG_STATUS_OK = 1 << 0
 
 
 class DcActivation(enum.IntFlag):
@@ -428,7 +499,9 @@ def _table() -> list[Register]:
         regs.append(Register(FORWARDED_RX_ERROR_COUNTER + port, 1,
                              f"Forwarded RX error counter port {port}", _RW))
         regs.append(Register(LOST_LINK_COUNTER + port, 1, f"Lost link counter port {port}", _RW))
-        regs.append(Register(DC_RECEIVE_TIME_PORT0 + 4 * port, 4, f"DC receive time port {port}", _RW))
+        # Any ECAT write to port 0's receive time latches all ports; the others are read-only.
+        regs.append(Register(DC_RECEIVE_TIME_PORT0 + 4 * port, 4, f"DC receive time port {port}",
+                             _RW if port == 0 else _R))
         regs.append(Register(MII_PORT_STATUS + port, 1, f"PHY port status {port}"))
     regs += [
         Register(ECAT_PROCESSING_ERROR_COUNTER, 1, "ECAT processing unit error counter", _RW),
@@ -467,7 +540,7 @@ def _table() -> list[Register]:
         Register(DC_SYNC0_STATUS, 1, "DC SYNC0 status"),
         Register(DC_SYNC1_STATUS, 1, "DC SYNC1 status"),
         Register(DC_START_TIME, 8, "DC start time cyclic operation", _RW),
-        Register(DC_NEXT_SYNC1, 8, "DC next SYNC1 pulse"),
+        Register(DC_START_TIME1, 8, "DC start time 1"),
         Register(DC_SYNC0_CYCLE, 4, "DC SYNC0 cycle time", _RW),
         Register(DC_SYNC1_CYCLE, 4, "DC SYNC1 cycle time", _RW),
         Register(DC_LATCH0_CONTROL, 1, "DC latch0 control", _RW),
@@ -526,8 +599,6 @@ def register_name(address: int) -> str | None:
     """Name of the register at ``address`` (with ``+n`` inside a register)."""
     reg = register_containing(address)
     if reg is None:
-        if RAM_START <= address < ADDRESS_SPACE:
-            return None
         return None
     if reg.address == address:
         return reg.name
