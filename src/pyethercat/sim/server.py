@@ -34,6 +34,7 @@ socketpair and ``handle.link`` is the master's end.
 from __future__ import annotations
 
 import contextlib
+import gc
 import json
 import os
 import select
@@ -408,6 +409,10 @@ def serve(
 
     segment = load_topology(os.fspath(topology)).build(clock=WallClock())
     server = SimServer(segment, link, control=control, log=log)
+    # Everything built so far lives as long as the server: keep it out of the
+    # collector's generations so a collection during serving stays short.
+    gc.collect()
+    gc.freeze()
     previous: dict[int, Any] = {}
 
     def on_signal(signum: int, frame: FrameType | None) -> None:
