@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import enum
 
+from pyethercat.errors import ConfigError
+from pyethercat.wire.registers import AL_ERROR_FLAG, AL_STATE_MASK
+
 
 class AlState(enum.IntEnum):
     """EtherCAT state machine states (AL control/status bits 3:0)."""
@@ -17,15 +20,21 @@ class AlState(enum.IntEnum):
 
     @classmethod
     def parse(cls, text: str) -> AlState:
-        """Parse a state name as users type it: INIT, PREOP, PRE-OP, SAFEOP, OP, BOOT."""
+        """Parse a state name as users type it: INIT, PREOP, PRE-OP, SAFEOP, OP, BOOT.
+
+        Raises :class:`~pyethercat.errors.ConfigError` (a ``ValueError``) for other text.
+        """
         key = text.strip().upper().replace("-", "").replace("_", "")
         aliases = {"PREOP": cls.PREOP, "SAFEOP": cls.SAFEOP, "BOOTSTRAP": cls.BOOT}
         if key in aliases:
             return aliases[key]
         try:
+            if key == "NONE":  # not a state anybody can request
+                raise KeyError(key)
             return cls[key]
         except KeyError:
-            raise ValueError(f"unknown AL state {text!r}: use INIT, PREOP, BOOT, SAFEOP or OP") from None
+            raise ConfigError(
+                f"unknown AL state {text!r}: use INIT, PREOP, BOOT, SAFEOP or OP") from None
 
     @property
     def label(self) -> str:
@@ -35,12 +44,12 @@ class AlState(enum.IntEnum):
 
 def state_name(value: int) -> str:
     """Name of an AL status value, with ``+ERR`` when the error flag is set."""
-    base = value & 0x0F
+    base = value & AL_STATE_MASK
     try:
         name = AlState(base).name
     except ValueError:
         name = f"0x{base:X}"
-    return name + ("+ERR" if value & 0x10 else "")
+    return name + ("+ERR" if value & AL_ERROR_FLAG else "")
 
 
 class AlStatusCode(enum.IntEnum):
