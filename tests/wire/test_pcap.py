@@ -217,3 +217,66 @@ def test_read_capture_streams_incrementally() -> None:
     # Only the first packet has been read, not the whole file.
     assert out.tell() < len(out.getvalue()) // 10
     assert sum(1 for _ in it) == 99
+
+
+def _blk(o: str, btype: int, body: bytes) -> bytes:
+    return struct.pack(o + "II", btype, 12 + len(body)) + body + struct.pack(o + "I", 12 + len(body))
+
+
+def _opt(o: str, code: int, value: bytes) -> bytes:
+    return struct.pack(o + "HH", code, len(value)) + value + bytes(-len(value) % 4)
+
+
+@st.composite
+def _hand_made_pcapng(draw: st.DrawFn) -> tuple[bytes, list[tuple[int, bytes, int, Direction]]]:
+    """Several sections (each in its own byte order), several interfaces with their own
+    time resolution and offset, packets with direction flags; plus what they must read as."""
+    out, expect = b"", []
+    for _section in range(draw(st.integers(1, 3))):
+        o = draw(st.sampled_from("<>"))
+        shb_opts = draw(st.sampled_from([b"", _opt(o, 4, b"hw") + _opt(o, 0, b"")]))
+        out += _blk(o, 0x0A0D0D0A, struct.pack(o + "IHHq", 0x1A2B3C4D, 1, 0, -1) + shb_opts)
+        units: list[tuple[int, int, int]] = []
+        for _iface in range(draw(st.integers(1, 3))):
+            res = draw(st.sampled_from([None, 6, 9, 3, 0x80 | 10]))
+            offset_s = draw(st.integers(-5, 5))
+            opts = b"" if res is None else _opt(o, 9, bytes([res]))
+            opts += _opt(o, 14, struct.pack(o + "q", offset_s)) if offset_s else b""
+            out += _blk(o, 1, struct.pack(o + "HHI", 1, 0, 0) + opts + (_opt(o, 0, b"") if opts else b""))
+            num, den = ((1000, 1) if res is None else (10**9, 1 << 10) if res & 0x80
+                        else (10 ** (9 - res), 1))
+            units.append((num, den, offset_s))
+        for _packet in range(draw(st.integers(0, 4))):
+            iid = draw(st.integers(0, len(units) - 1))
+            data = draw(st.binary(max_size=30))
+            ts = draw(st.integers(0, 2**40))
+            flags = draw(st.integers(0, 3))
+            body = struct.pack(o + "IIIII", iid, ts >> 32, ts & 0xFFFFFFFF, len(data), len(data))
+            body += data + bytes(-len(data) % 4)
+            if flags:
+                body += _opt(o, 2, struct.pack(o + "I", flags)) + _opt(o, 0, b"")
+            out += _blk(o, 6, body)
+            num, den, offset_s = units[iid]
+            direction = Direction(flags) if flags != 3 else Direction.UNKNOWN
+            expect.append((ts * num // den + offset_s * 10**9, data, iid, direction))
+    return out, expect
+
+
+@settings(max_examples=300)
+@given(_hand_made_pcapng())
+def test_pcapng_sections_interfaces_byte_orders(
+        made: tuple[bytes, list[tuple[int, bytes, int, Direction]]]) -> None:
+    raw, expect = made
+    got = [(r.timestamp_ns, r.data, r.interface_id, r.direction) for r in parse_capture(raw)]
+    assert got == expect
+
+
+@settings(max_examples=300)
+@given(_hand_made_pcapng(), st.integers(0, 10**6), st.binary(min_size=1, max_size=8))
+def test_corrupted_multi_section_pcapng_raises_only_capture_error(
+        made: tuple[bytes, list[tuple[int, bytes, int, Direction]]], pos: int, junk: bytes) -> None:
+    raw = bytearray(made[0])
+    pos %= len(raw)
+    raw[pos : pos + len(junk)] = junk
+    with contextlib.suppress(CaptureError):
+        parse_capture(bytes(raw))
