@@ -281,6 +281,37 @@ def test_raw_interface_down(veth_pair: tuple[str, str]) -> None:
         a.send(_frame(1))
 
 
+def test_raw_interface_going_down_during_recv(veth_pair: tuple[str, str]) -> None:
+    a_name, b_name = veth_pair
+    outcome: list[object] = []
+    with RawLink(a_name) as a, RawLink(b_name) as b:
+
+        def wait() -> None:
+            try:
+                outcome.append(a.recv(10.0))
+            except LinkError as exc:
+                outcome.append(exc)
+
+        waiter = threading.Thread(target=wait)
+        waiter.start()
+        threading.Event().wait(0.2)
+        subprocess.run(["ip", "link", "set", a_name, "down"], check=True)
+        waiter.join(5)
+        assert not waiter.is_alive(), "recv did not notice the interface going down"
+        assert len(outcome) == 1 and isinstance(outcome[0], LinkError)
+        assert "down" in str(outcome[0])
+        # The link is usable again once the interface is back.
+        subprocess.run(["ip", "link", "set", a_name, "up"], check=True)
+        deadline = threading.Event()
+        for _ in range(50):  # the veth carrier needs a moment
+            b.send(_frame(4))
+            if a.recv(0.1) == _frame(4):
+                break
+            deadline.wait(0.05)
+        else:
+            pytest.fail("no frame received after the interface came back up")
+
+
 # --- capture ---------------------------------------------------------------------------
 
 
@@ -312,3 +343,24 @@ def test_capture_to_path_by_suffix(tmp_path: Path) -> None:
     with path.open("rb") as f:
         assert [r.data for r in read_capture(f)] == [_frame(1)]
     assert b.recv(0) == _frame(1)
+
+
+def test_capture_wall_clock_stamps_and_interface_name(tmp_path: Path) -> None:
+    import time
+
+    with CaptureLink(PairLink.pair()[0], tmp_path / "RUN.PCAP") as cap:
+        assert cap.format is CaptureFormat.PCAP  # suffix compared without case
+    before = time.time_ns()
+    echo = PairLink.responder_link(lambda f: f, name="master-end")
+    with CaptureLink(echo, tmp_path / "run.pcapng") as cap:
+        for i in range(3):
+            cap.send(_frame(i))
+            assert cap.recv(0) == _frame(i)
+    after = time.time_ns()
+    raw = (tmp_path / "run.pcapng").read_bytes()
+    recs = list(read_capture(io.BytesIO(raw)))
+    stamps = [r.timestamp_ns for r in recs]
+    assert len(recs) == 6 and stamps == sorted(stamps)
+    assert before <= stamps[0] and stamps[-1] <= after
+    assert [r.direction for r in recs] == [Direction.OUTBOUND, Direction.INBOUND] * 3
+    assert b"master-end" in raw  # the interface is named after the inner link

@@ -46,7 +46,8 @@ class CaptureLink(Link):
         if isinstance(target, str | os.PathLike):
             path = os.fspath(target)
             if fmt is None:
-                fmt = CaptureFormat.PCAP if path.endswith(".pcap") else CaptureFormat.PCAPNG
+                fmt = (CaptureFormat.PCAP if path.lower().endswith(".pcap")
+                       else CaptureFormat.PCAPNG)
             self._stream: BinaryIO = open(path, "wb")  # noqa: SIM115 - closed in close()
             self._owns_stream = True
         else:
