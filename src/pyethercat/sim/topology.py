@@ -454,6 +454,16 @@ def _parse_fault(raw: dict[str, Any], i: int, topo: Topology) -> FaultConfig:
         if "port" not in raw:
             raise ConfigError(f"{where}: {kind} needs a port (0-3)")
         port = _int(raw["port"], f"{where}: port", 0, 3)
+        cfg = topo.slaves[topo.index(slave)]
+        # Port 0 always has a cable (to the parent, or to the master); ports
+        # 1-3 only when another slave hangs there. A fault elsewhere would be
+        # silently a no-op.
+        cabled = {0} | {s.port for s in topo.slaves if s.parent == slave and s.port is not None}
+        if port not in cfg.ports:
+            raise ConfigError(f"{where}: slave {slave!r} has no port {port} "
+                              f"(ports {', '.join(map(str, cfg.ports))})")
+        if port not in cabled:
+            raise ConfigError(f"{where}: port {port} of slave {slave!r} has no cable")
     count = _int(raw.get("count", 1), f"{where}: count", 1)
     return FaultConfig(kind, slave, port, count)
 
