@@ -224,7 +224,6 @@ def _pd_segment() -> Segment:
     return seg
 
 
-@pytest.mark.xfail(strict=True, reason="PDI writes to an input buffer are visible byte by byte")
 def test_input_buffer_partial_pdi_write_is_not_visible() -> None:
     seg = _pd_segment()
     pdi = seg.slaves[0].esc.pdi

@@ -191,6 +191,8 @@ class Esc:
         self.last_mailbox_in = b""
         self.inputs = bytes(initial_inputs) if initial_inputs else b""
         self.reset_sequence = 0
+        #: Input SMs whose next buffer the PDI has begun but not completed.
+        self._pdi_staging: set[int] = set()
         self.output_sm, self.input_sm = self._pd_sms()
 
     # --- identity from the SII -------------------------------------------------
@@ -329,6 +331,7 @@ class Esc:
         self.sii_write_cycle_until = 0
         self.pending_op = False
         self.reset_sequence = 0
+        self._pdi_staging.clear()
         self._sii_load()
         self.powered = True
 
@@ -666,6 +669,7 @@ class Esc:
             if before == after:
                 continue
             changed_any = True
+            self._pdi_staging.discard(n)
             was_enabled = bool(before[R.SM_ACTIVATE] & R.SM_ACTIVATE_ENABLE)
             now_enabled = bool(after[R.SM_ACTIVATE] & R.SM_ACTIVATE_ENABLE)
             s = self.sm(n)
@@ -918,14 +922,33 @@ class Esc:
         lo, hi = address, address + len(data)
         if lo < 0 or hi > R.ADDRESS_SPACE:
             raise ValueError(f"PDI write 0x{address:04X}+{len(data)} outside the 64 KiB space")
-        self.row[lo:hi] = np.frombuffer(bytes(data), np.uint8)
+        sms = self._sms_overlapping(lo, hi)
+        # A process-data input buffer (3-buffer mode, PDI writes) is published
+        # only when its last byte is written: until then EtherCAT reads the
+        # newest complete buffer. The buffer being written is staged in the
+        # slave's shadow row (unused for input SMs), seeded from the published one.
+        staged = [(s, self.row[s.start: s.end].copy()) for s in sms
+                  if not s.ecat_writes and s.mode == _SM_MODE_BUFFERED]
+        shadow = self.seg.memory.shadow[self.index]
+        for s, published in staged:
+            if s.n not in self._pdi_staging:
+                shadow[s.start: s.end] = published
+                self._pdi_staging.add(s.n)
+        new = np.frombuffer(bytes(data), np.uint8)
+        self.row[lo:hi] = new
+        for s, published in staged:
+            a, b = max(lo, s.start), min(hi, s.end)
+            shadow[a:b] = new[a - lo: b - lo]
+            self.row[s.start: s.end] = published
         if lo < R.AL_STATUS + 2 and hi > R.AL_STATUS:
             self.set_ecat_event(int(R.EcatEvent.AL_STATUS))
-        for s in self._sms_overlapping(lo, hi):
+        for s in sms:
             if not s.ecat_writes and hi >= s.end:
                 if s.mode == _SM_MODE_MAILBOX:
                     self._mailbox_posted(s)
                 else:
+                    self.row[s.start: s.end] = shadow[s.start: s.end]
+                    self._pdi_staging.discard(s.n)
                     self._inputs_written(s)
 
     def _mailbox_posted(self, s: SmView) -> None:
