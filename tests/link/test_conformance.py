@@ -8,7 +8,7 @@ from collections.abc import Callable, Iterator
 
 import pytest
 
-from pyethercat.errors import LinkClosedError
+from pyethercat.errors import LinkClosedError, LinkError
 from pyethercat.link import Link, PairLink, RawLink, UdpLink, UnixLink
 from pyethercat.wire.datagram import Command, Datagram
 from pyethercat.wire.frame import MASTER_MAC, decode_frame, encode_frame
@@ -146,3 +146,15 @@ def test_name_is_set(links: LinkPair) -> None:
     a, b = links
     assert a.name and b.name
     assert a.name in repr(a)
+
+
+@pytest.mark.parametrize("size", [0, 1, 13])
+def test_frames_shorter_than_an_ethernet_header_are_refused(links: LinkPair, size: int) -> None:
+    a, b = links
+    with pytest.raises(LinkError):
+        a.send(b"\xff" * size)
+    # Nothing arrived, and the link still works (an empty socketpair message used to
+    # read as the peer's close).
+    assert b.recv(0.05) is None
+    a.send(_frame(6))
+    assert b.recv(2.0) == _frame(6)

@@ -14,10 +14,14 @@ from typing import Self
 
 from pyethercat.errors import LinkClosedError
 
-__all__ = ["Link", "MAX_FRAME"]
+__all__ = ["Link", "MAX_FRAME", "MIN_FRAME"]
 
 #: Largest frame any link accepts or returns (Ethernet without FCS, plus a VLAN tag).
 MAX_FRAME = 1518
+#: Shortest frame any link sends: an Ethernet header. Shorter ones raise LinkError
+#: (the kernel refuses them on raw sockets; an empty message on a socketpair would
+#: read as the peer's close).
+MIN_FRAME = 14
 
 
 class Link(abc.ABC):

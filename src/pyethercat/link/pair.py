@@ -22,8 +22,8 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterable
 
-from pyethercat.errors import LinkClosedError
-from pyethercat.link.base import Link
+from pyethercat.errors import LinkClosedError, LinkError
+from pyethercat.link.base import MIN_FRAME, Link
 
 __all__ = ["PairLink", "Responder"]
 
@@ -85,6 +85,9 @@ class PairLink(Link):
             raise LinkClosedError(f"link {self.name} has no peer")
         if self._peer_closed:
             raise LinkClosedError(f"peer of link {self.name} has closed")
+        if len(frame) < MIN_FRAME:
+            raise LinkError(f"link {self.name}: frame of {len(frame)} bytes is shorter than "
+                            f"an Ethernet header")
         data = bytes(frame)
         responder = peer._responder
         if responder is None:

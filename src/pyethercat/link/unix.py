@@ -15,7 +15,7 @@ import socket
 import time
 
 from pyethercat.errors import LinkClosedError, LinkError
-from pyethercat.link.base import MAX_FRAME, Link
+from pyethercat.link.base import MAX_FRAME, MIN_FRAME, Link
 
 __all__ = ["UnixLink"]
 
@@ -56,6 +56,10 @@ class UnixLink(Link):
 
     def send(self, frame: bytes) -> None:
         self._check_open()
+        if len(frame) < MIN_FRAME:
+            # An empty SOCK_SEQPACKET message would also look like the peer's close.
+            raise LinkError(f"link {self.name}: frame of {len(frame)} bytes is shorter than "
+                            f"an Ethernet header")
         try:
             self._sock.send(frame)
         except (BrokenPipeError, ConnectionResetError) as exc:
