@@ -51,6 +51,7 @@ class Command(enum.IntEnum):
 
     @property
     def is_logical(self) -> bool:
+        """Logical addressing (LRD/LWR/LRW): a 32-bit address matched by FMMUs."""
         return self in _LOGICAL
 
     @property
@@ -65,6 +66,7 @@ class Command(enum.IntEnum):
 
     @property
     def is_broadcast(self) -> bool:
+        """Broadcast (BRD/BWR/BRW): every slave acts and increments ADP."""
         return self in _BROADCAST
 
     @property
@@ -143,6 +145,10 @@ class Datagram:
     @classmethod
     def logical(cls, command: Command, address: int, data: bytes | bytearray | int,
                 index: int = 0) -> Datagram:
+        """A logically addressed datagram (LRD/LWR/LRW) at the 32-bit ``address``.
+
+        ``data`` is the payload or, as in :meth:`device`, a number of zero bytes.
+        """
         payload = bytes(data) if isinstance(data, int) else data
         return cls(command, index, address & 0xFFFFFFFF, payload)
 
@@ -150,18 +156,22 @@ class Datagram:
 
     @property
     def adp(self) -> int:
+        """Address position: low 16 bits of the address field."""
         return self.address & 0xFFFF
 
     @property
     def ado(self) -> int:
+        """Address offset (the register or memory address): high 16 bits."""
         return (self.address >> 16) & 0xFFFF
 
     @property
     def logical_address(self) -> int:
+        """The whole 32-bit address field, as LRD/LWR/LRW use it."""
         return self.address & 0xFFFFFFFF
 
     @property
     def is_logical(self) -> bool:
+        """Whether the command is LRD, LWR or LRW."""
         return self.command in _LOGICAL
 
     @property
@@ -171,6 +181,7 @@ class Datagram:
 
     @property
     def command_name(self) -> str:
+        """The command's name (``CMD<n>`` for codes outside the standard 15)."""
         return command_name(int(self.command))
 
     def __repr__(self) -> str:

@@ -217,6 +217,7 @@ class FrameBuilder:
         self.used = 0
 
     def fits(self, dgram: Datagram) -> bool:
+        """Whether ``dgram`` still fits into this frame."""
         return self.used + dgram.size <= self.capacity
 
     @property
@@ -225,6 +226,7 @@ class FrameBuilder:
         return self.capacity - self.used
 
     def add(self, dgram: Datagram) -> None:
+        """Append ``dgram``; :class:`FrameTooLargeError` when it does not fit."""
         if not self.fits(dgram):
             raise FrameTooLargeError(
                 f"datagram of {dgram.size} bytes does not fit: {self.free} bytes free in the frame")
@@ -235,6 +237,7 @@ class FrameBuilder:
         return len(self.datagrams)
 
     def build(self, src: bytes = MASTER_MAC, dst: bytes = BROADCAST_MAC) -> bytes:
+        """The Ethernet frame of the datagrams added so far (see :func:`encode_frame`)."""
         return encode_frame(self.datagrams, src, dst)
 
 

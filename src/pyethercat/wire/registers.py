@@ -301,6 +301,7 @@ class EcatEvent(enum.IntFlag):
 
 
 def ecat_event_sm(n: int) -> int:
+    """ECAT event bit of sync manager ``n`` (n = 0..7)."""
     return 1 << (4 + n)
 
 
@@ -317,6 +318,7 @@ class AlEvent(enum.IntFlag):
 
 
 def al_event_sm(n: int) -> int:
+    """AL event bit of sync manager ``n`` (n = 0..15)."""
     return 1 << (8 + n)
 
 
@@ -344,16 +346,22 @@ SII_CONFIG_FORCE_ECAT = 1 << 1
 
 
 class FmmuType(enum.IntFlag):
+    """FMMU type register (+0xB)."""
+
     READ = 1 << 0  # physical -> logical (inputs)
     WRITE = 1 << 1  # logical -> physical (outputs)
 
 
 class SmMode(enum.IntEnum):
+    """Sync manager operation mode, control bits 1:0."""
+
     BUFFERED = 0
     MAILBOX = 2
 
 
 class SmDirection(enum.IntEnum):
+    """Sync manager direction, control bits 3:2."""
+
     READ = 0  # ECAT reads, PDI writes (inputs, SM1/SM3)
     WRITE = 1  # ECAT writes, PDI reads (outputs, SM0/SM2)
 
