@@ -33,8 +33,9 @@ from __future__ import annotations
 
 import random
 import struct
-from dataclasses import dataclass
-from typing import Any
+import sys
+from dataclasses import dataclass, field
+from typing import Any, Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -76,6 +77,16 @@ MASTER = -1
 #: Ethernet FCS bytes (on the wire, not in the frames we exchange).
 FCS_SIZE = 4
 _WKC = struct.Struct("<H")
+#: Datagram header from byte 2 on: address, length word, IRQ (patched in the reply).
+_HEADER_TAIL = struct.Struct("<IHH")
+_BRD = int(Command.BRD)
+_DATAGRAMS = int(FrameType.DATAGRAMS)
+_MIN_FRAME = ETH_HEADER_SIZE + ECAT_HEADER_SIZE
+#: Longest route for which a BRD ORs a register column as Python ints (numpy above).
+_BRD_PY_MAX = 64
+_WORD_FORMAT: dict[int, Literal["B", "H", "I", "Q"]] = {1: "B", 2: "H", 4: "I", 8: "Q"}
+_LE_STRUCT: dict[int, struct.Struct] = {1: struct.Struct("<B"), 2: struct.Struct("<H"),
+                                        4: struct.Struct("<I"), 8: struct.Struct("<Q")}
 _EMPTY = np.zeros(0, np.int64)
 _NEVER = 1 << 62
 _WIDE: dict[int, str] = {1: "u1", 2: "<u2", 4: "<u4", 8: "<u8"}
@@ -86,7 +97,7 @@ _EV_AL_STATUS = int(R.EcatEvent.AL_STATUS)
 class _BrdPlan:
     """Cached work of one BRD shape (address, length, route length)."""
 
-    __slots__ = ("slow", "rows", "contiguous", "systime", "block", "column", "clear")
+    __slots__ = ("slow", "rows", "contiguous", "systime", "block", "column", "clear", "words", "fmt", "wkc")
 
     def __init__(self) -> None:
         self.slow = False
@@ -96,6 +107,11 @@ class _BrdPlan:
         self.block: npt.NDArray[np.uint8] | None = None
         self.column: npt.NDArray[np.unsignedinteger[Any]] | None = None
         self.clear = 0
+        #: Fast path (Segment.process): the register column as a strided
+        #: memoryview of native words, its little-endian struct and the WKC.
+        self.words: memoryview | None = None
+        self.fmt: struct.Struct = _WKC
+        self.wkc = 0
 
 
 def _status_after_write_table() -> npt.NDArray[np.uint8]:
@@ -171,15 +187,16 @@ class Route:
     returned: bool             # the frame comes back to the master
     delay_ns: int              # forwarding + cable delays of the whole walk
     contiguous: bool           # passes == arange(len(passes)) (fast slicing)
+    #: Pass indices where the slave's port 0 is closed (derived, for the frame path).
+    closed_idx: list[int] = field(init=False)
+    #: len(passes), and whether the frame is processed at all (derived).
+    count: int = field(init=False)
+    live: bool = field(init=False)
 
-    @property
-    def closed_idx(self) -> list[int]:
-        """Pass indices where the slave's port 0 is closed (cached)."""
-        cached: list[int] | None = self.__dict__.get("_closed_idx")
-        if cached is None:
-            cached = [i for i, c in enumerate(self.port0_closed) if c]
-            self.__dict__["_closed_idx"] = cached
-        return cached
+    def __post_init__(self) -> None:
+        self.closed_idx = [i for i, c in enumerate(self.port0_closed) if c]
+        self.count = len(self.passes)
+        self.live = bool(self.count or self.returned)
 
 
 class Segment:
@@ -231,6 +248,8 @@ class Segment:
         self._bw: dict[str, Any] = {}
         self._wire_idx: tuple[I64, I64, I64, I64] | None = None
         self._bplan: dict[tuple[int, int, int], _BrdPlan] = {}
+        #: Longest route on which small BRDs take the Python-int path (0: numpy only).
+        self._brd_py_max = _BRD_PY_MAX
         #: ECAT event bits that may be set in some slave (cleared by vectorised reads).
         self._event_bits = 0xFFFF
         self._cur_passes: I64 = _EMPTY
@@ -898,14 +917,20 @@ class Segment:
 
     def process(self, frame: bytes | bytearray) -> bytes | None:
         """Process one frame from the master; the returned frame, or None if it is lost."""
-        now = self.clock.now_ns()
-        self.tick(now)
+        clock = self.clock
+        now = clock.now_ns()
+        # tick() only when time-driven work can be due: watchdog configuration
+        # changed, the earliest watchdog deadline passed, or SYNC pulses planned.
+        if self.watchdog_dirty or self.sm_dirty or now > self._wd_deadline or self.sync_next:
+            self.tick(now)
         self.frames += 1
-        route = self.route
+        route = self._route
+        if route is None or self.topology_dirty:
+            route = self.route
         if self._drop_p and self._rng.random() < self._drop_p:
             self.frames_lost += 1
             return None
-        if len(frame) < ETH_HEADER_SIZE + ECAT_HEADER_SIZE or not len(route.passes) and not route.returned:
+        if len(frame) < _MIN_FRAME or not route.live:
             self.frames_lost += 1
             return None
         buf = bytearray(frame)
@@ -925,7 +950,7 @@ class Segment:
             return None
         word = buf[start] | (buf[start + 1] << 8)
         length = word & ECAT_LENGTH_MASK
-        if word >> ECAT_TYPE_SHIFT != FrameType.DATAGRAMS:
+        if word >> ECAT_TYPE_SHIFT != _DATAGRAMS:
             return None  # mailbox-gateway and other types are not for the slaves
         body = start + ECAT_HEADER_SIZE
         end = body + length
@@ -965,18 +990,36 @@ class Segment:
         self._cur_passes = passes
         if self.irq_dirty:
             self._refresh_irq()
+        count = len(passes)
+        bplan = self._bplan
         for off, cmd, address, lw, irq, n in heads:
-            data = np.frombuffer(buf, np.uint8, n, off + HEADER_SIZE)
-            wkc_off = off + HEADER_SIZE + n
-            (wkc,) = _WKC.unpack_from(buf, wkc_off)
-            add, address = self._datagram(cmd, address, data, n)
-            if self.irq_dirty:
-                self._refresh_irq()
+            doff = off + HEADER_SIZE
+            wkc_off = doff + n
+            plan = bplan.get(((address >> 16), (address >> 16) + n, count)) if cmd == _BRD else None
+            if plan is not None and plan.words is not None and not plan.clear & self._event_bits:
+                # Small BRD of a 1/2/4/8-byte register over a short line: OR the
+                # column as Python ints (cheaper than a numpy call at this size).
+                v = 0
+                for x in plan.words.tolist():
+                    v |= x
+                if v:
+                    fmt = plan.fmt
+                    fmt.pack_into(buf, doff, fmt.unpack_from(buf, doff)[0] | v)
+                add = plan.wkc
+                address = ((address + count) & 0xFFFF) | (address & 0xFFFF0000)
+            else:
+                add, address = self._datagram(cmd, address, np.frombuffer(buf, np.uint8, n, doff), n)
+                if self.irq_dirty:
+                    self._refresh_irq()
             if set_c:
                 lw |= CIRCULATING_BIT
-            HEADER.pack_into(buf, off, cmd, buf[off + 1], address, lw, irq | self._irq)
-            _WKC.pack_into(buf, wkc_off, (wkc + add) & 0xFFFF)
-        self._advance(len(buf))
+            _HEADER_TAIL.pack_into(buf, off + 2, address, lw, irq | self._irq)
+            _WKC.pack_into(buf, wkc_off, (_WKC.unpack_from(buf, wkc_off)[0] + add) & 0xFFFF)
+        if self.advance_clock and isinstance(clock, VirtualClock):
+            walk = self._route
+            if walk is None or self.topology_dirty:
+                walk = self.route
+            clock.advance((max(len(buf), 60) + FCS_SIZE) * self.mac_wire_ns + walk.delay_ns)
         if destroy or not route.returned:
             self.frames_lost += 1
             return None
@@ -1254,6 +1297,15 @@ class Segment:
             plan.block = mem[: len(rows), lo:hi]
             if n in _WIDE:
                 plan.column = plan.block.view(_WIDE[n])[:, 0]
+            if (n in _WORD_FORMAT and lo % n == 0 and len(rows) <= self._brd_py_max and not plan.slow
+                    and not plan.systime and sys.byteorder == "little"):
+                # Row stride is a multiple of every word size, so slot lo // n of
+                # row k is element k * (stride // n) + lo // n of the flat words.
+                step = SLAVE_STRIDE // n
+                words = self.memory.flat.data.cast(_WORD_FORMAT[n])
+                plan.words = words[lo // n: lo // n + len(rows) * step: step]
+                plan.fmt = _LE_STRUCT[n]
+                plan.wkc = len(rows)
         clear = 0
         if lo < R.DL_STATUS + 2 and hi > R.DL_STATUS:
             clear |= _EV_DL_STATUS

@@ -1,0 +1,100 @@
+"""The frame fast paths of Segment.process answer exactly as the general path.
+
+A segment with the fast paths switched off (``_brd_py_max = 0``: every BRD
+goes through the numpy plan) is the reference; the same frames go to both
+and the replies and the memories must be identical byte for byte.
+"""
+
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from simhelp import line, one, spec
+
+from pyethercat.sim.clock import VirtualClock
+from pyethercat.sim.segment import Segment
+from pyethercat.wire import registers as R
+from pyethercat.wire.datagram import Command, Datagram
+from pyethercat.wire.frame import encode_frame
+
+
+def _pair(profiles: list[str]) -> tuple[Segment, Segment]:
+    segs = []
+    for fast in (True, False):
+        seg = Segment(VirtualClock(1_000_000))
+        if not fast:
+            seg._brd_py_max = 0
+        for i, prof in enumerate(profiles):
+            seg.add_slave(spec(f"s{i}", prof))
+        segs.append(seg)
+    return segs[0], segs[1]
+
+
+_REGION = st.sampled_from([R.TYPE, R.STATION_ADDRESS, R.DL_STATUS, R.AL_STATUS, R.AL_STATUS_CODE,
+                           R.ECAT_EVENT_REQUEST, R.FMMU_BASE + 0x30, R.SM_BASE + 0x40, R.DC_SYSTEM_TIME,
+                           R.DC_RECEIVE_TIME_PORT0, R.USER_RAM, 0x0F80, 0xFFF8])
+
+_OP = st.one_of(
+    st.tuples(st.just("raw"), st.integers(0, 5), _REGION, st.integers(0, 7), st.binary(min_size=1, max_size=8)),
+    st.tuples(st.just("brd"), _REGION, st.integers(-1, 9), st.integers(1, 8), st.binary(max_size=8)),
+    st.tuples(st.just("al"), st.sampled_from([1, 2, 3, 4, 0x11])),
+    st.tuples(st.just("mask"), st.integers(0, 0xFFFF)),
+)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.sampled_from(["ET1100", "ET1200", "LAN9252"]), min_size=1, max_size=6),
+       st.lists(_OP, min_size=1, max_size=25))
+def test_brd_fast_path_matches_general_path(profiles: list[str], ops: list[tuple]) -> None:
+    fast, ref = _pair(profiles)
+    for op in ops:
+        frames: list[bytes] = []
+        if op[0] == "raw":
+            _, slave, base, delta, data = op
+            for seg in (fast, ref):
+                if slave < len(seg.slaves):
+                    address = min(base + delta, 0x10000 - len(data))
+                    seg.slaves[slave].write(address, data)
+            continue
+        if op[0] == "brd":
+            _, base, delta, n, incoming = op
+            ado = max(0, min(base + delta, 0xFFFF))
+            payload = (incoming + bytes(n))[:n]
+            frames.append(encode_frame([Datagram.device(Command.BRD, 0x20, ado, payload)]))
+            # Two BRDs in one frame, the second after a NOP (plan cached by the first).
+            frames.append(encode_frame([Datagram.device(Command.BRD, 0, ado, n),
+                                        Datagram.device(Command.NOP, 0, 0, 1),
+                                        Datagram.device(Command.BRD, 0, ado, payload)]))
+        elif op[0] == "al":
+            frames.append(encode_frame([Datagram.device(Command.BWR, 0, R.AL_CONTROL, struct.pack("<H", op[1]))]))
+        else:
+            frames.append(encode_frame([Datagram.device(Command.BWR, 0, R.ECAT_EVENT_MASK,
+                                                        struct.pack("<H", op[1]))]))
+        for frame in frames:
+            assert fast.process(frame) == ref.process(frame)
+    assert np.array_equal(fast.memory.mem[: len(profiles)], ref.memory.mem[: len(profiles)])
+
+
+def test_brd_fast_path_reads_current_memory_and_ors_incoming_data() -> None:
+    seg = line(4)
+    for _ in range(3):  # the plan is cached after the first frame
+        seg.slaves[1].write(R.USER_RAM, b"\x01\x00\x00\x10")
+        seg.slaves[3].write(R.USER_RAM, b"\x00\x02\x00\x00")
+        d = one(seg, Datagram.device(Command.BRD, 0x0005, R.USER_RAM, b"\x00\x00\x40\x00"))
+        assert d.data == b"\x01\x02\x40\x10" and d.wkc == 4 and d.adp == 0x0009
+    seg.slaves[1].write(R.USER_RAM, b"\x00\x00\x00\x00")
+    assert one(seg, Datagram.device(Command.BRD, 0, R.USER_RAM, 4)).data == b"\x00\x02\x00\x00"
+
+
+def test_brd_of_al_status_clears_the_event_every_time_it_is_raised() -> None:
+    seg = line(3)
+    one(seg, Datagram.device(Command.BWR, 0, R.ECAT_EVENT_MASK, struct.pack("<H", R.EcatEvent.AL_STATUS)))
+    for state in (2, 1, 2, 1):
+        one(seg, Datagram.device(Command.BWR, 0, R.AL_CONTROL, struct.pack("<H", state)))
+        assert one(seg, Datagram.device(Command.NOP, 0, 0, 1)).irq & R.EcatEvent.AL_STATUS
+        d = one(seg, Datagram.device(Command.BRD, 0, R.AL_STATUS, 2))
+        assert d.data == struct.pack("<H", state) and d.wkc == 3
+        assert one(seg, Datagram.device(Command.NOP, 0, 0, 1)).irq == 0
