@@ -106,6 +106,10 @@ class MiniCoe(DeviceApp):
         #: Mangles a reply payload before it is posted (protocol-violation tests).
         self.mangle: Callable[[CoeMessage], CoeMessage] | None = None
         self.requests: list[CoeMessage] = []
+        #: Frames a reply waits before the slave posts it (a slow slave; needs ``tick()``).
+        self.late = 0
+        self._held: deque[tuple[int, bytes, int]] = deque()
+        self._frames = 0
         self.downloads: list[tuple[int, int, bytes]] = []
         self._out: deque[bytes] = deque()
         self._counter = 0
@@ -116,6 +120,19 @@ class MiniCoe(DeviceApp):
     # -- outgoing ----------------------------------------------------------------------
 
     def post(self, payload: bytes, mtype: int = MailboxType.COE) -> None:
+        if self.late:
+            self._held.append((self._frames + self.late, payload, mtype))
+            return
+        self._post(payload, mtype)
+
+    def tick(self) -> None:
+        """One frame went by (the segment's responder calls this): post late replies due."""
+        self._frames += 1
+        while self._held and self._held[0][0] <= self._frames:
+            _due, payload, mtype = self._held.popleft()
+            self._post(payload, mtype)
+
+    def _post(self, payload: bytes, mtype: int) -> None:
         self._counter = next_counter(self._counter)
         self._out.append(encode_mailbox(mtype, payload, counter=self._counter))
         self._flush()
@@ -271,10 +288,14 @@ class DropFilter:
         self.drop_when: Callable[[bytes], bool] | None = None
         self.dropped = 0
         self.frames: list[bytes] = []
+        #: Called after every frame (MiniCoe.tick of every slave).
+        self.ticks: list[Callable[[], None]] = []
 
     def __call__(self, frame: bytes) -> bytes | None:
         reply = self.process(frame)
         self.frames.append(frame)
+        for tick in self.ticks:
+            tick()
         if reply is not None and self.drop_when is not None and self.drop_when(reply):
             self.drop_when = None
             self.dropped += 1
@@ -293,5 +314,6 @@ def coe_segment(count: int = 1, mailbox_size: int = 128,
         made.append(app)
         seg.add_slave(SlaveSpec(f"coe{i}", coe_sii(mailbox_size), PROFILES[AI2.profile], app))
     drop = DropFilter(seg.process)
+    drop.ticks = [a.tick for a in made]
     link = PairLink.responder_link(drop)
     return seg, made, drop, link

@@ -20,6 +20,7 @@ from pyethercat.master.config import (
 from pyethercat.wire import registers as reg
 from pyethercat.wire.datagram import MAX_DATA, Command
 from pyethercat.wire.sii import parse_sii
+from pyethercat.wire.sii.model import FmmuUsage, SiiFmmus
 
 
 def specs(*siis, features=0):
@@ -90,10 +91,48 @@ def test_sync_manager_register_values():
     assert sm2.encode() == struct.pack("<HHBBBB", 0x1100, 2, 0x64, 0, 1, 0)
     assert [a for a, _ in sc.mailbox_writes()] == [0x0800, 0x0808]
     writes = sc.process_data_writes()
-    assert [a for a, _ in writes] == [0x0810, 0x0818, 0x0600, 0x0610]
+    # FMMU 2 maps the SM1 status byte (0x080D) after the inputs (mailbox polling)
+    assert [a for a, _ in writes] == [0x0810, 0x0818, 0x0600, 0x0610, 0x0620]
     fmmu_in = dict(writes)[0x0610]
     assert fmmu_in == struct.pack("<IHBBHBBB3x", 0x10002, 3, 0, 7, 0x1180, 0, 1, 1)
+    assert dict(writes)[0x0620] == struct.pack("<IHBBHBBB3x", 0x10005, 1, 0, 7, 0x080D, 0, 1, 1)
     assert (sc.output_bits, sc.input_bits) == (16, 17)
+    assert sc.mailbox_status_offset == 5
+    g = cfg.groups[0]
+    assert (g.output_bytes, g.input_bytes, g.status_bytes, g.size) == (2, 3, 1, 6)
+    # LRW: 2 for the write FMMU, 1 for the reads (inputs and status of one slave)
+    assert [(d.command, d.length, d.expected_wkc, d.copy_start, d.copy_end)
+            for d in g.datagrams] == [(Command.LRW, 6, 3, 2, 6)]
+    plain = configure([SlaveSpec(0, 0x1001, sii)], mailbox_status=False)
+    assert plain.groups[0].size == 5 and plain.slaves[0].mailbox_status_offset == -1
+
+
+def test_mailbox_status_bytes_follow_the_inputs():
+    mbx_io = io_sii("mbx", outputs=[("Out", 8, UINT16)], inputs=[("In", 8, INT16)], mailbox=True)
+    only_mbx = io_sii("mbx-only", mailbox=True)
+    sl = [SlaveSpec(0, 0x1001, di(2)), SlaveSpec(1, 0x1002, mbx_io),
+          SlaveSpec(2, 0x1003, only_mbx), SlaveSpec(3, 0x1004, mbx_io, fmmu_count=2)]
+    cfg = configure(sl)
+    g = cfg.groups[0]
+    # outputs: 2 x 1 byte; inputs: di2 bits + 2 x 1 byte; then 2 status bytes
+    assert (g.output_bytes, g.input_bytes, g.status_bytes) == (2, 3, 2)
+    assert [cfg.slaves[p].mailbox_status_offset for p in range(4)] == [-1, 5, 6, -1]
+    # the SII's "SyncM status" FMMU (index 2) reads 0x080D; a slave without process
+    # data uses it too; the slave with only two FMMUs is polled with frames
+    st = [f for f in cfg.slaves[2].fmmus if f.physical_start == 0x080D]
+    assert [(f.index, f.logical_start, f.length, f.fmmu_type) for f in st] == [
+        (2, 0x10006, 1, reg.FmmuType.READ)]
+    assert any("mailbox status" in w for w in cfg.slaves[3].warnings)
+    # WKC: writes 2 x 2, reads: di2, slave 1 (inputs + status), slave 2, slave 3
+    assert [(d.length, d.expected_wkc) for d in g.datagrams] == [(7, 4 + 4)]
+    # a slave whose SII reserves no FMMU for it takes a free one; LRD covers the status
+    sii = io_sii("x", inputs=[("In", 8, INT16)], mailbox=True)
+    sii.categories = [SiiFmmus([FmmuUsage.INPUTS]) if isinstance(c, SiiFmmus) else c
+                      for c in sii.categories]
+    one = configure([SlaveSpec(0, 0x1001, sii, features=reg.Feature.LRW_NOT_SUPPORTED)])
+    assert [(f.index, f.physical_start) for f in one.slaves[0].fmmus] == [(0, 0x1180), (1, 0x080D)]
+    d = one.groups[0].datagrams
+    assert [(x.command, x.offset, x.length, x.expected_wkc) for x in d] == [(Command.LRD, 0, 2, 1)]
 
 
 def test_no_lrw_slave_switches_group_to_lwr_lrd():

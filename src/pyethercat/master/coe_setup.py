@@ -8,6 +8,9 @@ mailbox layer needs across slaves:
   :class:`~pyethercat.master.coe.CoeClient`); all mailboxes share one
   :class:`~pyethercat.master.mailbox.MailboxPoller`, so concurrent
   transactions poll in shared frames;
+- while cyclic exchange runs, each mailbox takes its SM1 status from the
+  byte the cyclic frame reads into the group image (:class:`CyclicMailboxStatus`,
+  the FMMU ``master.config`` maps): no poll frames;
 - emergencies of every slave also land in ``master.emergencies`` and the
   callbacks given to :meth:`CoeMasterMixin.on_emergency`;
 - start-up commands (:meth:`CoeMasterMixin.add_startup_command`) run at their
@@ -27,6 +30,7 @@ import contextlib
 import logging
 import queue
 import threading
+import time
 from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
@@ -51,9 +55,10 @@ from pyethercat.wire.sii.model import CoeDetails, MailboxProtocol, SiiInfo, Sync
 
 if TYPE_CHECKING:
     from pyethercat.master.config import ProcessDataConfig
+    from pyethercat.master.cyclic import CyclicRunner, GroupRuntime
     from pyethercat.master.scheduler import Scheduler
 
-__all__ = ["CoeMasterMixin", "PdoSpec", "pdo_names_from_sii"]
+__all__ = ["CoeMasterMixin", "CyclicMailboxStatus", "PdoSpec", "pdo_names_from_sii"]
 
 _log = logging.getLogger("pyethercat.coe")
 
@@ -102,6 +107,60 @@ def process_data_sms(sii: SiiInfo | None) -> dict[int, Direction]:
     return out or {2: Direction.OUTPUTS, 3: Direction.INPUTS}
 
 
+class CyclicMailboxStatus:
+    """``Mailbox.status_source`` of one slave: its SM1 status byte in the running cycle's image.
+
+    The group's cyclic frame reads SM1's status register (0x080D) into the
+    image through the FMMU ``master.config`` maps. A call waits until two
+    more exchanges of the slave's group came back (so the second one began
+    after the call: the byte is newer than the caller's last SM1 read) and
+    returns the byte. None when no cyclic exchange runs, the slave has no
+    status byte, nothing came within ``budget`` or the group's working
+    counter was off (the mailbox then polls with a frame).
+    """
+
+    def __init__(self, master: CoeMasterMixin, position: int) -> None:
+        self._master = master
+        self.position = position
+        self._where: tuple[CyclicRunner, GroupRuntime, int] | None = None
+
+    def _locate(self) -> tuple[CyclicRunner, GroupRuntime, int] | None:
+        runner = self._master.runner
+        if runner is None or not runner.running:
+            return None
+        where = self._where
+        if where is not None and where[0] is runner:
+            return where
+        sc = runner.config.slaves.get(self.position)
+        if sc is None or sc.mailbox_status_offset < 0:
+            return None
+        group = next((g for g in runner.groups if g.name == sc.group), None)
+        if group is None:
+            return None
+        self._where = (runner, group, sc.mailbox_status_offset)
+        return self._where
+
+    def __call__(self, budget: float) -> int | None:
+        where = self._locate()
+        if where is None:
+            return None
+        runner, group, at = where
+        if threading.current_thread() is runner._thread:
+            return None  # (a callback in the cycle thread would wait for itself)
+        if budget > 0:
+            want = group.exchanges + 2
+            limit = time.monotonic() + budget
+            # The loop notifies this condition after every cycle (CyclicRunner.cycles too).
+            cond = runner._cond
+            with cond:
+                while group.exchanges < want:
+                    left = limit - time.monotonic()
+                    if left <= 0 or not runner.running:
+                        return None
+                    cond.wait(min(left, 0.05))
+        return group.image.buffer[at] if group.wkc_ok else None
+
+
 class CoeMasterMixin:
     """Mailbox and CoE methods of the master (see the module text)."""
 
@@ -109,6 +168,7 @@ class CoeMasterMixin:
     slaves: list[Slave]
     deterministic: bool
     process_data: ProcessDataConfig | None = None
+    runner: CyclicRunner | None = None
     _lock: threading.RLock
     #: Read PDO mappings over CoE (instead of the SII) for slaves that speak CoE.
     coe_pdo_config: bool = True
@@ -157,6 +217,7 @@ class CoeMasterMixin:
                           tx_offset=info.tx_offset, tx_size=info.tx_size, poller=st["poller"],
                           timeout=self.mailbox_timeout, deterministic=self.deterministic,
                           sleep=sleep)
+            box.status_source = CyclicMailboxStatus(self, s.position)
             s.mbx = box
             client = CoeClient(box, position=s.position)
             client.on_emergency(self._emergency)

@@ -30,14 +30,17 @@ Layout decisions (documented in docs/master.md):
   range plus +1 per slave with a read FMMU in range for LRW; +1 per slave for
   LWR and LRD (facts 2.2).
 
-Hooks left for later issues:
-
+- Mailbox status (``mailbox_status=True``, the default, as SOEM does): every
+  slave of a group with a send mailbox (SM1) gets one byte after the group's
+  inputs, filled by a read FMMU on its SM1 status register (0x080D; bit 3 =
+  mailbox full), so the cyclic frame tells the master when a mailbox reply
+  is waiting and no poll frames are needed while cyclic exchange runs. The
+  FMMU the SII reserves for "SyncM status" is used when it declares one,
+  else a free one; a slave with no FMMU left is polled with frames (warning).
+  The image is then ``[outputs][inputs][mailbox status]``; the read FMMUs
+  count in the expected working counter like any other.
 - CoE PDO mapping: set ``SlaveSpec.pdo_mapping`` (sync manager index ->
   PDOs), e.g. read from 0x1C12/0x1C13; it replaces the SII PDOs.
-- Mailbox-status polling (SM1 status 0x080D mapped by a read FMMU into the
-  cyclic frame): FMMUs that the SII reserves for "SyncM status" are never
-  used for process data, and ``GroupConfig`` keeps its inputs area last so a
-  status area can be appended after it.
 """
 
 from __future__ import annotations
@@ -313,6 +316,8 @@ class SlaveConfig:
     output_bit_offset: int = -1
     input_bit_offset: int = -1
     warnings: list[str] = field(default_factory=list)
+    #: Byte of the group image holding the slave's SM1 status (-1: not mapped).
+    mailbox_status_offset: int = -1
 
     @property
     def output_bytes(self) -> int:
@@ -378,10 +383,17 @@ class GroupConfig:
     datagrams: list[CyclicDatagram]
     uses_lrw: bool
     cycle: float | None = None
+    #: Mailbox status bytes after the inputs (one per slave whose SM1 status is mapped).
+    status_bytes: int = 0
 
     @property
     def size(self) -> int:
-        """Bytes of the image (outputs then inputs)."""
+        """Bytes of the image (outputs, inputs, mailbox status bytes)."""
+        return self.output_bytes + self.input_bytes + self.status_bytes
+
+    @property
+    def status_offset(self) -> int:
+        """Offset of the mailbox status bytes inside the image."""
         return self.output_bytes + self.input_bytes
 
     @property
@@ -547,6 +559,36 @@ class _FmmuAllocator:
         raise ConfigError(f"slave {self.spec.position}: not enough FMMUs for its "
                           f"{direction.value} ({count} available)")
 
+    def take_status(self) -> int | None:
+        """An FMMU for the mailbox status byte: the SII's "SyncM status" one, else a free one.
+
+        None when every FMMU is taken (the mailbox is then polled with frames).
+        """
+        count = self.spec.fmmu_count
+        for n, usage in enumerate(self.usages):
+            if usage == FmmuUsage.MAILBOX_STATE and n not in self.used and n < count:
+                self.used.add(n)
+                return n
+        # Free ones the SII does not reserve first, then reserved but unused ones
+        # (the hardware FMMUs are all alike).
+        for reserved_ok in (False, True):
+            for n in range(count):
+                usage = self.usages[n] if n < len(self.usages) else FmmuUsage.UNUSED
+                if n in self.used or (usage in (FmmuUsage.OUTPUTS, FmmuUsage.INPUTS)
+                                      and not reserved_ok):
+                    continue
+                self.used.add(n)
+                return n
+        return None
+
+
+def _mailbox_in(sms: Sequence[SyncManagerConfig]) -> SyncManagerConfig | None:
+    """The slave's send mailbox sync manager (SM1), if it has one."""
+    for sm in sms:
+        if sm.sm_type == SyncManagerType.MAILBOX_IN and sm.length:
+            return sm
+    return None
+
 
 def _variables(spec: SlaveSpec, block: _Block) -> list[PdoVariable]:
     out: list[PdoVariable] = []
@@ -652,13 +694,16 @@ def _datagrams(base: int, out_bytes: int, in_bytes: int, lrw: bool,
 
 
 def configure(slaves: Sequence[SlaveSpec], groups: Sequence[GroupSpec] | None = None,
-              max_datagram: int = MAX_DATA) -> ProcessDataConfig:
+              max_datagram: int = MAX_DATA, *, mailbox_status: bool = True,
+              ) -> ProcessDataConfig:
     """Compute sync managers, FMMUs, group layouts and cyclic datagrams.
 
     ``groups`` default to one group ``"main"`` holding every slave. Slaves
     not claimed by any group with an explicit list go to the first group with
     ``slaves=None``; a slave claimed twice or by nobody raises
     :class:`ConfigError` (a slave with no process data may stay out).
+    ``mailbox_status`` maps each group member's SM1 status byte after the
+    group's inputs (see the module text).
     """
     if max_datagram < 1 or max_datagram > MAX_DATA:
         raise ConfigError(f"max_datagram must be 1..{MAX_DATA}, got {max_datagram}")
@@ -720,11 +765,27 @@ def configure(slaves: Sequence[SlaveSpec], groups: Sequence[GroupSpec] | None = 
         all_fmmus: list[tuple[int, FmmuConfig]] = []
         gslaves: list[SlaveConfig] = []
         lrw = True
+        status_at = out_bytes + in_bytes
         for p in positions:
             spec = by_pos[p]
             sms, ob, ib, warnings = per_slave[p]
             alloc = _FmmuAllocator(spec)
             fmmus = [_fmmu(alloc.take(b.direction), base, b) for b in ob + ib]
+            status_offset = -1
+            mbx_in = _mailbox_in(sms) if mailbox_status else None
+            if mbx_in is not None:
+                n = alloc.take_status()
+                if n is None:
+                    warnings.append(f"slave {p}: no FMMU left for the mailbox status; its "
+                                    "mailbox is polled with frames")
+                else:
+                    status_offset = status_at
+                    status_at += 1
+                    fmmus.append(FmmuConfig(n, base + status_offset, 1, 0, 7,
+                                            mbx_in.address + reg.SM_STATUS, 0,
+                                            reg.FmmuType.READ))
+                    if not spec.supports_lrw:
+                        lrw = False
             fmmus.sort(key=lambda f: f.index)
             all_fmmus += [(p, f) for f in fmmus]
             variables = [v for b in ob + ib for v in _variables(spec, b)]
@@ -734,12 +795,15 @@ def configure(slaves: Sequence[SlaveSpec], groups: Sequence[GroupSpec] | None = 
                 p, spec.station_address, spec.name or spec.sii.device_name or f"slave {p}",
                 g.name, sms, fmmus, variables,
                 sum(b.bits for b in ob), sum(b.bits for b in ib), spec.supports_lrw,
-                ob[0].bit_offset if ob else -1, ib[0].bit_offset if ib else -1, warnings)
+                ob[0].bit_offset if ob else -1, ib[0].bit_offset if ib else -1, warnings,
+                status_offset)
             slave_configs[p] = sc
             gslaves.append(sc)
-        dgrams = _datagrams(base, out_bytes, in_bytes, lrw, out_blocks + in_blocks, all_fmmus,
-                            max_datagram)
-        gc = GroupConfig(g.name, base, layout, out_bytes, in_bytes, gslaves, dgrams, lrw, g.cycle)
+        status_bytes = status_at - out_bytes - in_bytes
+        dgrams = _datagrams(base, out_bytes, in_bytes + status_bytes, lrw, out_blocks + in_blocks,
+                            all_fmmus, max_datagram)
+        gc = GroupConfig(g.name, base, layout, out_bytes, in_bytes, gslaves, dgrams, lrw, g.cycle,
+                         status_bytes)
         for other in group_configs:
             if gc.size and other.size and gc.logical_base < other.logical_end \
                     and other.logical_base < gc.logical_end:

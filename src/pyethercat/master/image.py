@@ -260,10 +260,10 @@ class ProcessImage:
     def __init__(self, group: GroupConfig) -> None:
         self.group = group
         self.name = group.name
-        #: The whole image: ``[outputs][inputs]``; datagram data are slices of it.
+        #: The whole image: ``[outputs][inputs][mailbox status]``; datagram data are slices of it.
         self.buffer = bytearray(group.size)
         self.outputs = memoryview(self.buffer)[:group.output_bytes]
-        self.inputs = memoryview(self.buffer)[group.output_bytes:]
+        self.inputs = memoryview(self.buffer)[group.output_bytes:group.status_offset]
         self._slave_io: dict[int, tuple[SlaveIO, SlaveIO]] = {}
         for sc in group.slaves:
             outs = [Variable(v, self.buffer) for v in sc.variables if v.direction is Direction.OUTPUTS]
@@ -311,6 +311,13 @@ class ProcessImage:
         if offset < 0:
             return b""
         return bytes(self.buffer[offset // 8:(offset + bits + 7) // 8])
+
+    def mailbox_status(self, position: int) -> int | None:
+        """SM1 status byte of slave ``position`` as the last cycle read it (None: not mapped)."""
+        sc = next((s for s in self.group.slaves if s.position == position), None)
+        if sc is None or sc.mailbox_status_offset < 0:
+            return None
+        return self.buffer[sc.mailbox_status_offset]
 
     def clear_outputs(self) -> None:
         self.buffer[:self.group.output_bytes] = bytes(self.group.output_bytes)

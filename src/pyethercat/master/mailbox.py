@@ -15,9 +15,11 @@ One :class:`Mailbox` per slave carries mailbox messages of any protocol
   "mailbox full") is polled. Without cyclic exchange the polls of all waiting
   mailboxes are batched: one frame reads the status of every slave that has
   a transaction in progress (:class:`MailboxPoller`). When cyclic exchange
-  runs and the status byte is mapped into the cyclic frame by a read FMMU,
-  ``Mailbox.status_source`` reads it from the process image instead: no
-  extra frames at all.
+  runs and the status byte is mapped into the cyclic frame by a read FMMU
+  (``master.config`` does it for every mailbox slave of a group),
+  ``Mailbox.status_source`` takes it from the process image instead: the
+  mailbox waits for a cycle that began after its last SM1 read and looks at
+  the byte; no poll frames at all.
 - **Fetch**: FPRD of the whole SM1; reading the last byte empties it.
 - **Repeat request** (facts 6.6): when a fetch may have emptied SM1 but its
   reply frame was lost (the scheduler had to send the read again and the
@@ -74,6 +76,7 @@ __all__ = [
     "MailboxMessage",
     "MailboxPoller",
     "MailboxStats",
+    "StatusSource",
     "UnsolicitedHandler",
     "Accept",
 ]
@@ -104,6 +107,10 @@ class MailboxMessage:
 UnsolicitedHandler = Callable[["Mailbox", MailboxMessage], bool]
 #: Decides whether a message answers the transaction in progress.
 Accept = Callable[[MailboxMessage], bool]
+#: SM1 status byte from the cyclic image, read by a cycle that began after the call,
+#: waiting up to the given seconds (0: the last one read, no waiting). None: no cyclic
+#: exchange carries it now (or not in time, or its working counter was off): poll.
+StatusSource = Callable[[float], int | None]
 
 
 @dataclass
@@ -115,6 +122,8 @@ class MailboxStats:
     #: SM0 writes refused because the slave had not read the previous message yet.
     write_refused: int = 0
     status_polls: int = 0
+    #: Status bytes taken from the cyclic process image instead of a poll frame.
+    cyclic_status: int = 0
     fetches: int = 0
     #: Speculative SM1 reads that found the answer already there.
     early_replies: int = 0
@@ -228,10 +237,8 @@ class Mailbox:
         self._lost = False
         # Whether SM1 was emptied of what an earlier session left there.
         self._drained = False
-        #: Reads SM1's status byte from the cyclic process image (None: poll with frames).
-        self.status_source: Callable[[], int | None] | None = None
-        #: Waits up to the given seconds for the next cycle (with ``status_source``).
-        self.status_wait: Callable[[float], None] | None = None
+        #: SM1's status byte from the cyclic process image (None: poll with frames).
+        self.status_source: StatusSource | None = None
         self.stats = MailboxStats()
 
     # -- addresses -------------------------------------------------------------------
@@ -368,14 +375,14 @@ class Mailbox:
             now = self.clock()
             if now >= limit:
                 raise EcTimeoutError(f"{self.label}: no {what} within {span:.3g} s")
-            status = self._status(limit - now)
+            status, cyclic = self._status(limit - now)
             if status is not None and status & reg.SM_STATUS_MAILBOX_FULL:
                 if not self.fetch() and not self._lost:
                     # Full a moment ago, empty now: somebody's read got it and lost it.
                     self._lost = True
                 waited = 0.0
                 continue
-            if self.status_source is None:
+            if not cyclic:  # (waiting for the cycle was the pause)
                 waited = self._pause(waited)
 
     def transact(self, mtype: MailboxType | int, payload: bytes, accept: Accept | None = None,
@@ -398,7 +405,7 @@ class Mailbox:
 
     def poll(self) -> bool:
         """Fetch whatever the slave posted, without waiting; True when something came."""
-        status = self._status(0.0)
+        status, _cyclic = self._status(0.0)
         if status is not None and status & reg.SM_STATUS_MAILBOX_FULL:
             return self.fetch()
         return False
@@ -470,18 +477,16 @@ class Mailbox:
             self._sleep(pause)
         return waited + max(pause, 0.0001)
 
-    def _status(self, budget: float) -> int | None:
+    def _status(self, budget: float) -> tuple[int | None, bool]:
+        """SM1 status read after this call (cyclic image or a poll frame); whether cyclic."""
         source = self.status_source
         if source is not None:
-            status = source()
-            if status is not None and status & reg.SM_STATUS_MAILBOX_FULL:
-                return status
-            if self.status_wait is not None and budget > 0:
-                self.status_wait(budget)
-                return source()
-            return status
+            status = source(budget)
+            if status is not None:
+                self.stats.cyclic_status += 1
+                return status, True
         self.stats.status_polls += 1
-        return self.poller.status(self)
+        return self.poller.status(self), False
 
     def _take_read(self, req: Request, early: bool = False) -> bool:
         """Handle a finished SM1 read: deliver the message or note a possible loss."""

@@ -1,0 +1,132 @@
+"""Mailbox status from the cyclic frame: SM1 status (0x080D) mapped by a read FMMU.
+
+While cyclic exchange runs, a mailbox transaction waits for the status byte
+the cyclic frame reads into the group image and sends no poll frames of its
+own (FPRD 0x080D). Against the simulator's ESC (real FMMU reads of the SM1
+status register) over the in-process pair link, wall clock, 1 ms cycles.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from pathlib import Path
+
+from mini_coe import coe_segment
+
+from pyethercat.link.pair import PairLink
+from pyethercat.master.master import Master
+from pyethercat.wire import registers as reg
+from pyethercat.wire.al import AlState
+from pyethercat.wire.datagram import Command
+from pyethercat.wire.frame import decode_frame
+
+STATUS = reg.sm_address(1) + reg.SM_STATUS
+PATTERN = bytes(range(256)) * 16
+
+
+def _datagrams(frames: list[bytes], command: Command, ado: int) -> int:
+    return sum(1 for f in frames for d in decode_frame(f).datagrams
+               if d.command == command and d.ado == ado)
+
+
+def test_sdo_with_late_replies_polls_through_the_cyclic_frame() -> None:
+    _seg, apps, drop, link = coe_segment(2)
+    m = Master(link)
+    m.coe_pdo_config = False  # MiniCoe has no 0x1C12/0x1C13: the SII layout
+    m.scan()
+    cfg = m.configure()
+    group = cfg.groups[0]
+    assert group.status_bytes == 2
+    assert [cfg.slaves[p].mailbox_status_offset for p in (0, 1)] == [
+        group.status_offset, group.status_offset + 1]
+    runner = m.start(cycle=0.001)
+    try:
+        assert all(s.al_state == AlState.OP for s in m.slaves)
+        for app in apps:
+            app.late = 3  # the reply shows up three frames after the request
+        a, b = m.slaves
+        assert a.mbx is not None and b.mbx is not None
+        before = len(drop.frames)
+        polls = a.mbx.stats.status_polls + b.mbx.stats.status_polls
+        assert a.sdo_read(0x1018, 1, "uint32") == 0x00504543
+        assert a.sdo_read(0x2001) == PATTERN  # segmented: every segment waits
+        # two slaves' transfers interleave, still without poll frames
+        got: dict[int, bytes] = {}
+        t = threading.Thread(target=lambda: got.update({1: b.sdo_read(0x2001)}))
+        t.start()
+        got[0] = a.sdo_read(0x2001)
+        t.join()
+        assert got == {0: PATTERN, 1: PATTERN}
+        a.sdo_write(0x2000, 0, 0x1234, "uint32")
+        assert a.sdo_read(0x2000, 0, "uint32") == 0x1234
+        assert runner.groups[0].wkc_ok
+        during = drop.frames[before:]
+        assert _datagrams(during, Command.FPRD, STATUS) == 0
+        assert a.mbx.stats.status_polls + b.mbx.stats.status_polls == polls
+        assert a.mbx.stats.cyclic_status > 0 and b.mbx.stats.cyclic_status > 0
+        assert a.mbx.stats.early_replies < a.mbx.stats.received  # the replies were late
+    finally:
+        runner.stop()
+    # without cyclic exchange the same transfer polls with frames again
+    before = len(drop.frames)
+    assert a.sdo_read(0x1018, 1, "uint32") == 0x00504543
+    assert _datagrams(drop.frames[before:], Command.FPRD, STATUS) > 0
+
+
+TOPOLOGY = """
+[[slave]]
+name = "io"
+device = "builtin:coe-io"
+[[slave]]
+name = "drive"
+device = "builtin:seed002-drive"
+"""
+
+
+def test_coe_io_sdos_and_emergency_while_cyclic_runs(tmp_path: Path) -> None:
+    from pyethercat.sim.coe import CoeDevice
+    from pyethercat.sim.topology import load_topology
+
+    path = tmp_path / "coe.toml"
+    path.write_text(TOPOLOGY)
+    seg = load_topology(path).build()
+    frames: list[bytes] = []
+    # Work on the simulator runs between frames (the cycle thread drives it too).
+    chores: list[Callable[[], None]] = []
+
+    def respond(frame: bytes) -> bytes | None:
+        while chores:
+            chores.pop()()
+        frames.append(frame)
+        return seg.process(frame)
+
+    m = Master(PairLink.responder_link(respond))
+    m.scan()
+    runner = m.start(cycle=0.001)
+    try:
+        io = m.slaves[0]
+        img = m.images["main"]
+        assert img.group.status_bytes == 2
+        before = len(frames)
+        assert io.sdo_read(0x2000) == bytes(i & 0xFF for i in range(4096))
+        blob = bytes((7 * i) & 0xFF for i in range(4096))
+        io.sdo_write(0x2000, 0, blob)
+        assert io.sdo_read(0x2000) == blob
+        assert io.sdo_read(0x1018, 0, complete_access=True)[2:6] == (0x00504543).to_bytes(4, "little")
+        # an emergency: the status byte in the image says "full", the poll needs no frame
+        app = seg.slaves[0].spec.app
+        assert isinstance(app, CoeDevice)
+        chores.append(lambda: app.emergency(0x8210, 0x10, b"\x01\x02\x03\x04\x05"))
+        for _ in range(200):
+            status = img.mailbox_status(0)
+            if status is not None and status & reg.SM_STATUS_MAILBOX_FULL:
+                break
+            runner.join(0.005)
+        assert m.poll_mailboxes() == 1
+        event = m.emergencies.get_nowait()
+        assert (event.position, event.error_code, event.error_register) == (0, 0x8210, 0x10)
+        assert _datagrams(frames[before:], Command.FPRD, STATUS) == 0
+        assert runner.groups[0].wkc_ok and runner.stats.wkc_errors == 0
+    finally:
+        runner.stop()
