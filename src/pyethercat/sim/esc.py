@@ -189,6 +189,13 @@ class Esc:
         self.sii_busy_until = 0
         self.sii_write_cycle_until = 0
         self.last_mailbox_in = b""
+        # Firmware side of the repeat request (facts 6.6, the order SOES uses): the
+        # mailbox the master read last, a newer one a repeat request took back out
+        # of SM1 (posted again once the repeated one is read), and whether SM1
+        # holds the repeated mailbox right now.
+        self.mailbox_backup = b""
+        self.mailbox_again = b""
+        self._repeat_posted = False
         self.inputs = bytes(initial_inputs) if initial_inputs else b""
         self.reset_sequence = 0
         #: Input SMs whose next buffer the PDI has begun but not completed.
@@ -463,6 +470,9 @@ class Esc:
         if s.mode == _SM_MODE_MAILBOX:
             if s.ecat_writes:
                 return
+            # What the master has read is what a repeat request brings back.
+            self.mailbox_backup = self.row[s.start: s.end].tobytes()
+            self._repeat_posted = False
             status &= ~(R.SM_STATUS_MAILBOX_FULL | R.SM_STATUS_WRITE_EVENT)
         status |= R.SM_STATUS_READ_EVENT
         self._set_sm_status(s.n, status)
@@ -470,6 +480,10 @@ class Esc:
             self.set_al_event(1 << (_AL_EVENT_SM_SHIFT + s.n))
         if self.u16(R.ECAT_EVENT_REQUEST) & (1 << (_ECAT_EVENT_SM_SHIFT + s.n)):
             self.clear_ecat_event(1 << (_ECAT_EVENT_SM_SHIFT + s.n))
+        if s.mode == _SM_MODE_MAILBOX and self.mailbox_again:
+            # The mailbox a repeat request withdrew goes out before anything newer.
+            again, self.mailbox_again = self.mailbox_again, b""
+            self._post_again(s.n, again)
         if s.mode == _SM_MODE_MAILBOX and self.app is not None:
             hook = getattr(self.app, "on_mailbox_read", None)
             if hook is not None:
@@ -691,12 +705,19 @@ class Esc:
             self._recheck_running_state()
 
     def _repeat_mailbox(self, n: int) -> None:
+        """Repeat request (facts 6.6): post the mailbox the master read last once more.
+
+        A newer mailbox already posted but not yet read is taken back and posted
+        again right after the repeated one has been read (SOES: disable/enable
+        SM1, mark it "again", write the backup). Without a read mailbox there is
+        nothing to repeat; SM1 keeps what it holds.
+        """
         s = self.sm(n)
-        if self.last_mailbox_in:
-            data = self.last_mailbox_in[: s.length].ljust(s.length, b"\x00")
-            self.row[s.start: s.end] = np.frombuffer(data, np.uint8)
-            self._set_sm_status(n, (s.status | R.SM_STATUS_MAILBOX_FULL | R.SM_STATUS_WRITE_EVENT)
-                                & ~R.SM_STATUS_READ_EVENT)
+        if self.mailbox_backup:
+            if s.status & R.SM_STATUS_MAILBOX_FULL and not self._repeat_posted:
+                self.mailbox_again = self.row[s.start: s.end].tobytes()
+            self._post_again(n, self.mailbox_backup)
+            self._repeat_posted = True
         repeat = s.activate & R.SM_ACTIVATE_REPEAT
         pdi = int(self.row[R.sm_address(n) + R.SM_PDI_CONTROL])
         self.row[R.sm_address(n) + R.SM_PDI_CONTROL] = (pdi & ~R.SM_PDI_REPEAT_ACK) | (
@@ -951,7 +972,14 @@ class Esc:
                     self._pdi_staging.discard(s.n)
                     self._inputs_written(s)
 
+    def _post_again(self, n: int, data: bytes) -> None:
+        """Write a repeated or withdrawn mailbox into SM ``n`` and mark it full."""
+        s = self.sm(n)
+        self.row[s.start: s.end] = np.frombuffer(data[: s.length].ljust(s.length, b"\x00"), np.uint8)
+        self._mailbox_posted(s)
+
     def _mailbox_posted(self, s: SmView) -> None:
+        self._repeat_posted = False
         self.last_mailbox_in = self.row[s.start: s.end].tobytes()
         self._set_sm_status(s.n, (s.status | R.SM_STATUS_MAILBOX_FULL | R.SM_STATUS_WRITE_EVENT)
                             & ~R.SM_STATUS_READ_EVENT)

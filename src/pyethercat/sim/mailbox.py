@@ -20,10 +20,12 @@ a mailbox error reply (type 0, facts 6.4):
 Replies go out through ``Pdi.post_mailbox`` numbered with the engine's own
 counter (1..7, then 1). When SM1 is still full they wait in a queue and are
 posted, in order, as soon as the master has read SM1 (the ESC calls
-``on_mailbox_read``). The ESC keeps the last posted mailbox and re-posts it on
-a repeat request (facts 6.6), so a reply lost on the wire is recovered
-without the engine's help; :attr:`MailboxEngine.last_reply` holds the same
-bytes for tests.
+``on_mailbox_read``). The ESC keeps the mailbox the master read last and
+re-posts it on a repeat request (facts 6.6); a newer reply already in SM1 is
+taken back and posted again after it (SOES's order), so a reply whose frame
+was lost, or which the master gave up on, comes back once and nothing is
+skipped, without the engine's help. :attr:`MailboxEngine.last_reply` is the
+last reply posted.
 
 :class:`MailboxDevice` is a :class:`~pyethercat.sim.device.DeviceApp` with an
 engine wired to the ESC events; protocol servers (``sim.coe``) register on it.
