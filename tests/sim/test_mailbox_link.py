@@ -13,9 +13,10 @@ from __future__ import annotations
 import struct
 
 import pytest
-from coehelp import MBX_IN, MBX_SIZE, CoeSlave, coe_of
+from coehelp import MBX_IN, MBX_OUT, MBX_SIZE, CoeSlave, coe_of, sm_bytes
 
 from pyethercat.wire import registers as R
+from pyethercat.wire.al import AlState
 from pyethercat.wire.mailbox.coe import (
     Emergency,
     SdoInitiateUploadRequest,
@@ -136,6 +137,28 @@ def test_soem_segmented_upload_with_a_late_sm1_read(slave: CoeSlave) -> None:
         toggle = not toggle
         rounds += 1
     assert bytes(data) == bytes(i & 0xFF for i in range(4096))
+
+
+def test_unread_reply_does_not_survive_init(slave: CoeSlave) -> None:
+    """Facts 3.13/6.5: stopping the mailbox (INIT) deactivates SM0/SM1, which drops
+    their buffer state; the next session starts with an empty SM1."""
+    slave.app.emergency(0x1000, 1)  # type: ignore[attr-defined]
+    slave.app.emergency(0x2000, 2)  # type: ignore[attr-defined]
+    assert sm1_full(slave)
+    assert slave.request_state(AlState.INIT)[0] == int(AlState.INIT)
+    # the next master writes the same SM configuration again (no change for the ESC)
+    slave.fpwr(R.sm_address(0), sm_bytes(MBX_OUT, MBX_SIZE, R.SM_CONTROL_MAILBOX_OUT))
+    slave.fpwr(R.sm_address(1), sm_bytes(MBX_IN, MBX_SIZE, R.SM_CONTROL_MAILBOX_IN))
+    assert not sm1_full(slave)
+    assert slave.request_state(AlState.PREOP)[0] == int(AlState.PREOP)
+    assert not sm1_full(slave)
+    assert slave.fetch() is None  # working counter 0: nothing left over
+    # a repeat request in the new session has no old mailbox to bring back
+    repeat_request(slave)
+    assert slave.fetch() is None
+    slave.send(SdoInitiateUploadRequest(0x1000, 0).encode(), counter=1)
+    header, msg = slave.fetch_message()
+    assert isinstance(msg, SdoInitiateUploadResponse) and header.counter == 1
 
 
 def test_sm1_disabled_by_the_master_drops_the_unread_reply(slave: CoeSlave) -> None:

@@ -337,6 +337,7 @@ class Esc:
         self.sii_busy_until = 0
         self.sii_write_cycle_until = 0
         self.pending_op = False
+        self.mailbox_backup = self.mailbox_again = b""  # the firmware restarts too
         self.reset_sequence = 0
         self._pdi_staging.clear()
         self._sii_load()
@@ -704,6 +705,22 @@ class Esc:
             self.seg.sm_dirty = True
             self._recheck_running_state()
 
+    def _stop_mailbox(self) -> None:
+        """The firmware stops the mailbox on entering INIT.
+
+        SOES deactivates SM0/SM1 through PDI control there (facts 3.13), which
+        drops their buffer state: a request or reply left unread does not
+        survive into the next session, even when the master then writes the
+        same SM configuration again. Modelled as the deactivation's effect; the
+        SMs stay enabled to the master (the firmware re-enables them when the
+        mailbox starts, before the INIT -> PREOP checks).
+        """
+        for n in range(min(2, self.profile.sm_count)):
+            if self.sm(n).mode == _SM_MODE_MAILBOX:
+                self._set_sm_status(n, 0)
+        self.mailbox_backup = self.mailbox_again = b""
+        self._repeat_posted = False
+
     def _repeat_mailbox(self, n: int) -> None:
         """Repeat request (facts 6.6): post the mailbox the master read last once more.
 
@@ -767,6 +784,8 @@ class Esc:
         self.seg.state_changed(self.index, old, new)
         if new in (AlState.INIT, AlState.PREOP, AlState.BOOT):
             self.pending_op = False
+        if new == AlState.INIT and not self.device_emulation:
+            self._stop_mailbox()
         if self.app is not None:
             self.app.on_state_change(old, new)
 
