@@ -6,24 +6,46 @@ STAMP := $(VENV)/.installed
 
 .PHONY: venv test demo lint typecheck bench clean tools
 
+# A .venv without a working pip (a half-made one, e.g. after ensurepip was missing)
+# is made again. On Debian/Ubuntu the venv module is a separate package: installed
+# with apt-get when we are root.
 $(STAMP): pyproject.toml
-	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	@$(PYTHON) -c 'import sys; sys.exit(sys.version_info < (3, 11))' || { \
+	  echo "pyethercat needs Python 3.11 or newer; $(PYTHON) is $$($(PYTHON) --version 2>&1)." \
+	       "Try: make PYTHON=python3.11 $(MAKECMDGOALS)"; exit 1; }
+	@if ! $(PY) -m pip --version >/dev/null 2>&1; then \
+	  rm -rf $(VENV); \
+	  if ! $(PYTHON) -m venv $(VENV); then \
+	    rm -rf $(VENV); \
+	    pkg=$$($(PYTHON) -c 'import sys; print("python3.%d-venv" % sys.version_info[1])'); \
+	    if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	      echo "installing $$pkg with apt-get"; \
+	      apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$pkg >/dev/null \
+	        && $(PYTHON) -m venv $(VENV) || exit 1; \
+	    else echo "cannot create $(VENV): install the venv module (e.g. apt-get install $$pkg)"; exit 1; fi; \
+	  fi; \
+	fi
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -e '.[test]'
 	touch $(STAMP)
 
 venv: $(STAMP)
 
-# tshark dissects our captures in the interop tests; install it when we can.
+# Outside tools some tests use: tshark (interop), xmllint (ESI corpus), ip (veth
+# pairs). Installed with apt-get when missing and we are root; otherwise (or when
+# apt-get fails) the tests that need them skip with a reason, and fail under CI=true.
 tools:
-	@if ! command -v tshark >/dev/null 2>&1; then \
+	@missing=""; \
+	command -v tshark >/dev/null 2>&1 || missing="$$missing tshark"; \
+	command -v xmllint >/dev/null 2>&1 || missing="$$missing libxml2-utils"; \
+	command -v ip >/dev/null 2>&1 || missing="$$missing iproute2"; \
+	if [ -n "$$missing" ]; then \
 	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
-	    echo "installing tshark and libxml2-utils with apt-get"; \
-	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq tshark libxml2-utils iproute2 >/dev/null; \
-	  else echo "tshark missing and not root: tshark tests will skip"; fi; \
+	    echo "installing$$missing with apt-get"; \
+	    { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing >/dev/null; } \
+	      || echo "apt-get failed: the tests that need$$missing will skip (fail under CI=true)"; \
+	  else echo "missing:$$missing (not root or no apt-get): the tests that need them will skip"; fi; \
 	fi
-	@if ! command -v xmllint >/dev/null 2>&1 && [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
-	  DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libxml2-utils >/dev/null; fi
 
 test: $(STAMP) tools
 	$(PY) -m pytest -q
