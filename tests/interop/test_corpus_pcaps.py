@@ -38,6 +38,8 @@ def test_corpus_capture_matches_tshark(name: str, corpus_dir: Path, tshark: str)
     # tshark's "ecat" filter also matches frames without datagrams (mailbox gateway,
     # unknown frame types): those have no ecat.cmd and no line from us.
     tshark_frames = {n for n, row in rows.items() if row["ecat.cmd"]}
+    # Every corpus capture holds datagrams: two empty sets would prove nothing.
+    assert tshark_frames, f"tshark found no EtherCAT datagrams in {name}"
     assert set(by_frame) == tshark_frames
     for number in tshark_frames:
         expected = {k: rows[number][k] for k in _COMPARED}
