@@ -16,6 +16,9 @@ from pyethercat.errors import ConfigError
 @click.option("--control", metavar="PATH", help="Unix socket for the JSON control channel (faults).")
 @click.option("--check", is_flag=True, help="Only load and check the topology, print it and exit.")
 @click.option("-q", "--quiet", is_flag=True, help="No start/stop messages on stderr.")
+@click.option("--realtime", type=click.IntRange(0, 99), default=0, metavar="PRIO",
+              help="Serve under SCHED_FIFO with this priority (1-99; root or CAP_SYS_NICE), so a "
+                   "loaded machine does not delay replies past a master's frame timeout.")
 @click.pass_context
 def sim_command(
     ctx: click.Context,
@@ -27,6 +30,7 @@ def sim_command(
     control: str | None,
     check: bool,
     quiet: bool,
+    realtime: int,
 ) -> None:
     """Serve the simulated segment of TOPOLOGY.toml on an interface or UDP address.
 
@@ -60,7 +64,7 @@ def sim_command(
     load_topology(topology)
     link = open_link(iface=iface, udp=udp, fd=sim_fd, pcap=pcap)
     try:
-        stats = serve(topology, link, control=control, log=log)
+        stats = serve(topology, link, control=control, log=log, realtime=realtime)
     finally:
         link.close()
     if log is not None:

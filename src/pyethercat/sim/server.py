@@ -56,10 +56,32 @@ from pyethercat.errors import ConfigError, EtherCATError, LinkClosedError, LinkE
 from pyethercat.link.base import Link
 from pyethercat.wire.frame import is_ethercat
 
-__all__ = ["ServerStats", "SimProcess", "SimServer", "open_link", "start_sim_process"]
+__all__ = ["ServerStats", "SimProcess", "SimServer", "open_link", "set_realtime", "start_sim_process"]
 
 #: Default period of the segment's periodic work (watchdogs, SYNC), seconds.
 DEFAULT_TICK_S = 0.001
+
+
+def set_realtime(priority: int) -> str | None:
+    """Run the calling process under SCHED_FIFO with ``priority`` (1..99).
+
+    A real ESC answers within microseconds; a simulator that the scheduler
+    leaves waiting for milliseconds on a loaded machine makes masters with
+    short frame timeouts (SOEM: 2 ms per mailbox read) give frames up and
+    retry. The server blocks in ``select`` between frames, so a real-time
+    priority costs nothing while idle. Returns None on success, else why not
+    (no permission, no such policy); the server then runs as before.
+    """
+    if not 1 <= priority <= 99:
+        raise ConfigError(f"real-time priority {priority}: use 1..99")
+    policy = getattr(os, "SCHED_FIFO", None)
+    if policy is None or not hasattr(os, "sched_setscheduler"):
+        return "this platform has no SCHED_FIFO"
+    try:
+        os.sched_setscheduler(0, policy, os.sched_param(priority))
+    except OSError as exc:
+        return f"SCHED_FIFO {priority} refused: {exc.strerror or exc}"
+    return None
 
 
 @dataclass
@@ -402,8 +424,13 @@ def serve(
     control: str | os.PathLike[str] | None = None,
     log: Callable[[str], None] | None = None,
     install_signals: bool = True,
+    realtime: int = 0,
 ) -> ServerStats:
-    """Load ``topology``, serve it on ``link`` with a wall clock until SIGINT/SIGTERM."""
+    """Load ``topology``, serve it on ``link`` with a wall clock until SIGINT/SIGTERM.
+
+    ``realtime`` > 0 serves under SCHED_FIFO with that priority where the
+    process may (see :func:`set_realtime`); otherwise it is logged and ignored.
+    """
     from pyethercat.sim.clock import WallClock
     from pyethercat.sim.topology import load_topology
 
@@ -413,6 +440,10 @@ def serve(
     # collector's generations so a collection during serving stays short.
     gc.collect()
     gc.freeze()
+    if realtime:
+        why = set_realtime(realtime)
+        if why is not None and log is not None:
+            log(f"serving at normal priority: {why}")
     previous: dict[int, Any] = {}
 
     def on_signal(signum: int, frame: FrameType | None) -> None:
@@ -534,17 +565,22 @@ def start_sim_process(
     link: str = "unix",
     pcap: str | os.PathLike[str] | None = None,
     ready_timeout: float = 20.0,
+    realtime: int = 0,
 ) -> SimProcess:
     """Run ``pyethercat sim TOPOLOGY`` in a child process and wait until it serves.
 
     ``link`` is ``"unix"`` (a socketpair; the handle's ``link`` is the master's
-    end), ``"iface:NAME"`` (raw interface) or ``"udp:HOST:PORT"``.
+    end), ``"iface:NAME"`` (raw interface) or ``"udp:HOST:PORT"``. ``realtime``
+    > 0 asks the child to serve under SCHED_FIFO with that priority (``--realtime``;
+    needs root or CAP_SYS_NICE, else the child serves at normal priority).
     """
     tmpdir = tempfile.TemporaryDirectory(prefix="pyecat-sim-")
     control_path = str(Path(tmpdir.name) / "control.sock")
     args = [sys.executable, "-m", "pyethercat", "sim", os.fspath(topology), "--control", control_path]
     if pcap is not None:
         args += ["--pcap", os.fspath(pcap)]
+    if realtime:
+        args += ["--realtime", str(int(realtime))]
     pass_fds: tuple[int, ...] = ()
     master_end: Link | None = None
     child_fd: int | None = None
