@@ -570,3 +570,73 @@ def test_topology_errors_start_with_the_file_name(extra: str, message: str) -> N
     with pytest.raises(ConfigError, match=message) as info:
         parse_topology(text + extra, source="f.toml")
     assert str(info.value).startswith("f.toml"), str(info.value)
+
+
+# --- topology file contract (design.md "Topology file", docs/simulator.md) -------------------------
+
+
+def _route_names(seg: Segment) -> list[str]:
+    return [seg.slaves[i].name for i in seg.route.passes.tolist()]
+
+
+def test_demo_topology_processing_order_and_wiring() -> None:
+    from pathlib import Path
+
+    from pyethercat.sim.topology import load_topology
+
+    demo = Path(__file__).resolve().parents[2] / "examples" / "demo.toml"
+    seg = load_topology(demo).build(clock=VirtualClock())
+    # the branch on the coupler's port 3 is processed before the line on port 1
+    assert _route_names(seg) == ["coupler", "branch-do8", "di8", "do8", "di2", "ai2"]
+    assert one(seg, Datagram.device(Command.BRD, 0, R.TYPE, 1)).wkc == 6
+
+
+def test_every_documented_slave_key_takes_effect_on_the_wire() -> None:
+    text = """
+[[slave]]
+name = "c"
+device = "builtin:coupler"
+forwarding_delay_ns = 700
+[[slave]]
+name = "a"
+device = "builtin:di8"
+cable_delay_ns = 40
+forwarding_delay_ns = 150
+alias = 0x0BEE
+serial = 4711
+profile = "IPCORE"
+drift_ppm = 50.0
+inputs = "5a"
+[[slave]]
+name = "b"
+device = "builtin:do8"
+"""
+    clock = VirtualClock(0)
+    seg = parse_topology(text).build(clock=clock)
+    seg.advance_clock = False
+    assert _route_names(seg) == ["c", "a", "b"]
+    # profile: the IP core's type register
+    assert one(seg, Datagram.positional(Command.APRD, 1, R.TYPE, 1)).data == b"\x04"
+    # alias in 0x0012 and serial number in SII words 0x0E/0x0F
+    assert one(seg, Datagram.positional(Command.APRD, 1, R.STATION_ALIAS, 2)).data == b"\xee\x0b"
+    image = bytes(seg.slaves[1].esc.sii)
+    assert struct.unpack_from("<I", image, 2 * 0x0E)[0] == 4711
+    # forwarding and cable delays: receive-time latch at every port
+    one(seg, Datagram.device(Command.BWR, 0, R.DC_RECEIVE_TIME_PORT0, bytes(4)))
+    t = [struct.unpack("<II", one(seg, Datagram.positional(
+        Command.APRD, i, R.DC_RECEIVE_TIME_PORT0, 8)).data) for i in range(3)]
+    # coupler port 1 sees the frame come back from 'a' and 'b':
+    # 700 (c) + 40 (cable c-a) + 150 (a) + 5 (a-b) + b + 5 + 150 (a) + 40
+    b_delay = seg.slaves[2].spec.profile.default_forwarding_delay_ns
+    assert t[0][1] - t[0][0] == 700 + 40 + 150 + 5 + b_delay + 5 + 150 + 40
+    assert t[1][1] - t[1][0] == 150 + 5 + b_delay + 5
+    # drift: 'a' runs 50 ppm fast against the coupler
+    clock.advance(1_000_000_000)
+    st = [struct.unpack("<q", one(seg, Datagram.positional(Command.APRD, i, R.DC_SYSTEM_TIME, 8)).data)[0]
+          for i in range(2)]
+    assert 49_000 < st[1] - st[0] < 51_000
+    # inputs: in the input SM once the master enables it
+    sm = seg.slaves[1].esc.sii_info.sync_managers[seg.slaves[1].esc.input_sm]  # type: ignore[union-attr]
+    one(seg, Datagram.positional(Command.APWR, 1, R.sm_address(seg.slaves[1].esc.input_sm),
+                                 sm_bytes(sm.start, sm.length, sm.control)))
+    assert one(seg, Datagram.positional(Command.APRD, 1, sm.start, 1)).data == b"\x5a"
