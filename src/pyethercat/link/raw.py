@@ -8,6 +8,15 @@ between creating and binding the socket. Frames the kernel loops back to us
 
 Opening the socket needs ``CAP_NET_RAW``; without it
 :class:`pyethercat.errors.PermissionError` says how to get it.
+
+The socket stays in blocking mode so that a wait is one system call: a
+frame that is already queued is taken with ``MSG_DONTWAIT``; otherwise
+``recvfrom`` blocks in the kernel under a receive timeout (``SO_RCVTIMEO``,
+changed only when the wait changes by a millisecond or more) and returns
+the moment a frame arrives. The kernel counts that timeout in scheduler
+ticks, so the last ``_TICK_MARGIN`` seconds of a wait are done with
+``select``, which keeps to the timeout given. Sends never block
+(``MSG_DONTWAIT``).
 """
 
 from __future__ import annotations
@@ -33,6 +42,11 @@ _PACKET_ADD_MEMBERSHIP = 1
 _PACKET_MR_PROMISC = 1
 _PACKET_OUTGOING = 4
 _PACKET_IGNORE_OUTGOING = 23
+_TIMEVAL = struct.Struct("@ll")
+# Longer than one kernel tick at HZ=100: SO_RCVTIMEO may run this much over.
+_TICK_MARGIN = 0.011
+# Blocking waits are cut into slices this long so that close() is noticed.
+_MAX_BLOCK = 1.0
 
 
 def _permission_message(iface: str) -> str:
@@ -86,8 +100,9 @@ class RawLink(Link):
             if exc.errno == errno.ENETDOWN:
                 raise LinkError(f"network interface {iface} is down") from exc
             raise LinkError(f"cannot bind a raw socket to {iface}: {exc}") from exc
-        sock.setblocking(False)
         self._sock = sock
+        #: SO_RCVTIMEO now set, in milliseconds (0: none set yet).
+        self._rcvtimeo_ms = 0
         #: Frames of ours the kernel looped back and recv dropped.
         self.dropped_outgoing = 0
 
@@ -97,7 +112,7 @@ class RawLink(Link):
     def send(self, frame: bytes) -> None:
         self._check_open()
         try:
-            self._sock.send(frame)
+            self._sock.send(frame, socket.MSG_DONTWAIT)
         except BlockingIOError:
             pass  # transmit queue full: the frame is lost, as on a busy wire
         except OSError as exc:
@@ -113,28 +128,45 @@ class RawLink(Link):
 
     def recv(self, timeout: float | None = None) -> bytes | None:
         self._check_open()
+        sock = self._sock
         deadline = None if timeout is None else time.monotonic() + timeout
+        left = _MAX_BLOCK if timeout is None else timeout
         while True:
+            block = min(left, _MAX_BLOCK) - _TICK_MARGIN
+            if block >= 0.001:
+                # The coarse part of the wait: block in recvfrom itself (a frame that
+                # is already there is returned at once).
+                ms = int(block * 1000)
+                if ms != self._rcvtimeo_ms:
+                    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO,
+                                    _TIMEVAL.pack(ms // 1000, (ms % 1000) * 1000))
+                    self._rcvtimeo_ms = ms
+                flags = 0
+            else:
+                flags = socket.MSG_DONTWAIT
             try:
-                data, addr = self._sock.recvfrom(MAX_FRAME + 64)
+                data, addr = sock.recvfrom(MAX_FRAME + 64, flags)
             except BlockingIOError:
-                pass
+                if self._closed:
+                    self._check_open()
+                left = _MAX_BLOCK if deadline is None else deadline - time.monotonic()
+                if flags and left > 0:
+                    with contextlib.suppress(InterruptedError, ValueError):
+                        select.select([sock], [], [], left)
+                    left = 0.0 if deadline is None else max(0.0, deadline - time.monotonic())
+                elif left <= 0:
+                    return None
+                continue
             except OSError as exc:
+                if self._closed:
+                    self._check_open()
                 if exc.errno == errno.ENETDOWN:
                     raise LinkError(f"network interface {self.iface} is down") from exc
                 raise LinkError(f"receive on {self.iface} failed: {exc}") from exc
-            else:
-                if addr[2] == _PACKET_OUTGOING:
-                    self.dropped_outgoing += 1
-                    continue
-                return data
-            if deadline is None:
-                select.select([self._sock], [], [])
-            else:
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    return None
-                select.select([self._sock], [], [], left)
+            if addr[2] == _PACKET_OUTGOING:
+                self.dropped_outgoing += 1
+                continue
+            return data
 
     def close(self) -> None:
         if not self._closed:

@@ -34,6 +34,7 @@ frames, round-trip times.
 
 from __future__ import annotations
 
+import bisect
 import math
 import struct
 import threading
@@ -49,7 +50,7 @@ import numpy.typing as npt
 from pyethercat.errors import ConfigError, EtherCATError
 from pyethercat.master.config import CyclicDatagram, GroupConfig, ProcessDataConfig
 from pyethercat.master.image import ProcessImage
-from pyethercat.master.scheduler import CyclicFrame, Request, Scheduler
+from pyethercat.master.scheduler import CyclicFrame, CyclicTemplate, Request, Scheduler
 from pyethercat.wire import registers as reg
 from pyethercat.wire.al import AlState, state_name
 from pyethercat.wire.datagram import MAX_PAYLOAD, Command, Datagram
@@ -167,13 +168,8 @@ class CycleStats:
             j = self._n_period % self.capacity
             self._periods[j] = period
             self._n_period += 1
-            dev = abs(period - self.period_ns)
-            k = 0
-            for edge in self._edges_ns:
-                if dev < edge:
-                    break
-                k += 1
-            self.histogram[k] += 1
+            # Bin k: the first edge the deviation stays below.
+            self.histogram[bisect.bisect_right(self._edges_ns, abs(period - self.period_ns))] += 1
         self._last_start = start_ns
 
     def record_round_trip(self, ns: int) -> None:
@@ -280,6 +276,25 @@ class GroupRuntime:
         return ok
 
 
+class _FramePlan:
+    """One prepared frame of a cycle: where each group's bytes go and come back from.
+
+    ``fills``: (source view of a group buffer, frame offset) for the bytes sent;
+    ``takes``: per datagram (group, datagram number, WKC offset, expected WKC,
+    reply offset of the input bytes, buffer start, buffer end).
+    """
+
+    __slots__ = ("template", "fills", "takes", "groups")
+
+    def __init__(self, template: CyclicTemplate, fills: list[tuple[memoryview, int]],
+                 takes: list[tuple[GroupRuntime, int, int, int, int, int, int]],
+                 groups: list[GroupRuntime]) -> None:
+        self.template = template
+        self.fills = fills
+        self.takes = takes
+        self.groups = groups
+
+
 @dataclass
 class Cycle:
     """What one cycle did (handed to the callback and yielded by ``cycles()``)."""
@@ -383,6 +398,13 @@ class CyclicRunner:
         self._last_failure = ""
         self.error: BaseException | None = None
         self.consumer_missed = 0
+        #: Prepared frames per set of due groups (built on first use).
+        self._plans: dict[tuple[int, ...], tuple[list[_FramePlan], tuple[str, ...],
+                                                 tuple[GroupRuntime, ...]]] = {}
+        self._every = tuple(g.every for g in self.groups)
+        self._all_due = tuple(range(len(self.groups)))
+        #: False while the master is still walking the slaves up (no supervision yet).
+        self.supervising = True
 
     # -- control ------------------------------------------------------------------------
 
@@ -455,12 +477,12 @@ class CyclicRunner:
             clock.sleep_until(deadline)
             t0 = clock.now_ns()
             stats.record_start(deadline, t0, self.late_threshold_ns)
-            due = [g for g in self.groups if k % g.every == 0]
-            ok, lost, rtt = self._exchange(due, k)
+            due = self._due(k)
+            ok, lost, rtt, names = self._exchange(due, k)
             stats.record_round_trip(rtt)
             cyc.index, cyc.deadline_ns, cyc.start_ns = k, deadline, t0
             cyc.round_trip_ns, cyc.wkc_ok, cyc.lost = rtt, ok, lost
-            cyc.groups = tuple(g.name for g in due)
+            cyc.groups = names
             t1 = clock.now_ns()
             if self.callback is not None:
                 self.callback(cyc)
@@ -485,66 +507,133 @@ class CyclicRunner:
                 self._cond.notify_all()
         return stats
 
-    def _exchange(self, due: list[GroupRuntime], k: int) -> tuple[bool, bool, int]:
-        """One cycle's frames: send, wait, copy back, check WKC."""
-        sched = self.scheduler
-        clock = self.clock
+    def _due(self, k: int) -> tuple[int, ...]:
+        """Numbers of the groups due at tick ``k``."""
+        every = self._every
+        if len(every) == 1 and every[0] == 1:
+            return self._all_due
+        return tuple(i for i, e in enumerate(every) if k % e == 0)
+
+    def exchange_once(self) -> bool:
+        """One process-data exchange of every group now (outside the loop); WKC all good?
+
+        For measurements and single-stepping: copies outputs, sends, waits,
+        copies inputs back, checks working counters, as one loop cycle does
+        (without timing statistics and supervision). Not while the loop runs.
+        """
+        if self.running:
+            raise ConfigError("the cyclic loop is running: exchange_once() would race it")
+        ok, lost, _rtt, _names = self._exchange_frames(self._all_due)
+        return ok and not lost
+
+    def _exchange(self, due: tuple[int, ...], k: int) -> tuple[bool, bool, int, tuple[str, ...]]:
+        """One cycle's frames and the supervision riding in them."""
         self._supervise_before(k)
-        frames: list[tuple[list[GroupRuntime], list[Datagram]]] = []
-        cur_groups: list[GroupRuntime] = []
-        cur: list[Datagram] = []
-        used = 0
-        for g in due:
-            dgs = g.datagrams()
-            size = sum(d.size for d in dgs)
-            if cur and used + size > MAX_PAYLOAD:
-                frames.append((cur_groups, cur))
-                cur_groups, cur, used = [], [], 0
-            if size > MAX_PAYLOAD:
-                # A split group: one frame per datagram (each fits by construction).
-                for d in dgs:
-                    frames.append(([g], [d]))
-                continue
-            cur_groups.append(g)
-            cur += dgs
-            used += size
-        if cur:
-            frames.append((cur_groups, cur))
-        t0 = clock.now_ns()
-        tickets: list[CyclicFrame] = [sched.send_cyclic(dgs, timeout=self.frame_timeout)
-                                      for _, dgs in frames]
-        ok = True
+        ok, lost, rtt, names = self._exchange_frames(due)
+        self._supervise_after(ok and not lost)
+        return ok and not lost, lost, rtt, names
+
+    def _exchange_frames(self, due: tuple[int, ...]
+                         ) -> tuple[bool, bool, int, tuple[str, ...]]:
+        """Send, wait, copy back, check WKC: prepared frames, no per-slave work."""
+        planned = self._plans.get(due)
+        if planned is None:
+            planned = self._plans[due] = self._plan([self.groups[i] for i in due])
+        plans, names, groups = planned
+        sched = self.scheduler
+        now_ns = self.clock.now_ns
+        timeout = self.frame_timeout
+        t0 = now_ns()
+        if len(plans) == 1:
+            p = plans[0]
+            frame = p.template.frame
+            for view, to in p.fills:
+                frame[to:to + len(view)] = view
+            tickets: tuple[CyclicFrame, ...] = (sched.send_prepared(p.template, timeout=timeout),)
+        else:
+            tickets = tuple(self._send_plan(p, timeout) for p in plans)
+        stats = self.stats
         lost = False
-        partial: dict[str, list[Datagram]] = {}
-        for (groups, dgs), ticket in zip(frames, tickets, strict=True):
-            self.stats.frames += 1
-            replies = ticket.wait()
-            if replies is None:
+        bad: set[GroupRuntime] | None = None
+        missing: set[GroupRuntime] | None = None
+        for p, ticket in zip(plans, tickets, strict=True):
+            stats.frames += 1
+            raw = ticket.raw if ticket.raw is not None else ticket.wait_raw()
+            if raw is None:
                 lost = True
-                self.stats.lost_frames += 1
-                for g in groups:
+                stats.lost_frames += 1
+                for g in p.groups:
                     g.lost += 1
                     g.wkc_ok = False
+                missing = set(p.groups) if missing is None else missing | set(p.groups)
                 continue
-            if len(groups) == 1 and len(dgs) < len(groups[0].plan):
-                partial.setdefault(groups[0].name, []).extend(replies)
-                continue
-            i = 0
+            for g, n, w, expected, at, lo, hi in p.takes:
+                wkc = raw[w] | (raw[w + 1] << 8)
+                g.last_wkc[n] = wkc
+                if wkc != expected:
+                    bad = {g} if bad is None else bad | {g}
+                if hi > lo:
+                    g.image.buffer[lo:hi] = raw[at:at + hi - lo]
+        if bad is None and missing is None:
             for g in groups:
-                n = len(g.plan)
-                good = g.take_replies(replies[i:i + n])
-                i += n
-                self._account(g, good)
-                ok = ok and good
-        for name, replies in partial.items():
-            g = next(x for x in self.groups if x.name == name)
-            if len(replies) == len(g.plan):
-                good = g.take_replies(replies)
-                self._account(g, good)
-                ok = ok and good
-        rtt = clock.now_ns() - t0
-        self._supervise_after(ok and not lost)
-        return ok and not lost, lost, rtt
+                g.exchanges += 1
+                g.wkc_ok = True
+            return True, False, now_ns() - t0, names
+        ok = True
+        for g in groups:
+            if missing is not None and g in missing:
+                continue
+            good = bad is None or g not in bad
+            self._account(g, good)
+            ok = ok and good
+        return ok and not lost, lost, now_ns() - t0, names
+
+    def _send_plan(self, p: _FramePlan, timeout: float | None) -> CyclicFrame:
+        frame = p.template.frame
+        for view, to in p.fills:
+            frame[to:to + len(view)] = view
+        return self.scheduler.send_prepared(p.template, timeout=timeout)
+
+    def _plan(self, due: list[GroupRuntime]
+              ) -> tuple[list[_FramePlan], tuple[str, ...], tuple[GroupRuntime, ...]]:
+        """Pack the due groups' datagrams into prepared frames (once per set of groups)."""
+        frames: list[list[tuple[GroupRuntime, int]]] = []
+        cur: list[tuple[GroupRuntime, int]] = []
+        used = 0
+        for g in due:
+            items = [(g, n) for n in range(len(g.plan))]
+            size = sum(d.length + 12 for d in g.plan)
+            if cur and used + size > MAX_PAYLOAD:
+                frames.append(cur)
+                cur, used = [], 0
+            if size > MAX_PAYLOAD:
+                # A split group: one frame per datagram (each fits by construction).
+                frames += [[item] for item in items]
+                continue
+            cur += items
+            used += size
+        if cur:
+            frames.append(cur)
+        plans: list[_FramePlan] = []
+        for items in frames:
+            dgs = []
+            for g, n in items:
+                d = g.plan[n]
+                dgs.append(Datagram(d.command, 0, d.logical_address, bytes(d.length)))
+            template = self.scheduler.prepare_cyclic(dgs)
+            fills: list[tuple[memoryview, int]] = []
+            takes: list[tuple[GroupRuntime, int, int, int, int, int, int]] = []
+            groups: list[GroupRuntime] = []
+            for i, (g, n) in enumerate(items):
+                d = g.plan[n]
+                at = template.data_offsets[i]
+                fills.append((memoryview(g.image.buffer)[d.offset:d.offset + d.length], at))
+                takes.append((g, n, template.wkc_offsets[i], d.expected_wkc,
+                              at + d.copy_start - d.offset, d.copy_start, d.copy_end))
+                if g not in groups:
+                    groups.append(g)
+            plans.append(_FramePlan(template, fills, takes, groups))
+        return plans, tuple(g.name for g in due), tuple(due)
 
     def _account(self, g: GroupRuntime, good: bool) -> None:
         g.exchanges += 1
@@ -557,7 +646,7 @@ class CyclicRunner:
 
     def _supervise_before(self, k: int) -> None:
         """Queue the cheap check (or the per-slave read) so it rides in this cycle's frame."""
-        if not self._check_every or not self.slaves:
+        if not self._check_every or not self.slaves or not self.supervising:
             return
         sched = self.scheduler
         now = self.clock.now_ns()
@@ -574,7 +663,8 @@ class CyclicRunner:
                                      flush=False)[0]
 
     def _supervise_after(self, wkc_good: bool) -> None:
-        if not self._check_every or not self.slaves:
+        # While the master still walks the slaves up, a low WKC is no incident yet.
+        if not self._check_every or not self.slaves or not self.supervising:
             return
         if not wkc_good and self._detail is None:
             self._want_detail = True

@@ -172,6 +172,9 @@ class ProcessDataMixin:
                                   target=want, recover=self._recover if recover else None,
                                   groups=groups, frame_timeout=frame_timeout)
             self.runner = runner
+            # Supervision starts once the slaves are where they were asked to be: the
+            # check would otherwise see SAFE-OP during the walk up and "recover" them.
+            runner.supervising = want != AlState.OP
             runner.start()
             try:
                 if want == AlState.OP:
@@ -180,6 +183,7 @@ class ProcessDataMixin:
             except BaseException:
                 runner.stop()
                 raise
+            runner.supervising = True
             return runner
 
     def run(self, cycle: float = 0.001, seconds: float | None = None, *,

@@ -23,7 +23,11 @@ lost at once instead of after a real timeout).
 The cyclic path (``send_cyclic``) sends its own frame, lets queued acyclic
 datagrams ride in the spare room and is never retried: the next cycle is the
 retry. ``acyclic_hold`` makes acyclic requests wait that long for a cyclic
-frame before they get frames of their own.
+frame before they get frames of their own. The lean form of it is a
+:class:`CyclicTemplate` (``prepare_cyclic``): the frame is encoded once, the
+caller writes the data bytes in place, ``send_prepared`` only patches the
+index, and the reply is checked and handed back as raw bytes at known
+offsets (no datagram objects, no decoding of the cyclic part).
 """
 
 from __future__ import annotations
@@ -39,11 +43,17 @@ from pyethercat.errors import EtherCATError, FrameError, FrameTooLargeError, Lin
 from pyethercat.errors import TimeoutError as EcTimeoutError
 from pyethercat.link.base import Link
 from pyethercat.wire.datagram import (
+    HEADER_SIZE,
+    LEN_MASK,
     MAX_DATA,
     MAX_PAYLOAD,
+    MORE_BIT,
+    WKC_SIZE,
     Command,
     Datagram,
     command_name,
+    decode_datagrams,
+    encode_datagram_into,
 )
 from pyethercat.wire.frame import (
     ECAT_HEADER_SIZE,
@@ -52,13 +62,16 @@ from pyethercat.wire.frame import (
     ETHERTYPE_VLAN,
     LOCALLY_ADMINISTERED_BIT,
     MASTER_MAC,
+    MIN_FRAME_SIZE,
     FrameType,
     NotEtherCATError,
     decode_frame,
+    ecat_header,
     encode_frame,
 )
 
-__all__ = ["Request", "CyclicFrame", "Scheduler", "SchedulerStats", "describe_datagram"]
+__all__ = ["Request", "CyclicFrame", "CyclicTemplate", "Scheduler", "SchedulerStats",
+           "describe_datagram"]
 
 #: Default time to wait for the reply of one frame, seconds.
 DEFAULT_TIMEOUT = 0.05
@@ -68,6 +81,11 @@ DEFAULT_RETRIES = 3
 DEFAULT_MAX_IN_FLIGHT = 8
 
 _INDEX_COUNT = 256
+# Where the EtherCAT header and the first datagram's index sit in an untagged frame.
+_ECAT_AT = ETH_HEADER_SIZE
+_FIRST_INDEX_AT = ETH_HEADER_SIZE + ECAT_HEADER_SIZE + 1
+_ETHERTYPE_HI = ETHERTYPE_ETHERCAT >> 8
+_ETHERTYPE_LO = ETHERTYPE_ETHERCAT & 0xFF
 
 
 def describe_datagram(d: Datagram) -> str:
@@ -116,21 +134,27 @@ class Request:
 
 
 class CyclicFrame:
-    """Ticket for a frame sent with :meth:`Scheduler.send_cyclic`.
+    """Ticket for a frame sent with :meth:`Scheduler.send_cyclic` or ``send_prepared``.
 
     ``wait`` returns the reply datagrams of the cyclic part (in the order
     given), or ``None`` when the frame was lost (no reply in time, or a
-    malformed reply). Acyclic datagrams that rode along are handled by the
-    scheduler and never show up here.
+    malformed reply). For a prepared frame ``wait_raw`` returns the reply
+    frame itself (its layout is the template's: read working counters and
+    data at the template's offsets). Acyclic datagrams that rode along are
+    handled by the scheduler and never show up here.
     """
 
-    __slots__ = ("_scheduler", "count", "replies", "lost", "error", "sent_at", "received_at",
-                 "carried")
+    __slots__ = ("_scheduler", "count", "replies", "raw", "template", "lost", "error", "sent_at",
+                 "received_at", "carried")
 
-    def __init__(self, scheduler: Scheduler, count: int) -> None:
+    def __init__(self, scheduler: Scheduler, count: int,
+                 template: CyclicTemplate | None = None) -> None:
         self._scheduler = scheduler
         self.count = count
         self.replies: list[Datagram] | None = None
+        #: The whole reply frame (prepared frames only; untagged, template layout).
+        self.raw: bytes | None = None
+        self.template = template
         self.lost = False
         #: Why the frame counts as lost when it came back malformed.
         self.error: EtherCATError | None = None
@@ -140,17 +164,78 @@ class CyclicFrame:
         self.carried = 0
 
     def done(self) -> bool:
-        return self.replies is not None or self.lost
+        return self.replies is not None or self.raw is not None or self.lost
 
     def wait(self, timeout: float | None = None) -> list[Datagram] | None:
         """Reply datagrams of the cyclic part, or ``None`` if the frame was lost."""
-        self._scheduler._wait_until(self.done, timeout)
+        if not self.done():
+            self._scheduler._wait_until(self.done, timeout)
+        if self.replies is None and self.raw is not None:
+            self.replies = decode_frame(self.raw).datagrams[:self.count]
         return self.replies
+
+    def wait_raw(self, timeout: float | None = None) -> bytes | None:
+        """The reply frame of a prepared frame, or ``None`` if it was lost."""
+        if self.raw is None and not self.lost:
+            self._scheduler._await(self, timeout)
+        return self.raw
 
     @property
     def round_trip(self) -> float | None:
         """Seconds between send and receive, when the reply arrived."""
-        return self.received_at - self.sent_at if self.replies is not None else None
+        if self.replies is None and self.raw is None:
+            return None
+        return self.received_at - self.sent_at
+
+
+class CyclicTemplate:
+    """A cyclic frame encoded once (made by :meth:`Scheduler.prepare_cyclic`).
+
+    ``frame`` is the whole Ethernet frame; before each
+    :meth:`Scheduler.send_prepared` the owner writes datagram ``i``'s data
+    into ``frame[data_offsets[i]:data_offsets[i] + lengths[i]]``. A reply
+    has the same layout: its working counter ``i`` is the little-endian word
+    at ``wkc_offsets[i]``, its data at ``data_offsets[i]``. One template
+    belongs to one sender thread (the bytes are copied when sent).
+    """
+
+    __slots__ = ("frame", "datagrams", "data_offsets", "wkc_offsets", "lengths", "size", "end",
+                 "_index_offsets", "_checks", "_last_header")
+
+    def __init__(self, datagrams: Sequence[Datagram], src: bytes = MASTER_MAC) -> None:
+        self.datagrams = tuple(Datagram(d.command, 0, d.address, bytes(d.data), d.irq)
+                               for d in datagrams)
+        self.frame = bytearray(encode_frame(self.datagrams, src=src))
+        data_offsets: list[int] = []
+        index_offsets: list[int] = []
+        checks: list[tuple[int, int, int, bytes, int]] = []
+        h = ETH_HEADER_SIZE + ECAT_HEADER_SIZE
+        last = h
+        for d in self.datagrams:
+            last = h
+            index_offsets.append(h + 1)
+            n = len(d.data)
+            # What a reply must carry: command, index (checked apart), address (only
+            # ADO where every slave increments ADP), data length.
+            lo = h + 4 if int(d.command) in _ADP_GROWS else h + 2
+            checks.append((h, int(d.command), lo, bytes(self.frame[lo:h + 6]), n))
+            data_offsets.append(h + HEADER_SIZE)
+            h += HEADER_SIZE + n + WKC_SIZE
+        self.data_offsets = tuple(data_offsets)
+        self.lengths = tuple(len(d.data) for d in self.datagrams)
+        self.wkc_offsets = tuple(o + n for o, n in zip(data_offsets, self.lengths, strict=True))
+        #: Bytes of datagrams (headers, data, working counters).
+        self.size = h - ETH_HEADER_SIZE - ECAT_HEADER_SIZE
+        #: Offset just after the last datagram.
+        self.end = h
+        self._index_offsets = tuple(index_offsets)
+        self._checks = tuple(checks)
+        self._last_header = last
+
+    def wkc(self, raw: bytes, i: int) -> int:
+        """Working counter of datagram ``i`` in a reply."""
+        at = self.wkc_offsets[i]
+        return raw[at] | (raw[at + 1] << 8)
 
 
 @dataclass
@@ -183,17 +268,22 @@ class SchedulerStats:
 class _InFlight:
     """A frame on the wire: its index, requests and deadline."""
 
-    __slots__ = ("index", "datagrams", "requests", "cyclic", "deadline", "sent_at")
+    __slots__ = ("index", "datagrams", "requests", "cyclic", "deadline", "sent_at", "template",
+                 "sent")
 
     def __init__(self, index: int, datagrams: list[Datagram], requests: list[Request],
                  cyclic: CyclicFrame | None, deadline: float, sent_at: float) -> None:
         self.index = index
-        #: Exactly what was sent (cyclic part first, then the requests' datagrams).
+        #: Exactly what was sent (cyclic part first, then the requests' datagrams);
+        #: for a prepared frame only the requests' datagrams (the rest is the template).
         self.datagrams = datagrams
         self.requests = requests
         self.cyclic = cyclic
         self.deadline = deadline
         self.sent_at = sent_at
+        self.template: CyclicTemplate | None = None
+        #: The frame as sent (prepared frames; decoded only to explain a bad reply).
+        self.sent = b""
 
 
 def _reply_matches(sent: Datagram, got: Datagram) -> str | None:
@@ -214,6 +304,13 @@ def _reply_matches(sent: Datagram, got: Datagram) -> str | None:
 
 _ADP_GROWS = frozenset({Command.APRD, Command.APWR, Command.APRW, Command.ARMW,
                         Command.BRD, Command.BWR, Command.BRW})
+
+
+def _untagged(raw: bytes) -> bytes:
+    """The frame without its VLAN tag (so offsets match what was sent)."""
+    if len(raw) >= 18 and ((raw[12] << 8) | raw[13]) == ETHERTYPE_VLAN:
+        return raw[:12] + raw[16:]
+    return raw
 
 
 def _peek_index(raw: bytes) -> int | None:
@@ -261,6 +358,9 @@ class Scheduler:
         self.src = bytes(src)
         self.deterministic = deterministic
         self.capacity = min(capacity, MAX_PAYLOAD)
+        # A returned frame has the locally administered bit set in its source MAC, so
+        # a frame with our exact (universal) source MAC is our own seen again.
+        self._own_src_visible = not (self.src[0] & LOCALLY_ADMINISTERED_BIT)
         self.clock = clock
         #: Seconds an acyclic request waits for a cyclic frame to carry it (0: never).
         self.acyclic_hold = 0.0
@@ -273,6 +373,8 @@ class Scheduler:
         #: Indices answered recently (duplicates are told apart from stale replies).
         self._answered: deque[int] = deque(maxlen=64)
         self._receiving = False
+        #: Threads blocked in the condition's wait (nobody to wake: skip the notify).
+        self._sleepers = 0
         self._closed = False
 
     # -- submitting ----------------------------------------------------------------
@@ -292,7 +394,7 @@ class Scheduler:
                 raise FrameTooLargeError(
                     f"{describe_datagram(d)}: {len(d.data)} data bytes, one frame holds {MAX_DATA}")
             reqs.append(Request(self, d, tries))
-        with self._cond:
+        with self._lock:
             self._check_open()
             now = self.clock()
             for r in reqs:
@@ -308,7 +410,7 @@ class Scheduler:
 
     def flush(self) -> None:
         """Send queued datagrams now (as far as the in-flight budget allows)."""
-        with self._cond:
+        with self._lock:
             self._check_open()
             self._flush_locked(self.clock(), force=True)
 
@@ -340,7 +442,7 @@ class Scheduler:
         yet done fail with :class:`TimeoutError`.
         """
         if not self._wait_until(lambda: all(r.done() for r in requests), timeout):
-            with self._cond:
+            with self._lock:
                 for r in requests:
                     if not r.done():
                         r.error = EcTimeoutError(
@@ -363,7 +465,7 @@ class Scheduler:
                 f"cyclic frame of {len(datagrams)} datagrams needs {size} bytes, "
                 f"a frame holds {self.capacity}")
         ticket = CyclicFrame(self, len(datagrams))
-        with self._cond:
+        with self._lock:
             self._check_open()
             now = self.clock()
             carried: list[Request] = []
@@ -384,6 +486,60 @@ class Scheduler:
         """``send_cyclic`` and wait: the replies, or ``None`` when the frame was lost."""
         return self.send_cyclic(datagrams, carry_acyclic=carry_acyclic, timeout=timeout).wait()
 
+    def prepare_cyclic(self, datagrams: Sequence[Datagram]) -> CyclicTemplate:
+        """Encode a cyclic frame once, for :meth:`send_prepared` (see :class:`CyclicTemplate`)."""
+        size = sum(d.size for d in datagrams)
+        if not datagrams or size > self.capacity:
+            raise FrameTooLargeError(
+                f"cyclic frame of {len(datagrams)} datagrams needs {size} bytes, "
+                f"a frame holds {self.capacity}")
+        return CyclicTemplate(datagrams, self.src)
+
+    def send_prepared(self, template: CyclicTemplate, *, carry_acyclic: bool = True,
+                      timeout: float | None = None) -> CyclicFrame:
+        """Send a prepared frame now (its data as the owner wrote it); like ``send_cyclic``.
+
+        Queued acyclic datagrams ride behind the template's datagrams when
+        they fit. ``wait_raw()`` on the ticket gives the reply frame.
+        """
+        ticket = CyclicFrame(self, len(template.datagrams), template)
+        with self._lock:
+            if self._closed:
+                self._check_open()
+            now = self.clock()
+            idx = self._alloc_index()
+            frame = template.frame
+            for at in template._index_offsets:
+                frame[at] = idx
+            carried: list[Request] = []
+            if carry_acyclic and self._queue:
+                free = self.capacity - template.size
+                queue = self._queue
+                while queue and queue[0].datagram.size <= free:
+                    r = queue.popleft()
+                    free -= r.datagram.size
+                    carried.append(r)
+            sent: list[Datagram] = []
+            if carried:
+                raw = self._extend_locked(template, carried, idx, sent)
+                ticket.carried = len(carried)
+                self.stats.carried += len(carried)
+            else:
+                raw = bytes(frame)
+            entry = _InFlight(idx, sent, carried, ticket,
+                              now + (self.timeout if timeout is None else timeout), now)
+            entry.template = template
+            entry.sent = raw
+            ticket.sent_at = now
+            self._transmit_locked(entry, raw, len(template.datagrams) + len(carried))
+        return ticket
+
+    def exchange_prepared(self, template: CyclicTemplate, *, carry_acyclic: bool = True,
+                          timeout: float | None = None) -> bytes | None:
+        """``send_prepared`` and wait: the reply frame, or ``None`` when the frame was lost."""
+        return self.send_prepared(template, carry_acyclic=carry_acyclic,
+                                  timeout=timeout).wait_raw()
+
     # -- state -----------------------------------------------------------------------
 
     @property
@@ -400,7 +556,7 @@ class Scheduler:
 
     def close(self) -> None:
         """Fail everything pending; further use raises :class:`LinkError`. Idempotent."""
-        with self._cond:
+        with self._lock:
             if self._closed:
                 return
             self._closed = True
@@ -415,6 +571,11 @@ class Scheduler:
                     f.cyclic.lost = True
                     f.cyclic.error = err
             self._in_flight.clear()
+            self._notify()
+
+    def _notify(self) -> None:
+        """Wake the threads waiting for another receiver (lock held)."""
+        if self._sleepers:
             self._cond.notify_all()
 
     def _check_open(self) -> None:
@@ -454,25 +615,56 @@ class Scheduler:
         for r in requests:
             d = r.datagram
             sent.append(Datagram(d.command, idx, d.address, d.data, d.irq))
-            r.attempts += 1
         raw = encode_frame(sent, src=self.src)
         entry = _InFlight(idx, sent, requests, cyclic, now + timeout, now)
-        self._in_flight[idx] = entry
         if cyclic is not None:
             cyclic.sent_at = now
+        self._transmit_locked(entry, raw, len(sent))
+
+    def _extend_locked(self, template: CyclicTemplate, carried: list[Request], idx: int,
+                       sent: list[Datagram]) -> bytes:
+        """The template's frame with ``carried`` appended (their datagrams go to ``sent``)."""
+        buf = bytearray(template.frame[:template.end])
+        # The last cyclic datagram now has followers.
+        buf[template._last_header + 7] |= MORE_BIT >> 8
+        extra = 0
+        for r in carried:
+            d = r.datagram
+            sent.append(Datagram(d.command, idx, d.address, d.data, d.irq))
+            extra += d.size
+        buf.extend(bytes(extra))
+        at = template.end
+        last = len(sent) - 1
+        for n, d in enumerate(sent):
+            at = encode_datagram_into(buf, at, d, n != last)
+        word = ecat_header(template.size + extra)
+        buf[_ECAT_AT] = word & 0xFF
+        buf[_ECAT_AT + 1] = word >> 8
+        if len(buf) < MIN_FRAME_SIZE:
+            buf.extend(bytes(MIN_FRAME_SIZE - len(buf)))
+        return bytes(buf)
+
+    def _transmit_locked(self, entry: _InFlight, raw: bytes, count: int) -> None:
+        """Register ``entry`` in flight and put ``raw`` on the link."""
+        idx = entry.index
+        for r in entry.requests:
+            r.attempts += 1
+        self._in_flight[idx] = entry
         try:
             self.link.send(raw)
         except EtherCATError as exc:
             del self._in_flight[idx]
-            for r in requests:
+            for r in entry.requests:
                 r.error = exc
+            cyclic = entry.cyclic
             if cyclic is not None:
                 cyclic.lost = True
                 cyclic.error = exc
-            self._cond.notify_all()
+            self._notify()
             raise
-        self.stats.frames_sent += 1
-        self.stats.datagrams_sent += len(sent)
+        stats = self.stats
+        stats.frames_sent += 1
+        stats.datagrams_sent += count
 
     def _forget_locked(self, req: Request) -> None:
         with contextlib.suppress(ValueError):
@@ -505,14 +697,18 @@ class Scheduler:
         for r in reversed(requeue):
             r.queued_at = now - self.acyclic_hold
             self._queue.appendleft(r)
-        self._cond.notify_all()
+        self._notify()
 
     def _handle_frame_locked(self, raw: bytes, now: float) -> None:
-        if len(raw) >= 12 and raw[6:12] == self.src and not (
-                self.src[0] & LOCALLY_ADMINISTERED_BIT):
+        if self._own_src_visible and raw[6:12] == self.src:
             # A slave sets the locally administered bit in what it returns.
             self.stats.looped_back += 1
             return
+        if len(raw) > _FIRST_INDEX_AT + 4 and raw[12] == _ETHERTYPE_HI and raw[13] == _ETHERTYPE_LO:
+            entry = self._in_flight.get(raw[_FIRST_INDEX_AT])
+            if entry is not None and entry.template is not None and \
+                    self._take_prepared_locked(entry, raw, now):
+                return
         try:
             frame = decode_frame(raw)
         except NotEtherCATError:
@@ -537,6 +733,9 @@ class Scheduler:
             else:
                 self.stats.stale += 1
             return
+        if entry.template is not None:
+            # A prepared frame whose reply failed the quick check: compare in full.
+            entry.datagrams = decode_frame(entry.sent).datagrams
         problem = self._mismatch(entry, frame.datagrams)
         if problem is not None:
             if problem[0]:
@@ -559,7 +758,44 @@ class Scheduler:
         if entry.cyclic is not None:
             entry.cyclic.replies = got[:ncyc]
             entry.cyclic.received_at = now
-        self._cond.notify_all()
+            if entry.template is not None:
+                entry.cyclic.raw = _untagged(raw)
+        self._notify()
+
+    def _take_prepared_locked(self, entry: _InFlight, raw: bytes, now: float) -> bool:
+        """Accept the reply to a prepared frame by its bytes; False: let the full path judge."""
+        template = entry.template
+        assert template is not None
+        sent = entry.sent
+        if len(raw) < template.end or raw[_ECAT_AT] != sent[_ECAT_AT] or \
+                raw[_ECAT_AT + 1] != sent[_ECAT_AT + 1]:
+            return False
+        idx = entry.index
+        for h, cmd, lo, address, length in template._checks:
+            if raw[h] != cmd or raw[h + 1] != idx or raw[lo:h + 6] != address or \
+                    (raw[h + 6] | (raw[h + 7] << 8)) & LEN_MASK != length:
+                return False
+        if entry.requests:
+            end = ETH_HEADER_SIZE + ECAT_HEADER_SIZE + (
+                (raw[_ECAT_AT] | (raw[_ECAT_AT + 1] << 8)) & LEN_MASK)
+            try:
+                got = decode_datagrams(memoryview(raw)[template.end:end])
+            except FrameError:
+                return False
+            if self._mismatch(entry, got) is not None:
+                return False
+            for r, d in zip(entry.requests, got, strict=True):
+                if not r.done():
+                    r.reply = d
+        del self._in_flight[idx]
+        self._answered.append(idx)
+        self.stats.frames_received += 1
+        ticket = entry.cyclic
+        assert ticket is not None
+        ticket.raw = raw
+        ticket.received_at = now
+        self._notify()
+        return True
 
     @staticmethod
     def _mismatch(entry: _InFlight, got: list[Datagram]) -> tuple[bool, str] | None:
@@ -584,31 +820,57 @@ class Scheduler:
             entry.cyclic.lost = True
             entry.cyclic.error = err
             entry.cyclic.received_at = now
-        self._cond.notify_all()
+        self._notify()
 
     # -- the receive loop ---------------------------------------------------------------
 
     def _wait_until(self, done: Callable[[], bool], timeout: float | None) -> bool:
         """Drive or await the receive loop until ``done()``; False on ``timeout``."""
-        limit = None if timeout is None else self.clock() + timeout
-        with self._cond:
+        clock = self.clock
+        limit = None if timeout is None else clock() + timeout
+        with self._lock:
             while not done():
-                now = self.clock()
+                now = clock()
                 if limit is not None and now >= limit:
                     return False
                 if self._closed:
                     return done()
-                self._flush_locked(now)
+                if self._queue:
+                    self._flush_locked(now)
                 if self._receiving:
                     # Another thread receives for us; it notifies on every change.
                     wait = 0.05 if limit is None else min(0.05, max(0.0, limit - now))
-                    self._cond.wait(wait)
+                    self._sleepers += 1
+                    try:
+                        self._cond.wait(wait)
+                    finally:
+                        self._sleepers -= 1
                     continue
                 if not self._in_flight and not self._queue:
                     # Nothing can finish what we wait for.
                     return done()
                 self._receive_once_locked(now, limit)
         return True
+
+    def _await(self, ticket: CyclicFrame, timeout: float | None) -> None:
+        """``_wait_until(ticket.done)`` without the calls: the cyclic thread's wait."""
+        clock = self.clock
+        limit = None if timeout is None else clock() + timeout
+        with self._lock:
+            while ticket.raw is None and not ticket.lost and ticket.replies is None:
+                now = clock()
+                if self._closed or (limit is not None and now >= limit):
+                    return
+                if self._queue:
+                    self._flush_locked(now)
+                if self._receiving:
+                    self._sleepers += 1
+                    try:
+                        self._cond.wait(0.05 if limit is None else min(0.05, limit - now))
+                    finally:
+                        self._sleepers -= 1
+                    continue
+                self._receive_once_locked(now, limit)
 
     def _receive_once_locked(self, now: float, limit: float | None) -> None:
         """Receive one frame (lock released while blocking) and handle timeouts."""
@@ -620,16 +882,18 @@ class Scheduler:
                 self._flush_locked(now, force=True)
                 return
             self._handle_frame_locked(raw, now)
-            self._flush_locked(now)
+            if self._queue:
+                self._flush_locked(now)
             return
-        wake = [f.deadline for f in self._in_flight.values()]
+        first = min([f.deadline for f in self._in_flight.values()], default=now + self.timeout)
         if self._queue and self.acyclic_hold:
-            wake.append(self._queue[0].queued_at + self.acyclic_hold)
-        if limit is not None:
-            wake.append(limit)
-        wait = max(0.0, min(wake) - now) if wake else self.timeout
+            first = min(first, self._queue[0].queued_at + self.acyclic_hold)
+        if limit is not None and limit < first:
+            first = limit
+        wait = first - now if first > now else 0.0
         self._receiving = True
-        self._lock.release()
+        lock = self._lock
+        lock.release()
         got: bytes | None = None
         error: EtherCATError | None = None
         try:
@@ -637,14 +901,16 @@ class Scheduler:
         except EtherCATError as exc:
             error = exc
         finally:
-            self._lock.acquire()
+            lock.acquire()
             self._receiving = False
         now = self.clock()
         if error is not None:
-            self._cond.notify_all()
+            self._notify()
             raise error
         if got is not None:
             self._handle_frame_locked(got, now)
-        self._expire_locked(now)
-        self._flush_locked(now)
-        self._cond.notify_all()
+        if now >= first:
+            self._expire_locked(now)
+        if self._queue:
+            self._flush_locked(now)
+        self._notify()
