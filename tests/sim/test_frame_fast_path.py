@@ -1,8 +1,9 @@
 """The frame fast paths of Segment.process answer exactly as the general path.
 
 A segment with the fast paths switched off (``_brd_py_max = 0``: every BRD
-goes through the numpy plan) is the reference; the same frames go to both
-and the replies and the memories must be identical byte for byte.
+goes through the numpy plan; no memo of single-datagram frame parses) is the
+reference; the same frames go to both and the replies and the memories must
+be identical byte for byte.
 """
 
 from __future__ import annotations
@@ -21,12 +22,20 @@ from pyethercat.wire.datagram import Command, Datagram
 from pyethercat.wire.frame import encode_frame
 
 
+class _NoMemo(dict):  # type: ignore[type-arg]
+    """A parse memo that never remembers (every frame is parsed afresh)."""
+
+    def __setitem__(self, key: object, value: object) -> None:
+        pass
+
+
 def _pair(profiles: list[str]) -> tuple[Segment, Segment]:
     segs = []
     for fast in (True, False):
         seg = Segment(VirtualClock(1_000_000))
         if not fast:
             seg._brd_py_max = 0
+            seg._parsed = _NoMemo()
         for i, prof in enumerate(profiles):
             seg.add_slave(spec(f"s{i}", prof))
         segs.append(seg)
@@ -42,6 +51,10 @@ _OP = st.one_of(
     st.tuples(st.just("brd"), _REGION, st.integers(-1, 9), st.integers(1, 8), st.binary(max_size=8)),
     st.tuples(st.just("al"), st.sampled_from([1, 2, 3, 4, 0x11])),
     st.tuples(st.just("mask"), st.integers(0, 0xFFFF)),
+    # A BRD frame with some bytes changed and/or cut short (malformed, other type, C bit...).
+    st.tuples(st.just("mangle"), _REGION, st.integers(1, 8),
+              st.lists(st.tuples(st.integers(12, 40), st.integers(0, 255)), max_size=3),
+              st.integers(0, 64)),
 )
 
 
@@ -70,11 +83,21 @@ def test_brd_fast_path_matches_general_path(profiles: list[str], ops: list[tuple
                                         Datagram.device(Command.BRD, 0, ado, payload)]))
         elif op[0] == "al":
             frames.append(encode_frame([Datagram.device(Command.BWR, 0, R.AL_CONTROL, struct.pack("<H", op[1]))]))
+        elif op[0] == "mangle":
+            _, ado, n, changes, cut = op
+            raw = bytearray(encode_frame([Datagram.device(Command.BRD, 0, ado, n)]))
+            for at, value in changes:
+                if at < len(raw):
+                    raw[at] = value
+            raw = raw[: len(raw) - cut]
+            frames += [bytes(raw), bytes(raw)]  # the second may find the first's parse
         else:
             frames.append(encode_frame([Datagram.device(Command.BWR, 0, R.ECAT_EVENT_MASK,
                                                         struct.pack("<H", op[1]))]))
         for frame in frames:
             assert fast.process(frame) == ref.process(frame)
+            assert fast.process(bytearray(frame)) == ref.process(bytearray(frame))
+            assert (fast.frames, fast.frames_lost) == (ref.frames, ref.frames_lost)
     assert np.array_equal(fast.memory.mem[: len(profiles)], ref.memory.mem[: len(profiles)])
 
 
@@ -98,3 +121,26 @@ def test_brd_of_al_status_clears_the_event_every_time_it_is_raised() -> None:
         d = one(seg, Datagram.device(Command.BRD, 0, R.AL_STATUS, 2))
         assert d.data == struct.pack("<H", state) and d.wkc == 3
         assert one(seg, Datagram.device(Command.NOP, 0, 0, 1)).irq == 0
+
+
+def test_memoised_parse_still_checks_the_frame_length() -> None:
+    seg = line(2)
+    frame = encode_frame([Datagram.device(Command.BRD, 0, R.USER_RAM, 64)])  # no padding
+    assert seg.process(frame) is not None
+    for _ in range(2):  # same bytes 12..25, but the datagram is cut: a processing error each time
+        assert seg.process(frame[:-4]) is None
+    assert seg.slaves[0].read(R.ECAT_PROCESSING_ERROR_COUNTER, 1) == b"\x02"
+    assert seg.process(frame) is not None
+
+
+def test_memoised_parse_keys_on_the_whole_datagram_header() -> None:
+    seg = line(2)
+    base = bytearray(encode_frame([Datagram.device(Command.BRD, 0, R.TYPE, 2)]))
+    for irq, c_bit in ((0x0000, 0), (0x1234, 0), (0x0000, 0x40), (0x8001, 0)):
+        frame = bytearray(base)
+        frame[24:26] = struct.pack("<H", irq)
+        frame[23] |= c_bit  # circulating bit of the length word
+        reply = seg.process(bytes(frame))
+        assert reply is not None
+        assert struct.unpack_from("<H", reply, 24)[0] == irq  # IRQ field: ours OR the slaves' (0)
+        assert reply[23] & 0x40 == c_bit

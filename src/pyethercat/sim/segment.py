@@ -80,13 +80,15 @@ _WKC = struct.Struct("<H")
 #: Datagram header from byte 2 on: address, length word, IRQ (patched in the reply).
 _HEADER_TAIL = struct.Struct("<IHH")
 _BRD = int(Command.BRD)
+#: A parsed datagram header: offset, command, address, length word, IRQ, data length.
+_Head = tuple[int, int, int, int, int, int]
 _DATAGRAMS = int(FrameType.DATAGRAMS)
 _MIN_FRAME = ETH_HEADER_SIZE + ECAT_HEADER_SIZE
 #: Longest route for which a BRD ORs a register column as Python ints (numpy above).
 _BRD_PY_MAX = 64
 _WORD_FORMAT: dict[int, Literal["B", "H", "I", "Q"]] = {1: "B", 2: "H", 4: "I", 8: "Q"}
-_LE_STRUCT: dict[int, struct.Struct] = {1: struct.Struct("<B"), 2: struct.Struct("<H"),
-                                        4: struct.Struct("<I"), 8: struct.Struct("<Q")}
+#: Data word and working counter of a 1/2/4/8-byte datagram, little endian.
+_DATA_WKC: dict[int, struct.Struct] = {n: struct.Struct("<" + f + "H") for n, f in _WORD_FORMAT.items()}
 _EMPTY = np.zeros(0, np.int64)
 _NEVER = 1 << 62
 _WIDE: dict[int, str] = {1: "u1", 2: "<u2", 4: "<u4", 8: "<u8"}
@@ -97,7 +99,7 @@ _EV_AL_STATUS = int(R.EcatEvent.AL_STATUS)
 class _BrdPlan:
     """Cached work of one BRD shape (address, length, route length)."""
 
-    __slots__ = ("slow", "rows", "contiguous", "systime", "block", "column", "clear", "words", "fmt", "wkc")
+    __slots__ = ("slow", "rows", "contiguous", "systime", "block", "column", "clear", "words", "dw")
 
     def __init__(self) -> None:
         self.slow = False
@@ -108,10 +110,10 @@ class _BrdPlan:
         self.column: npt.NDArray[np.unsignedinteger[Any]] | None = None
         self.clear = 0
         #: Fast path (Segment.process): the register column as a strided
-        #: memoryview of native words, its little-endian struct and the WKC.
+        #: memoryview of native words (all route slaves implement it) and the
+        #: little-endian struct of the datagram's data and working counter.
         self.words: memoryview | None = None
-        self.fmt: struct.Struct = _WKC
-        self.wkc = 0
+        self.dw: struct.Struct = _WKC
 
 
 def _status_after_write_table() -> npt.NDArray[np.uint8]:
@@ -203,9 +205,11 @@ class Segment:
     """A segment of simulated slaves; :meth:`process` answers one frame."""
 
     def __init__(self, clock: Clock | None = None, mac_wire_ns: int = 80) -> None:
-        self.clock: Clock = clock if clock is not None else VirtualClock()
+        self._clock: Clock = clock if clock is not None else VirtualClock()
         self.mac_wire_ns = mac_wire_ns
-        self.advance_clock = True
+        self._advance_clock = True
+        #: The clock if it is a VirtualClock (process() reads and advances it directly).
+        self._vclock: VirtualClock | None = self._clock if isinstance(self._clock, VirtualClock) else None
         self.slaves: list[SimSlave] = []
         self.memory = EscMemory()
         #: Duration for which SII commands keep the busy bit (0: done at once).
@@ -247,7 +251,9 @@ class Segment:
         self._sm_areas = np.zeros(0, bool)
         self._bw: dict[str, Any] = {}
         self._wire_idx: tuple[I64, I64, I64, I64] | None = None
-        self._bplan: dict[tuple[int, int, int], _BrdPlan] = {}
+        self._bplan: dict[tuple[int, int, int] | int, _BrdPlan] = {}
+        #: Parses of single-datagram frames by bytes 12..25: (end, headers, circulating).
+        self._parsed: dict[bytes, tuple[int, list[_Head], bool]] = {}
         #: Longest route on which small BRDs take the Python-int path (0: numpy only).
         self._brd_py_max = _BRD_PY_MAX
         #: ECAT event bits that may be set in some slave (cleared by vectorised reads).
@@ -263,6 +269,25 @@ class Segment:
         self._wd_expired_any = False
         self.frames = 0
         self.frames_lost = 0
+
+    @property
+    def clock(self) -> Clock:
+        """The segment's time source (virtual by default)."""
+        return self._clock
+
+    @clock.setter
+    def clock(self, clock: Clock) -> None:
+        self._clock = clock
+        self._vclock = clock if isinstance(clock, VirtualClock) else None
+
+    @property
+    def advance_clock(self) -> bool:
+        """Whether each processed frame advances a virtual clock by its wire time."""
+        return self._advance_clock
+
+    @advance_clock.setter
+    def advance_clock(self, on: bool) -> None:
+        self._advance_clock = bool(on)
 
     # --- building --------------------------------------------------------------------
 
@@ -917,8 +942,10 @@ class Segment:
 
     def process(self, frame: bytes | bytearray) -> bytes | None:
         """Process one frame from the master; the returned frame, or None if it is lost."""
-        clock = self.clock
-        now = clock.now_ns()
+        # VirtualClock is part of the simulator: the frame path reads and moves its
+        # counter directly (two method calls cost ~10% of a small frame).
+        vclock = self._vclock
+        now = vclock._now if vclock is not None else self._clock.now_ns()
         # tick() only when time-driven work can be due: watchdog configuration
         # changed, the earliest watchdog deadline passed, or SYNC pulses planned.
         if self.watchdog_dirty or self.sm_dirty or now > self._wd_deadline or self.sync_next:
@@ -934,6 +961,80 @@ class Segment:
             self.frames_lost += 1
             return None
         buf = bytearray(frame)
+        # A single-datagram frame is fully described by bytes 12..25 (EtherType,
+        # EtherCAT header, datagram header): its parse is looked up, not redone.
+        hit = None if self._corrupt else self._parsed.get(
+            frame[12:26] if type(frame) is bytes else bytes(frame[12:26]))
+        if hit is not None and hit[0] <= len(buf):
+            heads, any_c = hit[1], hit[2]
+        else:
+            parsed = self._parse(buf, route)
+            if parsed is None or isinstance(parsed, bytes):
+                return parsed
+            heads, any_c = parsed
+        passes = route.passes
+        count = route.count
+        destroy = False
+        set_c = False
+        closed_idx = route.closed_idx
+        if closed_idx:
+            if any_c:
+                passes, destroy = passes[: closed_idx[0]], True
+                count = len(passes)
+            elif len(closed_idx) > 1:
+                passes, destroy = passes[: closed_idx[1]], True
+                count = len(passes)
+            else:
+                set_c = True
+        self._frame_t0 = now
+        self._cur_passes = passes
+        if self.irq_dirty:
+            self._refresh_irq()
+        bplan = self._bplan
+        fast_key = count << 32
+        for off, cmd, address, lw, irq, n in heads:
+            doff = off + HEADER_SIZE
+            if set_c:
+                lw |= CIRCULATING_BIT
+            if cmd == _BRD:
+                plan = bplan.get((address & 0xFFFF0000) | n | fast_key)
+                if plan is not None and not plan.clear & self._event_bits and plan.words is not None:
+                    # Small BRD of a 1/2/4/8-byte register over a short line: OR the
+                    # column as Python ints (cheaper than a numpy call at this size).
+                    # Slaves mostly agree (AL status): then one C-level count settles it.
+                    col = plan.words.tolist()
+                    v = col[0]
+                    if col.count(v) != count:
+                        for x in set(col):
+                            v |= x
+                    dw = plan.dw
+                    d, w = dw.unpack_from(buf, doff)
+                    dw.pack_into(buf, doff, d | v, (w + count) & 0xFFFF)
+                    _HEADER_TAIL.pack_into(buf, off + 2, ((address + count) & 0xFFFF) | (address & 0xFFFF0000),
+                                           lw, irq | self._irq)
+                    continue
+            add, address = self._datagram(cmd, address, np.frombuffer(buf, np.uint8, n, doff), n)
+            if self.irq_dirty:
+                self._refresh_irq()
+            _HEADER_TAIL.pack_into(buf, off + 2, address, lw, irq | self._irq)
+            wkc_off = doff + n
+            _WKC.pack_into(buf, wkc_off, (_WKC.unpack_from(buf, wkc_off)[0] + add) & 0xFFFF)
+        if vclock is not None and self._advance_clock:
+            walk = self._route
+            if walk is None or self.topology_dirty:
+                walk = self.route
+            size = len(buf)  # (no max(): a builtin call costs more than the whole sum)
+            vclock._now += ((size if size > 60 else 60) + FCS_SIZE) * self.mac_wire_ns + walk.delay_ns
+        if destroy or not route.returned:
+            self.frames_lost += 1
+            return None
+        buf[6] |= LOCALLY_ADMINISTERED_BIT
+        return bytes(buf)
+
+    def _parse(self, buf: bytearray, route: Route) -> tuple[list[_Head], bool] | bytes | None:
+        """Check and parse a frame: (datagram headers, any circulating bit) to process it,
+        else what process() returns (the unchanged non-EtherCAT frame, or None if lost).
+        A malformed frame is not processed at all (counted as a processing error)."""
         start = ETH_HEADER_SIZE
         ethertype = (buf[12] << 8) | buf[13]
         if ethertype == ETHERTYPE_VLAN and len(buf) >= 18:
@@ -943,7 +1044,7 @@ class Segment:
             # Non-EtherCAT frames pass unchanged unless the first slave destroys them.
             if len(route.passes) and self.memory.mem[route.passes[0], R.DL_CONTROL] & R.DL_CONTROL_FORWARDING_RULE:
                 return None
-            return bytes(buf) if route.returned else None
+            return bytes(buf) if route.returned else None  # passed on unchanged
         if self._corrupt and self._apply_corruption(route):
             self.frames_lost += 1
             self._advance(len(buf))
@@ -958,7 +1059,7 @@ class Segment:
             self._processing_error(route)
             return None
         # Parse all headers first (a malformed frame is not processed at all).
-        heads: list[tuple[int, int, int, int, int, int]] = []
+        heads: list[_Head] = []
         off = body
         any_c = False
         while True:
@@ -971,60 +1072,16 @@ class Segment:
                 self._processing_error(route)
                 return None
             heads.append((off, cmd, address, lw, irq, n))
-            any_c = any_c or bool(lw & CIRCULATING_BIT)
+            if lw & CIRCULATING_BIT:
+                any_c = True
             off += HEADER_SIZE + n + WKC_SIZE
             if not lw & MORE_BIT:
                 break
-        passes = route.passes
-        destroy = False
-        set_c = False
-        closed_idx = route.closed_idx
-        if closed_idx:
-            if any_c:
-                passes, destroy = passes[: closed_idx[0]], True
-            elif len(closed_idx) > 1:
-                passes, destroy = passes[: closed_idx[1]], True
-            else:
-                set_c = True
-        self._frame_t0 = now
-        self._cur_passes = passes
-        if self.irq_dirty:
-            self._refresh_irq()
-        count = len(passes)
-        bplan = self._bplan
-        for off, cmd, address, lw, irq, n in heads:
-            doff = off + HEADER_SIZE
-            wkc_off = doff + n
-            plan = bplan.get(((address >> 16), (address >> 16) + n, count)) if cmd == _BRD else None
-            if plan is not None and plan.words is not None and not plan.clear & self._event_bits:
-                # Small BRD of a 1/2/4/8-byte register over a short line: OR the
-                # column as Python ints (cheaper than a numpy call at this size).
-                v = 0
-                for x in plan.words.tolist():
-                    v |= x
-                if v:
-                    fmt = plan.fmt
-                    fmt.pack_into(buf, doff, fmt.unpack_from(buf, doff)[0] | v)
-                add = plan.wkc
-                address = ((address + count) & 0xFFFF) | (address & 0xFFFF0000)
-            else:
-                add, address = self._datagram(cmd, address, np.frombuffer(buf, np.uint8, n, doff), n)
-                if self.irq_dirty:
-                    self._refresh_irq()
-            if set_c:
-                lw |= CIRCULATING_BIT
-            _HEADER_TAIL.pack_into(buf, off + 2, address, lw, irq | self._irq)
-            _WKC.pack_into(buf, wkc_off, (_WKC.unpack_from(buf, wkc_off)[0] + add) & 0xFFFF)
-        if self.advance_clock and isinstance(clock, VirtualClock):
-            walk = self._route
-            if walk is None or self.topology_dirty:
-                walk = self.route
-            clock.advance((max(len(buf), 60) + FCS_SIZE) * self.mac_wire_ns + walk.delay_ns)
-        if destroy or not route.returned:
-            self.frames_lost += 1
-            return None
-        buf[6] |= LOCALLY_ADMINISTERED_BIT
-        return bytes(buf)
+        if start == ETH_HEADER_SIZE and len(heads) == 1:
+            if len(self._parsed) >= 1024:
+                self._parsed.clear()
+            self._parsed[bytes(buf[12:26])] = (end, heads, any_c)
+        return heads, any_c
 
     def _advance(self, frame_len: int) -> None:
         if self.advance_clock and isinstance(self.clock, VirtualClock):
@@ -1247,6 +1304,9 @@ class Segment:
         if plan is None:
             plan = self._brd_plan(route, passes, lo, hi)
             self._bplan[key] = plan
+            if plan.words is not None:
+                # Also under the int key Segment.process looks up (ado, length, passes).
+                self._bplan[(ado << 16) | n | (len(passes) << 32)] = plan
         if plan.slow:
             wkc = 0
             for s in passes.tolist():
@@ -1304,8 +1364,7 @@ class Segment:
                 step = SLAVE_STRIDE // n
                 words = self.memory.flat.data.cast(_WORD_FORMAT[n])
                 plan.words = words[lo // n: lo // n + len(rows) * step: step]
-                plan.fmt = _LE_STRUCT[n]
-                plan.wkc = len(rows)
+                plan.dw = _DATA_WKC[n]
         clear = 0
         if lo < R.DL_STATUS + 2 and hi > R.DL_STATUS:
             clear |= _EV_DL_STATUS
