@@ -10,8 +10,6 @@ tshark must dissect without malformed-packet flags.
 
 from __future__ import annotations
 
-import contextlib
-import os
 import subprocess
 import time
 from collections.abc import Iterator
@@ -114,27 +112,15 @@ def served(
 ) -> Iterator[tuple[SimProcess, str, Path]]:
     sim_end, master_end = veth_pair
     pcap = tmp_path / "soem-sim.pcapng"
-    handle = start_sim_process(sim_topology, link=f"iface:{sim_end}", pcap=pcap)
-    prioritize(handle.process.pid)
+    # SCHED_FIFO: on a loaded host a simulator at normal priority may not get the
+    # CPU within SOEM's 2 ms frame timeout (SII words then read 0). The priority
+    # changes no behaviour; SOEM keeps its default timeouts.
+    handle = start_sim_process(sim_topology, link=f"iface:{sim_end}", pcap=pcap, realtime=10)
     try:
         yield handle, master_end, pcap
     finally:
         code = handle.stop()
         assert code == 0, f"pyethercat sim exited with {code}: {handle.stderr()}"
-
-
-def prioritize(pid: int) -> None:
-    """Run every thread of the simulator with a real-time priority.
-
-    On a loaded machine a simulator at normal priority may not get the CPU
-    within SOEM's 2 ms frame timeout, so SOEM sees a lost frame (or reads an
-    SII word as 0) although the simulator would have answered correctly. The
-    priority changes no behaviour; the test keeps SOEM's default timeouts.
-    Without CAP_SYS_NICE the simulator keeps its normal priority.
-    """
-    for tid in os.listdir(f"/proc/{pid}/task"):
-        with contextlib.suppress(PermissionError, ProcessLookupError):
-            os.sched_setscheduler(int(tid), os.SCHED_FIFO, os.sched_param(20))
 
 
 def cycle(master: Any, n: int = 1, retries: int = 5) -> int:
