@@ -1,9 +1,10 @@
 """The frame fast paths of Segment.process answer exactly as the general path.
 
-A segment with the fast paths switched off (``_brd_py_max = 0``: every BRD
-goes through the numpy plan; no memo of single-datagram frame parses) is the
-reference; the same frames go to both and the replies and the memories must
-be identical byte for byte.
+A segment with the fast paths switched off (``_brd_fast = False``: every BRD
+goes through the general broadcast path; no memo of single-datagram frame
+parses) is the reference; the same frames go to both and the replies and the
+memories must be identical byte for byte. The fast segment ORs short columns
+as Python ints or, with ``_brd_py_max = 0``, with one numpy reduce.
 """
 
 from __future__ import annotations
@@ -29,12 +30,14 @@ class _NoMemo(dict):  # type: ignore[type-arg]
         pass
 
 
-def _pair(profiles: list[str]) -> tuple[Segment, Segment]:
+def _pair(profiles: list[str], python_ints: bool = True) -> tuple[Segment, Segment]:
     segs = []
     for fast in (True, False):
         seg = Segment(VirtualClock(1_000_000))
-        if not fast:
+        if not python_ints:
             seg._brd_py_max = 0
+        if not fast:
+            seg._brd_fast = False
             seg._parsed = _NoMemo()
         for i, prof in enumerate(profiles):
             seg.add_slave(spec(f"s{i}", prof))
@@ -60,9 +63,9 @@ _OP = st.one_of(
 
 @settings(max_examples=60, deadline=None)
 @given(st.lists(st.sampled_from(["ET1100", "ET1200", "LAN9252"]), min_size=1, max_size=6),
-       st.lists(_OP, min_size=1, max_size=25))
-def test_brd_fast_path_matches_general_path(profiles: list[str], ops: list[tuple]) -> None:
-    fast, ref = _pair(profiles)
+       st.lists(_OP, min_size=1, max_size=25), st.booleans())
+def test_brd_fast_path_matches_general_path(profiles: list[str], ops: list[tuple], python_ints: bool) -> None:
+    fast, ref = _pair(profiles, python_ints)
     for op in ops:
         frames: list[bytes] = []
         if op[0] == "raw":
