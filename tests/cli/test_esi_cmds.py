@@ -37,6 +37,7 @@ def test_esi_show_list_and_detail(corpus_dir: Path) -> None:
     out = _run("esi", "show", "builtin:seed002_drive.xml", "--product", "0x264860d2")
     assert "RxPDO 0x1600 'Outputs' sm 2 24 bit [fixed default]" in out
     assert "InitCmd PS 0x6060:00 = 03  velocity mode" in out
+    assert "CoE: PdoAssign SegmentedSdo DS402Channels=1" in out
     assert "DC op mode 'DC': AssignActivate 0x0300" in out
 
 
@@ -81,7 +82,7 @@ def test_esi_from_sii_of_every_corpus_pair_image(corpus_dir: Path) -> None:
         back = esi_to_sii(esi.devices[0], vendor_id=esi.vendor.id, serial=info.serial,
                           include_pdos=bool(info.tx_pdos or info.rx_pdos)).info  # fmt: skip
         content = [d.field for d in sii_differences(back, info)
-                   if d.field.split(".")[0].split("[")[0] in
+                   if d.field == "general.ds402_channels" or d.field.split(".")[0].split("[")[0] in
                    ("vendor_id", "product_code", "revision", "rx_mailbox_size", "sm", "fmmu",
                     "txpdo", "rxpdo", "mailbox_protocols")
                    # PDO flags beyond Mandatory/Fixed (Default, Oversample...) have no

@@ -28,6 +28,7 @@ def test_identity_pdos_init_cmds() -> None:
     assert (layout.output_bits, layout.input_bits) == (24, 56)
     assert dev.mailbox is not None and dev.mailbox.coe is not None
     assert dev.mailbox.coe.pdo_assign and dev.mailbox.coe.eds_file == "METRONIX.eds"
+    assert dev.mailbox.coe.ds402_channels == 1  # <CoE DS402Channels="1" ...>
     cmds = {(c.index, c.subindex): (c.transitions, c.data) for c in dev.mailbox.coe.init_cmds}
     assert cmds[(0x6060, 0)] == (("PS",), b"\x03")
     assert cmds[(0x6040, 0)] == (("PS",), b"\x00\x00")
@@ -65,9 +66,53 @@ def test_valid_sii() -> None:
     assert (info.vendor_id, info.product_code, info.revision) == (0xE4, 0x264860D2, 0x20000)
     assert info.mailbox_protocols == MailboxProtocol.COE
     assert info.general is not None and info.general.coe_details & CoeDetails.PDO_ASSIGN
+    # General byte 9 (DS402 channels) from CoE@DS402Channels, read back from the raw bytes.
+    assert info.general.ds402_channels == 1
+    general = _category(res.image, 30)
+    assert general[9] == 1 and general[8] == 0  # DS402 channels, SoE channels
     assert (info.output_bits, info.input_bits) == (24, 56)
     assert [p.index for p in info.rx_pdos] == [0x1600, 0x1601, 0x1602]
     assert not res.notes
+
+
+def _category(image: bytes, wanted: int) -> bytes:
+    """The data of the first category ``wanted`` of an SII image (walked by hand)."""
+    at = 0x80
+    while at + 4 <= len(image):
+        ctype = int.from_bytes(image[at : at + 2], "little")
+        words = int.from_bytes(image[at + 2 : at + 4], "little")
+        if ctype == 0xFFFF:
+            break
+        if ctype == wanted:
+            return image[at + 4 : at + 4 + 2 * words]
+        at += 4 + 2 * words
+    raise AssertionError(f"no category {wanted}")
+
+
+def test_ds402_channels_round_trip_through_xml() -> None:
+    """SII General DS402 byte -> ESI attribute (``pyethercat xml``) -> SII again."""
+    from pyethercat.esi import parse_esi
+    from pyethercat.esi.from_sii import esi_from_sii
+
+    esi = load_esi(bundled_esi())
+    info = esi_to_sii(esi.devices[0], vendor_id=esi.vendor.id).info
+    assert info.general is not None
+    info.general.ds402_channels = 2
+    xml = esi_from_sii(info)
+    assert b'DS402Channels="2"' in xml
+    back = parse_esi(xml, "x.xml").devices[0]
+    assert back.mailbox is not None and back.mailbox.coe is not None
+    assert back.mailbox.coe.ds402_channels == 2
+    again = esi_to_sii(back, vendor_id=0xE4).info.general
+    assert again is not None and again.ds402_channels == 2
+
+
+def test_ds402_channels_out_of_range() -> None:
+    from pyethercat.esi import parse_esi
+
+    doc = bundled_esi().read_bytes().replace(b'DS402Channels="1"', b'DS402Channels="256"')
+    with pytest.raises(EsiError, match=r"drive\.xml:\d+: CoE@DS402Channels: 256"):
+        parse_esi(doc, "drive.xml")
 
 
 def test_bundled_lookup() -> None:

@@ -96,6 +96,8 @@ def format_device(esi: EsiFile, d: EsiDevice) -> str:
                                      ("PdoConfig", c.pdo_config), ("PdoUpload", c.pdo_upload),
                                      ("CompleteAccess", c.complete_access),
                                      ("SegmentedSdo", c.segmented_sdo)) if on]  # fmt: skip
+            if c.ds402_channels:
+                flags.append(f"DS402Channels={c.ds402_channels}")
             out.append(f"  CoE: {' '.join(flags) or '-'}")
             for ic in c.init_cmds:
                 out.append(

@@ -228,11 +228,13 @@ def esi_from_sii(
                 continue
             if name == "CoE":
                 d = gen.coe_details if gen is not None else CoeDetails.NONE
-                _sub(mb, "CoE", SdoInfo=_b(d & CoeDetails.SDO_INFO),
-                     PdoAssign=_b(d & CoeDetails.PDO_ASSIGN),
-                     PdoConfig=_b(d & CoeDetails.PDO_CONFIG),
-                     PdoUpload=_b(d & CoeDetails.UPLOAD_AT_STARTUP),
-                     CompleteAccess=_b(d & CoeDetails.SDO_COMPLETE_ACCESS))  # fmt: skip
+                coe = _sub(mb, "CoE", SdoInfo=_b(d & CoeDetails.SDO_INFO),
+                           PdoAssign=_b(d & CoeDetails.PDO_ASSIGN),
+                           PdoConfig=_b(d & CoeDetails.PDO_CONFIG),
+                           PdoUpload=_b(d & CoeDetails.UPLOAD_AT_STARTUP),
+                           CompleteAccess=_b(d & CoeDetails.SDO_COMPLETE_ACCESS))  # fmt: skip
+                if gen is not None and gen.ds402_channels:
+                    coe.set("DS402Channels", str(gen.ds402_channels))
             else:
                 _sub(mb, name)
     if info.dc_modes:

@@ -359,6 +359,8 @@ class EsiCoe:
     segmented_sdo: bool = True  # ESI default: segmented transfer supported
     sdo_upload_with_max_length: bool = False
     diag_history: bool = False
+    #: ``DS402Channels``: CiA 402 axes the device has (SII General byte 9).
+    ds402_channels: int = 0
     init_cmds: tuple[EsiInitCmd, ...] = ()
     eds_file: str | None = None
 

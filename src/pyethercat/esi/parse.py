@@ -593,6 +593,9 @@ class _Parser:
                 cmds.append(self.init_cmd(c, "CoE"))
             elif name == "EdsFile":
                 eds = _text(c) or None
+        ds402 = self.int_attr(el, "DS402Channels", 0) or 0
+        if not 0 <= ds402 <= 0xFF:
+            raise self.error(el, f"CoE@DS402Channels: {ds402} is not between 0 and 255")
         return EsiCoe(
             sdo_info=self.bool_attr(el, "SdoInfo"),
             pdo_assign=self.bool_attr(el, "PdoAssign"),
@@ -602,6 +605,7 @@ class _Parser:
             segmented_sdo=self.bool_attr(el, "SegmentedSdo", True),
             sdo_upload_with_max_length=self.bool_attr(el, "SdoUploadWithMaxLength"),
             diag_history=self.bool_attr(el, "DiagHistory"),
+            ds402_channels=ds402,
             init_cmds=tuple(cmds),
             eds_file=eds,
         )

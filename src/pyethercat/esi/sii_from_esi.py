@@ -354,6 +354,7 @@ def esi_to_sii_info(
         foe_details=1 if mbx is not None and mbx.supports("FoE") else 0,
         eoe_details=1 if mbx is not None and mbx.supports("EoE") else 0,
         soe_channels=1 if mbx is not None and mbx.supports("SoE") else 0,
+        ds402_channels=mbx.coe.ds402_channels if mbx is not None and mbx.coe is not None else 0,
         flags=GeneralFlags.MBOX_DATA_LINK_LAYER
         if mbx is not None and mbx.data_link_layer
         else GeneralFlags.NONE,
