@@ -458,7 +458,6 @@ def test_dl_status_two_bit_fields_for_each_loop_setting() -> None:
     assert not dl & R.dl_status_link(1) and (dl >> 10) & 3 == 1
 
 
-@pytest.mark.xfail(strict=True, reason="auto-close re-armed by a write while the link is down")
 def test_auto_close_written_while_link_down_does_not_reopen_later() -> None:
     seg = seg_n(2, profile="ET1200")
     auto_close = bytes([R.LoopControl.AUTO_CLOSE << 2])

@@ -499,9 +499,13 @@ class Segment:
         return self._route
 
     def loop_control_written(self, index: int, old: int, new: int) -> None:
-        """DL control loop byte written: writing auto-close (1) re-opens a latched port."""
+        """DL control loop byte written: auto-close (1) written after the link came back re-opens a latched port.
+
+        Written while the link is still down it re-opens nothing (facts 3.4:
+        re-opened only by writing 1 again after link up).
+        """
         for p in range(4):
-            if (new >> (2 * p)) & 3 == R.LoopControl.AUTO_CLOSE:
+            if (new >> (2 * p)) & 3 == R.LoopControl.AUTO_CLOSE and self._link_up(index, p):
                 self._autoclose_latched.discard((index, p))
         self.topology_dirty = True
 
