@@ -103,3 +103,21 @@ def test_eni_export_then_import(tmp_path: Path, corpus_dir: Path) -> None:
     assert [s.product_code for s in eni.slaves] == [0x264860D2, 0x00B0CAD0]
     out = _run("--sim", topo, "eni", "import", str(eni_file), "--op")
     assert out.count("identity ok") == 2 and "states: OP OP" in out
+
+
+def test_run_from_eni(tmp_path: Path, corpus_dir: Path) -> None:
+    topo = _topology(tmp_path, corpus_dir)
+    eni_file = tmp_path / "net.xml"
+    _run("--sim", topo, "eni", "export", "-o", str(eni_file), "--cycle", "2000", "--expect", topo)
+    out = _run("--sim", topo, "run", "--eni", str(eni_file), "--seconds", "0.3")
+    # The ENI's cycle time is the default; the live view shows both slaves in OP.
+    assert "cycles:" in out and "at 2000 us" in out
+    rows = [line for line in out.splitlines() if "Metronix ECAT" in line or "Foot" in line]
+    assert len(rows) == 2 and all(" OP " in row for row in rows), out
+    # A different segment than the ENI describes is refused before cyclic operation.
+    other = tmp_path / "other.toml"
+    other.write_text(f'[[slave]]\nname = "drive"\nesi = "{bundled_esi()}"\n')
+    res = CliRunner().invoke(cli, ["--sim", str(other), "run", "--eni", str(eni_file),
+                                   "--seconds", "0.1"])  # fmt: skip
+    assert res.exit_code != 0
+    assert "the ENI describes 2 slaves, the segment has 1" in res.output

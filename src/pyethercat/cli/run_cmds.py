@@ -5,6 +5,8 @@ IgH's ``ethercat pdos`` does) plus where the master maps them: the logical
 address and bit of every block. ``run [--cycle US] [--seconds S]`` brings the
 segment to OP and runs the cyclic exchange with a live view (states, working
 counters, cycle statistics) refreshed in place; Ctrl-C ends it early.
+``run --eni FILE`` starts from an ENI file instead of an SII scan (identities
+checked, PDO assignment and InitCmds from the file, its cycle time the default).
 """
 
 from __future__ import annotations
@@ -174,24 +176,41 @@ def register(cli: click.Group) -> None:
             click.echo(format_pdos(m, cfg, positions))
 
     @cli.command("run")
-    @click.option("--cycle", "cycle_us", default="1000", metavar="US", show_default=True,
-                  help="Cycle time in microseconds.")
+    @click.option("--cycle", "cycle_us", default=None, metavar="US",
+                  help="Cycle time in microseconds [default: the ENI's, else 1000].")
     @click.option("--seconds", default=None, type=float, metavar="S",
                   help="Stop after S seconds (default: until Ctrl-C).")
     @click.option("--pcap", default=None, metavar="FILE", help="Record every frame to FILE.")
     @click.option("--layout", type=click.Choice(["packed", "byte"]), default="packed",
                   show_default=True, help="Bit-packed or byte-aligned process image.")
+    @click.option("--eni", "eni_file", default=None, metavar="FILE",
+                  help="Start from this ENI file (no SII scan; see 'eni export').")
     @click.pass_obj
-    def run_cmd(obj: dict[str, Any], cycle_us: str, seconds: float | None, pcap: str | None,
-                layout: str) -> None:
+    def run_cmd(obj: dict[str, Any], cycle_us: str | None, seconds: float | None,
+                pcap: str | None, layout: str, eni_file: str | None) -> None:
         """Bring the segment to OP and run cyclic exchange with a live view."""
-        cycle = parse_int(cycle_us) / 1e6
+        eni = None
+        if eni_file is not None:
+            from pyethercat.esi.eni import load_eni
+
+            eni = load_eni(eni_file)  # a broken file fails before the segment is touched
+        if cycle_us is not None:
+            cycle = parse_int(cycle_us) / 1e6
+        elif eni is not None and eni.cycle_time_us:
+            cycle = eni.cycle_time_us / 1e6
+        else:
+            cycle = 1e-3
         if cycle <= 0:
             raise ConfigError(f"cycle time must be positive, got {cycle_us} us")
         console = Console()
         with connect(obj, pcap=pcap) as conn:
             m = conn.master
-            m.scan()
+            if eni is not None:
+                from pyethercat.master.esi_config import start_from_eni
+
+                start_from_eni(m, eni)
+            else:
+                m.scan()
             m.configure(layout=layout)
             runner = m.start(cycle)
             end = None if seconds is None else time.monotonic() + seconds
