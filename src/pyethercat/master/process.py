@@ -138,16 +138,26 @@ class ProcessDataMixin:
         return self.process_data
 
     def _bring_up(self, slaves: Sequence[Slave], timeout: float) -> None:
-        """INIT -> (mailbox SMs) PREOP -> (SMs, FMMUs) SAFEOP for ``slaves``."""
+        """INIT -> (mailbox SMs) PREOP -> (SMs, FMMUs) SAFEOP for ``slaves``.
+
+        The mailbox sync managers are written by the state machine's prepare
+        step before INIT -> PREOP (``states.setup_mailboxes``, also inside the
+        CoE hook); the process-data SMs and FMMUs in the prepare step before
+        PREOP -> SAFEOP, so PREOP and SAFEOP are one ``set_state`` walk.
+        """
         st = self.scheduler
-        states.set_state(st, slaves, AlState.INIT, timeout, sleep=self._sleep,
-                         **self._state_hooks())
-        self.write_mailbox_config(slaves)
-        states.set_state(st, slaves, AlState.PREOP, timeout, sleep=self._sleep,
-                         **self._state_hooks())
-        self.write_process_data_config(slaves)
+        hooks = self._state_hooks()
+        states.set_state(st, slaves, AlState.INIT, timeout, sleep=self._sleep, **hooks)
+        before = hooks.pop("prepare", states.setup_mailboxes)
+
+        def prepare(scheduler: Scheduler, step: AlState, group: Sequence[Slave]) -> None:
+            if before is not None:
+                before(scheduler, step, group)
+            if step == AlState.SAFEOP:
+                self.write_process_data_config(group)
+
         states.set_state(st, slaves, AlState.SAFEOP, timeout, sleep=self._sleep,
-                         **self._state_hooks())
+                         prepare=prepare, **hooks)
 
     # -- running --------------------------------------------------------------------------
 

@@ -89,6 +89,8 @@ _SII_ACK_ERROR = int(SiiControl.ACK_ERROR)
 _SII_WE_ERROR = int(SiiControl.WRITE_ENABLE_ERROR)
 _SII_CMD_READ = int(SiiControl.CMD_READ)
 _SII_RETRIES = 3
+#: Most SII reads of one slave chained in one frame (each a command and its read-back).
+_SII_CHAIN = 16
 # ESC identification block 0x0000-0x0009.
 _ESC_INFO = struct.Struct("<BBHBBBBH")
 
@@ -243,16 +245,35 @@ def _sii_command(cmd: int, word: int) -> bytes:
     return struct.pack("<HI", cmd, word)
 
 
+def _steps(r: _Reader, chain: bool) -> int:
+    """How many reads of ``r`` to chain in the next frame: what is known to be needed."""
+    if not chain or r.waiting:
+        return 1
+    left = max(r.target - len(r.data), r.chunk)
+    return min(_SII_CHAIN, -(-left // r.chunk))
+
+
 def read_sii_batch(scheduler: Scheduler, accesses: Sequence[SiiAccess], *,
                    max_bytes: int = SII_DEFAULT_MAX_BYTES, max_polls: int = 1000,
-                   length: int | None = None,
-                   progress: Progress | None = None) -> list[bytes | SiiError]:
+                   length: int | None = None, progress: Progress | None = None,
+                   broadcast: bool = False) -> list[bytes | SiiError]:
     """Read the whole SII of every slave in lockstep; one result per access.
 
     Each result is the image from word 0 up to and including the category
     end marker (or what could be read, if the chain has none), or a
     :class:`SiiError` saying why that slave's SII could not be read. With
     ``length`` exactly that many bytes are read instead, whatever they hold.
+
+    Every read is a command write and the read-back of status, address and
+    data in the same frame. While every ESC has served its commands before
+    the read-back (a fast EEPROM emulation, the simulator), the reads a
+    slave is known to need (up to the next category header) are chained in
+    one frame, ``_SII_CHAIN`` at most; the first busy status turns chaining
+    off and the reader polls as usual. Each read-back is checked against
+    the word it asked for, so a command an ESC ignored never yields wrong
+    data. ``broadcast=True`` (only when ``accesses`` are every slave of the
+    segment) sends one BWR command to all slaves instead of one FPWR each
+    while they all read the same word.
     """
     def needed(data: bytes) -> int | None:
         if length is not None:
@@ -261,6 +282,8 @@ def read_sii_batch(scheduler: Scheduler, accesses: Sequence[SiiAccess], *,
 
     readers = [_Reader(a, target=needed(b"") or 0) for a in accesses]
     polls = 0
+    chain = True
+    window = _SII_WINDOW
     while True:
         active = [r for r in readers if not r.done]
         if progress is not None:
@@ -270,48 +293,85 @@ def read_sii_batch(scheduler: Scheduler, accesses: Sequence[SiiAccess], *,
         if not active:
             break
         datagrams: list[Datagram] = []
-        for r in active:
-            if not r.waiting:
-                # Command and read-back in one frame: an ESC that answers fast gives the
-                # data at once; a slow one shows busy and is polled again.
-                datagrams.append(r.access.wr(SII_CONTROL, _sii_command(_SII_CMD_READ, r.word)))
-            datagrams.append(r.access.rd(SII_CONTROL, _SII_WINDOW))
+        # Per datagram: (reader, step, is the read-back); None for a broadcast command.
+        slots: list[tuple[_Reader, int, bool] | None] = []
+        first = active[0]
+        if (broadcast and chain and not any(r.waiting for r in active)
+                and all(r.word == first.word and r.chunk == first.chunk for r in active)):
+            steps = {id(r): _steps(r, chain) for r in active}
+            for j in range(max(steps.values())):
+                word = first.word + j * first.chunk // 2
+                datagrams.append(Datagram.device(Command.BWR, 0, SII_CONTROL,
+                                                 _sii_command(_SII_CMD_READ, word)))
+                slots.append(None)
+                for r in active:
+                    if j < steps[id(r)]:
+                        datagrams.append(r.access.rd(SII_CONTROL, window))
+                        slots.append((r, j, True))
+        else:
+            for r in active:
+                for j in range(_steps(r, chain)):
+                    if j or not r.waiting:
+                        # Command and read-back in one frame: an ESC that answers fast gives
+                        # the data at once; a slow one shows busy and is polled again.
+                        word = r.word + j * r.chunk // 2
+                        datagrams.append(r.access.wr(SII_CONTROL,
+                                                     _sii_command(_SII_CMD_READ, word)))
+                        slots.append((r, j, False))
+                    datagrams.append(r.access.rd(SII_CONTROL, window))
+                    slots.append((r, j, True))
         replies = scheduler.transact(datagrams)
-        pos = 0
         any_busy = False
-        for r in active:
-            if not r.waiting:
-                cmd_reply = replies[pos]
-                pos += 1
-                r.waiting = True
-                if cmd_reply.wkc != 1:
-                    r.waiting = False
-                    _fail(r, f"SII read command at word 0x{r.word:04X} not taken "
-                             f"(working counter {cmd_reply.wkc})")
-                    pos += 1
-                    continue
-            status = replies[pos]
-            pos += 1
-            if status.wkc != 1:
-                r.waiting = False
-                _fail(r, f"SII status read failed (working counter {status.wkc})")
+        # Readers whose remaining chained steps in this frame are void.
+        skip: set[int] = set()
+        for slot, reply in zip(slots, replies, strict=True):
+            if slot is None:
                 continue
-            ctrl, addr = struct.unpack_from("<HI", status.data)
+            r, j, is_read = slot
+            if id(r) in skip:
+                continue
+            if not is_read:
+                if reply.wkc != 1:
+                    skip.add(id(r))
+                    r.waiting = False
+                    if not j:
+                        _fail(r, f"SII read command at word 0x{r.word:04X} not taken "
+                                 f"(working counter {reply.wkc})")
+                else:
+                    r.waiting = True
+                continue
+            if reply.wkc != 1:
+                skip.add(id(r))
+                r.waiting = False
+                if not j:
+                    _fail(r, f"SII status read failed (working counter {reply.wkc})")
+                continue
+            ctrl, addr = struct.unpack_from("<HI", reply.data)
             if ctrl & _SII_BUSY:
+                # A real EEPROM: its command runs now; poll it, chain no more.
                 any_busy = True
+                chain = False
+                r.waiting = True
+                skip.add(id(r))
                 continue
             r.waiting = False
             if ctrl & _SII_CMD_ERRORS or (addr & 0xFFFF) != r.word:
+                skip.add(id(r))
+                if j:
+                    # A chained command the ESC did not take: read on from here.
+                    chain = chain and not ctrl & _SII_CMD_ERRORS
+                    continue
                 what = ("missing acknowledge" if ctrl & _SII_ACK_ERROR else
                         "write-enable error" if ctrl & _SII_WE_ERROR else
                         f"address register shows word 0x{addr:04X}")
                 _fail(r, f"SII read at word 0x{r.word:04X}: {what} (status 0x{ctrl:04X})")
                 continue
             r.failures = 0
-            r.data += status.data[_SII_DATA_OFFSET:_SII_DATA_OFFSET + r.chunk]
+            r.data += reply.data[_SII_DATA_OFFSET:_SII_DATA_OFFSET + r.chunk]
             need = needed(bytes(r.data))
             if need is None or (length is None and len(r.data) >= max_bytes):
                 r.done = True
+                skip.add(id(r))
                 if length is not None:
                     del r.data[length:]
             else:
@@ -544,8 +604,10 @@ def scan(scheduler: Scheduler, *, station_base: int = DEFAULT_STATION_BASE, rese
     read_esc_info(scheduler, slaves)
     report("registers", 1, 1)
     if read_sii and slaves:
+        # Every slave of the segment is read: one broadcast command serves them all.
         images = read_sii_batch(scheduler, [SiiAccess.of(s) for s in slaves],
-                                max_bytes=max_sii_bytes, progress=progress)
+                                max_bytes=max_sii_bytes, progress=progress,
+                                broadcast=len(slaves) == count)
         for s, img in zip(slaves, images, strict=True):
             if isinstance(img, EtherCATError):
                 s.sii_error = str(img)

@@ -44,6 +44,7 @@ __all__ = [
     "request_state",
     "acknowledge_errors",
     "wait_for_state",
+    "request_and_read",
     "set_state",
     "state_path",
     "mailbox_sm_writes",
@@ -53,8 +54,11 @@ __all__ = [
 
 #: Seconds one transition may take before the wait gives up.
 DEFAULT_STATE_TIMEOUT = 5.0
-#: Pause between two polls on a real link (deterministic links poll back to back).
+#: Longest pause between two polls on a real link (deterministic links poll back to back).
 DEFAULT_POLL_INTERVAL = 0.001
+#: First pause between polls; it doubles up to the poll interval (most slaves, and the
+#: simulator, answer a request within the frame that carries it or soon after).
+FIRST_POLL_PAUSE = 50e-6
 # AL status (2 bytes), reserved (2), AL status code (2): one read covers all.
 _AL_READ_SIZE = 6
 _UP_ORDER = (AlState.INIT, AlState.PREOP, AlState.SAFEOP, AlState.OP)
@@ -149,19 +153,26 @@ def wait_for_state(scheduler: Scheduler, slaves: Sequence[Slave], state: AlState
                    timeout: float = DEFAULT_STATE_TIMEOUT,
                    poll_interval: float = DEFAULT_POLL_INTERVAL,
                    clock: Callable[[], float] = time.monotonic,
-                   sleep: Callable[[float], None] = time.sleep) -> None:
+                   sleep: Callable[[float], None] = time.sleep,
+                   first: Sequence[AlStatusReading] | None = None) -> None:
     """Poll until every slave is in ``state``.
 
-    Raises :class:`AlStatusError` for the first slave that sets its error
-    flag while not in ``state`` (the message names every such slave), and
-    :class:`StateTimeoutError` naming the slaves still on their way.
+    Polls back off from ``FIRST_POLL_PAUSE`` to ``poll_interval``. ``first``
+    are readings of ``slaves`` taken already (the poll that rode along with
+    the request). Raises :class:`AlStatusError` for the first slave that sets
+    its error flag while not in ``state`` (the message names every such
+    slave), and :class:`StateTimeoutError` naming the slaves still on their way.
     """
     target = int(state)
     pending = list(slaves)
     last: dict[int, AlStatusReading] = {}
     deadline = clock() + timeout
+    pause = min(FIRST_POLL_PAUSE, poll_interval)
     while pending:
-        readings = read_al_status(scheduler, pending)
+        if first is not None:
+            readings, first = list(first), None
+        else:
+            readings = read_al_status(scheduler, pending)
         refused: list[tuple[Slave, AlStatusReading]] = []
         still: list[Slave] = []
         for slave, r in zip(pending, readings, strict=True):
@@ -188,7 +199,34 @@ def wait_for_state(scheduler: Scheduler, slaves: Sequence[Slave], state: AlState
             raise StateTimeoutError(_stuck_message(
                 state, [(s, last.get(s.position)) for s in pending], timeout))
         if poll_interval > 0:
-            sleep(poll_interval)
+            sleep(pause)
+            pause = min(2 * pause, poll_interval)
+
+
+def request_and_read(scheduler: Scheduler, slaves: Sequence[Slave], state: AlState | int
+                     ) -> list[AlStatusReading]:
+    """Request ``state`` and read AL status back in the same frame(s); checks the writes.
+
+    A slave that changes state at once (most do within microseconds of the
+    frame passing, the simulator does in it) is seen there already, so a
+    transition often costs one round trip.
+    """
+    value = struct.pack("<H", int(state))
+    writes = scheduler.submit([Datagram.device(Command.FPWR, s.station_address, AL_CONTROL, value)
+                               for s in slaves], flush=False)
+    readings = read_al_status(scheduler, slaves)  # sends the queued writes first
+    scheduler.wait(writes)
+    missing = [s for s, w in zip(slaves, writes, strict=True)
+               if w.error is not None or w.reply is None or w.reply.wkc != 1]
+    if missing:
+        for w in writes:
+            if w.error is not None:
+                raise w.error
+        names = ", ".join(s.describe() for s in missing[:5])
+        more = f" and {len(missing) - 5} more" if len(missing) > 5 else ""
+        raise WorkingCounterError(
+            f"AL control write ({state_name(int(state))}) not taken by {names}{more}", 1, 0)
+    return readings
 
 
 def state_path(current: AlState | int, target: AlState | int) -> list[AlState]:
@@ -244,11 +282,14 @@ def setup_mailboxes(scheduler: Scheduler, step: AlState, slaves: Sequence[Slave]
     """Before INIT -> PREOP/BOOT: write the mailbox sync managers of slaves still in INIT."""
     if step not in (AlState.PREOP, AlState.BOOT):
         return
-    readings = read_al_status(scheduler, slaves)
+    wanted = [(s, w) for s in slaves if (w := mailbox_sm_writes(s, boot=step == AlState.BOOT))]
+    if not wanted:
+        return  # no mailbox among them: nothing to write, nothing to read
+    readings = read_al_status(scheduler, [s for s, _ in wanted])
     datagrams = []
-    for s, r in zip(slaves, readings, strict=True):
+    for (s, writes), r in zip(wanted, readings, strict=True):
         if r.answered and r.state == AlState.INIT:
-            for address, data in mailbox_sm_writes(s, boot=step == AlState.BOOT):
+            for address, data in writes:
                 datagrams.append(Datagram.device(Command.FPWR, s.station_address, address, data))
     replies = scheduler.transact(datagrams)
     for d, reply in zip(datagrams, replies, strict=True):
@@ -281,12 +322,20 @@ def set_state(scheduler: Scheduler, slaves: Sequence[Slave], state: AlState | in
     target = AlState(int(state))
     if not slaves:
         return
-    if ack_errors:
-        acknowledge_errors(scheduler, slaves)
     readings = read_al_status(scheduler, slaves)
+    if ack_errors:
+        # What acknowledge_errors does, without reading the states a second time.
+        flagged = [(s, r) for s, r in zip(slaves, readings, strict=True) if r.answered and r.error]
+        if flagged:
+            multiple_write(scheduler, [s.station_address for s, _ in flagged], AL_CONTROL,
+                           [struct.pack("<H", (r.state or int(AlState.INIT)) | AL_ERROR_FLAG)
+                            for _, r in flagged])
     # Group slaves by the path they need; run the steps in lockstep.
     paths = {s.position: state_path(r.state if r.answered else AlState.INIT, target)
              for s, r in zip(slaves, readings, strict=True)}
+    # Slaves already there without an error flag need no request (hooks still run).
+    there = {s.position for s, r in zip(slaves, readings, strict=True)
+             if r.answered and r.state == target and not r.error}
     steps = max(len(p) for p in paths.values())
     for n in range(steps):
         # Slaves with shorter paths sit at their target while others catch up.
@@ -299,9 +348,12 @@ def set_state(scheduler: Scheduler, slaves: Sequence[Slave], state: AlState | in
         for step, group in by_state.items():
             if prepare is not None:
                 prepare(scheduler, step, group)
-            request_state(scheduler, group, step)
         for step, group in by_state.items():
-            wait_for_state(scheduler, group, step, timeout, poll_interval, clock, sleep)
+            todo = [s for s in group if s.position not in there]
+            if todo:
+                first = request_and_read(scheduler, todo, step)
+                wait_for_state(scheduler, todo, step, timeout, poll_interval, clock, sleep,
+                               first=first)
         if finish is not None:
             for step, group in by_state.items():
                 finish(scheduler, step, group)
