@@ -147,3 +147,18 @@ def test_memoised_parse_keys_on_the_whole_datagram_header() -> None:
         assert reply is not None
         assert struct.unpack_from("<H", reply, 24)[0] == irq  # IRQ field: ours OR the slaves' (0)
         assert reply[23] & 0x40 == c_bit
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.sampled_from(["ET1100", "ET1200", "LAN9252"]), min_size=1, max_size=5),
+       st.lists(st.tuples(st.sampled_from([R.STATION_ADDRESS, R.ECAT_EVENT_MASK, R.FMMU_BASE, R.FMMU_BASE + 0x38,
+                                           R.USER_RAM, 0x0F80, R.TYPE, R.DC_SYSTEM_TIME_OFFSET]),
+                          st.integers(0, 6), st.binary(min_size=1, max_size=12)), min_size=1, max_size=12))
+def test_array_bwr_matches_per_slave_writes(profiles: list[str], writes: list[tuple[int, int, bytes]]) -> None:
+    """BWR as one array operation (with its cached per-chip masks) = every ESC writing for itself."""
+    fast, ref = _pair(profiles)
+    ref._fast_write_ok = lambda lo, hi: False  # type: ignore[method-assign]
+    for base, delta, data in writes:
+        frame = encode_frame([Datagram.device(Command.BWR, 0, base + delta, data)])
+        assert fast.process(frame) == ref.process(frame)
+    assert np.array_equal(fast.memory.mem[: len(profiles)], ref.memory.mem[: len(profiles)])

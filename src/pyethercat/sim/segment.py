@@ -99,6 +99,8 @@ _MIN_FRAME = ETH_HEADER_SIZE + ECAT_HEADER_SIZE
 #: Longest route for which a BRD ORs a register column as Python ints (numpy above).
 _BRD_PY_MAX = 64
 _OR_REDUCE = np.bitwise_or.reduce
+#: Marker: every byte of the range is writable (one slice assignment).
+_ALL: I64 = np.arange(1, dtype=np.int64)
 _WORD_FORMAT: dict[int, Literal["B", "H", "I", "Q"]] = {1: "B", 2: "H", 4: "I", 8: "Q"}
 #: Data word and working counter of a 1/2/4/8-byte datagram, little endian.
 _DATA_WKC: dict[int, struct.Struct] = {n: struct.Struct("<" + f + "H") for n, f in _WORD_FORMAT.items()}
@@ -267,6 +269,11 @@ class Segment:
         self._bplan: dict[tuple[int, int, int] | int, _BrdPlan] = {}
         #: Parses of single-datagram frames by bytes 12..25: (end, headers, circulating).
         self._parsed: dict[bytes, tuple[int, list[_Head], bool]] = {}
+        # Per-chip answers for multi-slave writes (emptied on slave/power changes;
+        # _fast_ok when the SM areas are recompiled).
+        self._takes: dict[tuple[int, int, int, bool], bool] = {}
+        self._wcols: dict[tuple[int, int, int], I64] = {}
+        self._fast_ok: dict[tuple[int, int], bool] = {}
         #: Longest route on which small BRDs take the Python-int path (0: numpy only).
         self._brd_py_max = _BRD_PY_MAX
         #: BRDs of 1/2/4/8-byte registers handled in process() itself (tests compare
@@ -376,6 +383,8 @@ class Segment:
         self.topology_dirty = self.addressing_dirty = self.fmmu_dirty = True
         self.sm_dirty = self.irq_dirty = self.watchdog_dirty = True
         self._bplan.clear()
+        self._takes.clear()
+        self._wcols.clear()
 
     def slave(self, key: int | str) -> SimSlave:
         """A slave by index or name."""
@@ -669,6 +678,7 @@ class Segment:
             "complete": complete,
         }
         self._sm_span = (lo, hi) if hi > lo else (0, 0)
+        self._fast_ok.clear()
         self._complete_plans.clear()
         self.sm_dirty = False
         self.fmmu_dirty = True
@@ -1224,43 +1234,61 @@ class Segment:
 
     def _rows_implementing(self, rows: I64, lo: int, hi: int, write: bool = False) -> I64:
         """The slaves of ``rows`` whose chip implements (or, for writes, takes) a byte of [lo, hi)."""
-
-        def hit(esc: Esc) -> bool:
-            if write:
-                return bool(esc.writable[lo:hi].any() or (_WRITE_TRIGGER[lo:hi] & esc.impl[lo:hi]).any())
-            return bool(esc.impl[lo:hi].any())
-
         if not len(rows):
             return _EMPTY
         if len(self._profiles) == 1:
-            return rows if hit(self.slaves[int(rows[0])].esc) else _EMPTY
+            return rows if self._profile_takes(0, lo, hi, write) else _EMPTY
         keep = np.zeros(len(rows), bool)
         pids = self.profile_id[rows]
-        for pid, prof in enumerate(self._profiles):
+        for pid in range(len(self._profiles)):
             sel = pids == pid
-            if sel.any():
-                esc = next(sl.esc for sl in self.slaves if sl.spec.profile == prof)
-                if hit(esc):
-                    keep |= sel
+            if sel.any() and self._profile_takes(pid, lo, hi, write):
+                keep |= sel
         return rows[keep]
 
+    def _profile_esc(self, pid: int) -> Esc:
+        prof = self._profiles[pid]
+        return next(sl.esc for sl in self.slaves if sl.spec.profile == prof)
+
+    def _profile_takes(self, pid: int, lo: int, hi: int, write: bool) -> bool:
+        """Whether chips of profile ``pid`` implement (write: take) a byte of [lo, hi); cached."""
+        key = (pid, lo, hi, write)
+        hit = self._takes.get(key)
+        if hit is None:
+            esc = self._profile_esc(pid)
+            if write:
+                hit = bool(esc.writable[lo:hi].any() or (_WRITE_TRIGGER[lo:hi] & esc.impl[lo:hi]).any())
+            else:
+                hit = bool(esc.impl[lo:hi].any())
+            self._takes[key] = hit
+        return hit
+
     def _fast_write_ok(self, lo: int, hi: int) -> bool:
-        """Whether a multi-slave write over [lo, hi) can be one array operation."""
+        """Whether a multi-slave write over [lo, hi) can be one array operation.
+
+        Depends on the SM areas (the cache is emptied when they are recompiled)
+        and on static masks only."""
         if self.sm_dirty:
             self._refresh_sm_state()
+        ok = self._fast_ok.get((lo, hi))
+        if ok is not None:
+            return ok
         sm_lo, sm_hi = self._sm_span
         if lo < sm_hi and hi > sm_lo:
-            return False
-        side = SIDE_EFFECT_MASK[lo:hi]
-        if not side.any():
-            return True
-        # Side effects that are handled as array operations.
-        vec = np.zeros(hi - lo, bool)
-        for a, b in ((R.STATION_ADDRESS, R.STATION_ALIAS + 2), (R.ECAT_EVENT_MASK, R.ECAT_EVENT_MASK + 2),
-                     (R.FMMU_BASE, R.SM_BASE), (R.DC_RECEIVE_TIME_PORT0, R.DC_SYSTEM_TIME + 8),
-                     (R.WATCHDOG_DIVIDER, R.WATCHDOG_STATUS_PROCESS_DATA)):
-            vec[max(a, lo) - lo: max(min(b, hi) - lo, 0)] = True
-        return bool(np.all(vec | ~side))
+            ok = False
+        elif not SIDE_EFFECT_MASK[lo:hi].any():
+            ok = True
+        else:
+            # Side effects that are handled as array operations.
+            side = SIDE_EFFECT_MASK[lo:hi]
+            vec = np.zeros(hi - lo, bool)
+            for a, b in ((R.STATION_ADDRESS, R.STATION_ALIAS + 2), (R.ECAT_EVENT_MASK, R.ECAT_EVENT_MASK + 2),
+                         (R.FMMU_BASE, R.SM_BASE), (R.DC_RECEIVE_TIME_PORT0, R.DC_SYSTEM_TIME + 8),
+                         (R.WATCHDOG_DIVIDER, R.WATCHDOG_STATUS_PROCESS_DATA)):
+                vec[max(a, lo) - lo: max(min(b, hi) - lo, 0)] = True
+            ok = bool(np.all(vec | ~side))
+        self._fast_ok[(lo, hi)] = ok
+        return ok
 
     def _multi_write(self, rows: I64, ado: int, data: bytes) -> int:
         """Write ``data`` at ``ado`` into every slave of ``rows`` (in route order)."""
@@ -1280,15 +1308,21 @@ class Segment:
             return 0
         mem = self.memory.mem
         new = np.frombuffer(data, np.uint8)
-        for pid, prof in enumerate(self._profiles):
+        for pid in range(len(self._profiles)):
+            key = (pid, lo, hi)
+            cols = self._wcols.get(key)
+            if cols is None:
+                wmask = self._profile_esc(pid).writable[lo:hi]
+                cols = _ALL if wmask.all() else np.nonzero(wmask)[0]
+                self._wcols[key] = cols
+            if not len(cols):
+                continue  # nothing writable here for this chip
             sel = rows if len(self._profiles) == 1 else rows[self.profile_id[rows] == pid]
             if not len(sel):
                 continue
-            wmask = next(sl.esc.writable for sl in self.slaves if sl.spec.profile == prof)[lo:hi]
-            if wmask.all():
+            if cols is _ALL:
                 mem[sel, lo:hi] = new
-            elif wmask.any():
-                cols = np.nonzero(wmask)[0]
+            else:
                 mem[np.ix_(sel, cols + lo)] = new[cols]
         if lo < R.STATION_ALIAS + 2 and hi > R.STATION_ADDRESS:
             self.addressing_dirty = True
