@@ -162,3 +162,15 @@ def test_array_bwr_matches_per_slave_writes(profiles: list[str], writes: list[tu
         frame = encode_frame([Datagram.device(Command.BWR, 0, base + delta, data)])
         assert fast.process(frame) == ref.process(frame)
     assert np.array_equal(fast.memory.mem[: len(profiles)], ref.memory.mem[: len(profiles)])
+
+
+def test_brd_after_a_loop_control_write_in_the_same_frame_sees_the_new_dl_status() -> None:
+    fast, ref = _pair(["ET1100", "ET1100", "ET1100"])
+    brd = Datagram.device(Command.BRD, 0, R.DL_STATUS, 2)
+    for seg in (fast, ref):
+        seg.process(encode_frame([brd]))  # plan cached
+    for loop in (0x00, 0x0C, 0x00, 0x0F, 0x04):  # ports 1/0 closed, opened...
+        frame = encode_frame([Datagram.device(Command.FPWR, 0, R.DL_CONTROL_LOOP, bytes([loop])),
+                              Datagram.positional(Command.APWR, 1, R.DL_CONTROL_LOOP, bytes([loop])),
+                              brd])
+        assert fast.process(frame) == ref.process(frame)

@@ -1028,8 +1028,10 @@ class Segment:
                 lw |= CIRCULATING_BIT
             if cmd == _BRD:
                 plan = bplan.get((address & 0xFFFF0000) | n | fast_key)
-                if plan is not None and not plan.clear & self._event_bits:
-                    # BRD of a 1/2/4/8-byte register read by every slave of a line.
+                if plan is not None and not plan.clear & self._event_bits and not self.topology_dirty:
+                    # BRD of a 1/2/4/8-byte register read by every slave of a line
+                    # (a topology change earlier in this frame takes the general
+                    # path, which first brings DL status up to date).
                     words = plan.words
                     if words is not None:
                         # Short line: OR the column as Python ints (cheaper than a
