@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import struct
+import sys
 import threading
 
 import pytest
@@ -180,10 +181,17 @@ def test_two_slaves_transfers_interleave() -> None:
 
     threads = [threading.Thread(target=work, args=(s,)) for s in (a, b)]
     before = len(drop.frames)  # type: ignore[attr-defined]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join(30)
+    # A step takes less than the GIL's 5 ms slice: switch threads often, so that
+    # interleaving shows whenever nothing serialises the two transfers.
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(1e-5)
+    try:
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(30)
+    finally:
+        sys.setswitchinterval(interval)
     assert results == {0: bytes(range(256)) * 16, 1: bytes(range(256)) * 16}
     # the SM0 writes of both slaves alternate: neither waited for the other's transfer
     order = []
@@ -231,3 +239,45 @@ def test_mailbox_sizes_checked() -> None:
     with pytest.raises(MailboxError):
         Mailbox(m.scheduler, 0x1001, "x", rx_offset=0x1000, rx_size=4, tx_offset=0x1080,
                 tx_size=128)
+
+
+def test_mailbox_frame_lost_every_time_times_out_then_recovers() -> None:
+    m, _apps, drop = _master()
+    s = m.slaves[0]
+    box = s.mbx
+    assert box is not None
+    inner = drop.process  # type: ignore[attr-defined]
+
+    def lossy(frame: bytes) -> bytes | None:
+        if any(d.command == Command.FPWR and d.ado == box.rx_offset
+               for d in decode_frame(frame).datagrams):
+            return None  # the frame with the SM0 write never comes back
+        return inner(frame)
+
+    drop.process = lossy  # type: ignore[attr-defined]
+    before = len(drop.frames)  # type: ignore[attr-defined]
+    with pytest.raises(EcTimeoutError) as err:
+        s.sdo_read(0x1018, 1)
+    assert s.describe() in str(err.value) and "attempts" in str(err.value)
+    # the first try and the scheduler's retries, each with the same counter
+    writes = _sm0_writes(drop.frames[before:], s.station_address, box.rx_offset)  # type: ignore[attr-defined]
+    assert len(writes) >= 1 + m.scheduler.retries
+    assert len({MailboxHeader.decode(w).counter for w in writes[:1 + m.scheduler.retries]}) == 1
+    drop.process = inner  # type: ignore[attr-defined]
+    assert s.sdo_read(0x1018, 1, "uint32") == 0x00504543
+
+
+@pytest.mark.parametrize("size", [128, 800])
+def test_segmented_both_ways_with_small_and_large_mailboxes(size: int) -> None:
+    # 800-byte mailboxes: SM0 write + SM1 read do not fit one frame, the
+    # speculative read goes out as separate requests instead of the prepared frame
+    _seg, _apps, drop, link = coe_segment(1, mailbox_size=size)
+    m = Master(link, deterministic=True)
+    m.scan()
+    m.set_state("PREOP")
+    s = m.slaves[0]
+    data = bytes((i * 31) & 0xFF for i in range(5000))
+    s.sdo_write(0x2001, 0, data)
+    assert s.sdo_read(0x2001) == data
+    assert s.mbx is not None and s.mbx.stats.early_replies == s.mbx.stats.received
+    assert (s.mbx._template is None) == (size == 800)

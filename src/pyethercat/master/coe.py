@@ -298,14 +298,16 @@ class CoeClient:
         span = self.timeout if timeout is None else timeout
         limit = mbx.clock() + span
         msg: CoeMessage = first
+        answer = f"answer to {what}"
+        clock = mbx.clock
         with mbx.lock:
             mbx.drop(_is_sdo)  # answers to transfers that timed out earlier
             while True:
-                left = max(0.0, limit - mbx.clock())
                 try:
-                    mbx.send(MailboxType.COE, msg.encode(), what=what, timeout=left)
-                    reply = mbx.receive(_is_sdo, what=f"answer to {what}",
-                                        timeout=max(0.0, limit - mbx.clock()))
+                    mbx.send(MailboxType.COE, msg.encode(), what=what,
+                             timeout=max(0.0, limit - clock()))
+                    reply = mbx.receive(_is_sdo, what=answer,
+                                        timeout=max(0.0, limit - clock()))
                 except EcTimeoutError:
                     self._abort(index, subindex, SdoAbortCode.TIMEOUT)
                     raise

@@ -53,12 +53,13 @@ from dataclasses import dataclass
 from pyethercat.errors import (
     EtherCATError,
     FrameError,
+    FrameTooLargeError,
     MailboxError,
     MailboxErrorReply,
     WorkingCounterError,
 )
 from pyethercat.errors import TimeoutError as EcTimeoutError
-from pyethercat.master.scheduler import Request, Scheduler
+from pyethercat.master.scheduler import CyclicTemplate, Request, Scheduler
 from pyethercat.wire import registers as reg
 from pyethercat.wire.datagram import Command, Datagram
 from pyethercat.wire.mailbox.header import (
@@ -240,6 +241,15 @@ class Mailbox:
         #: SM1's status byte from the cyclic process image (None: poll with frames).
         self.status_source: StatusSource | None = None
         self.stats = MailboxStats()
+        # Address fields of SM0 and SM1 and the SM1 read, made once (hot path).
+        self._rx_address = (station & 0xFFFF) | ((rx_offset & 0xFFFF) << 16)
+        self._read = Datagram.device(Command.FPRD, station, tx_offset, tx_size)
+        # Snapshot of the handlers (replaced, never changed in place, so no copy per message).
+        self._handler_list: tuple[UnsolicitedHandler, ...] = ()
+        # The prepared [SM0 write, SM1 read] frame and the lock of its bytes.
+        self._template: CyclicTemplate | None = None
+        self._no_template = False
+        self._tx = threading.Lock()
 
     # -- addresses -------------------------------------------------------------------
 
@@ -266,10 +276,12 @@ class Mailbox:
     def add_handler(self, handler: UnsolicitedHandler) -> None:
         """Offer every message read from the slave to ``handler`` first (emergencies)."""
         self._handlers.append(handler)
+        self._handler_list = tuple(self._handlers)
 
     def remove_handler(self, handler: UnsolicitedHandler) -> None:
         if handler in self._handlers:
             self._handlers.remove(handler)
+        self._handler_list = tuple(self._handlers)
 
     def reset(self) -> None:
         """Forget counters and queued messages (after the slave went back to INIT)."""
@@ -328,19 +340,23 @@ class Mailbox:
                  ).ljust(self.rx_size, b"\x00")
         limit = self.clock() + (self.timeout if timeout is None else timeout)
         waited = 0.0
+        write = Datagram(Command.FPWR, 0, self._rx_address, frame)
+        template = self._prepared() if fetch else None
         while True:
-            dgs = [Datagram.device(Command.FPWR, self.station, self.rx_offset, frame)]
-            if fetch:
-                dgs.append(self._read_datagram())
-            reqs = self.scheduler.submit(dgs)
-            self.scheduler.wait(reqs)
-            write = reqs[0]
-            if fetch:
-                self._take_read(reqs[1], early=True)
-            if write.error is not None:
-                raise _named(write.error, f"{self.label}: sending {what}")
-            assert write.reply is not None
-            if write.reply.wkc == 1:
+            if template is not None:
+                wkc = self._write_and_read(template, frame, what)
+            else:
+                dgs = [write, self._read] if fetch else [write]
+                reqs = self.scheduler.submit(dgs)
+                self.scheduler.wait(reqs)
+                sent = reqs[0]
+                if fetch:
+                    self._take_read(reqs[1], early=True)
+                if sent.error is not None:
+                    raise _named(sent.error, f"{self.label}: sending {what}")
+                assert sent.reply is not None
+                wkc = sent.reply.wkc
+            if wkc == 1:
                 self.stats.sent += 1
                 return cnt
             self.stats.write_refused += 1
@@ -457,8 +473,62 @@ class Mailbox:
 
     # -- internals --------------------------------------------------------------------------
 
+    def _prepared(self) -> CyclicTemplate | None:
+        """The frame [FPWR SM0, FPRD SM1], encoded once (None: the two do not fit a frame)."""
+        template = self._template
+        if template is None and not self._no_template:
+            try:
+                template = self.scheduler.prepare_cyclic(
+                    [Datagram(Command.FPWR, 0, self._rx_address, bytes(self.rx_size)),
+                     self._read])
+            except FrameTooLargeError:
+                self._no_template = True
+                return None
+            self._template = template
+        return template
+
+    def _write_and_read(self, template: CyclicTemplate, frame: bytes, what: str) -> int:
+        """Send the SM0 write and the speculative SM1 read as one prepared frame.
+
+        The hot path of every transaction step: the message goes into the
+        template in place, only the frame index is patched, the reply is
+        read at known offsets (no datagram objects, no frame decode). A lost
+        frame is sent again (the repeated write carries the same counter, so
+        a slave that got the first one drops it); when an attempt may have
+        emptied SM1 on its lost way back, a repeat request follows. Returns
+        the write's working counter.
+        """
+        sched = self.scheduler
+        at = template.data_offsets[0]
+        attempts = 0
+        while True:
+            attempts += 1
+            with self._tx:
+                template.frame[at:at + len(frame)] = frame
+                ticket = sched.send_prepared(template)
+            raw = ticket.wait_raw()
+            if raw is not None:
+                break
+            if ticket.error is not None:
+                raise _named(ticket.error, f"{self.label}: sending {what}")
+            if attempts > sched.retries:
+                self._lost = True
+                raise EcTimeoutError(
+                    f"{self.label}: sending {what}: no reply to the mailbox frame (FPWR "
+                    f"0x{self.rx_offset:04X} + FPRD 0x{self.tx_offset:04X}) after {attempts} "
+                    f"attempts on {sched.link.name}")
+        if template.wkc(raw, 1) == 1:
+            self.stats.early_replies += 1
+            start = template.data_offsets[1]
+            self._deliver(raw[start:start + self.tx_size])
+        elif attempts > 1:
+            # An earlier attempt may have read (and emptied) SM1; its frame was lost.
+            self._lost = True
+        return template.wkc(raw, 0)
+
     def _read_datagram(self) -> Datagram:
-        return Datagram.device(Command.FPRD, self.station, self.tx_offset, self.tx_size)
+        # One object for every SM1 read: the scheduler copies it into each frame.
+        return self._read
 
     def _read_register(self, address: int, size: int, what: str) -> bytes:
         reply = self.scheduler.transact_one(
@@ -534,13 +604,15 @@ class Mailbox:
                     err = MailboxErrorReply(0, f"malformed error reply ({exc})")
                 self._inbox.append(err)
                 return
-            for handler in list(self._handlers):
+            for handler in self._handler_list:
                 if handler(self, msg):
                     self.stats.unsolicited += 1
                     return
             self._inbox.append(msg)
 
     def _from_inbox(self, accept: Accept | None, what: str) -> MailboxMessage | None:
+        if not self._inbox:
+            return None
         with self._io:
             for item in list(self._inbox):
                 if isinstance(item, MailboxErrorReply):

@@ -142,14 +142,28 @@ class CoeHeader:
         """Parse the first two bytes of a CoE payload."""
         if len(payload) < COE_HEADER_SIZE:
             raise MailboxError(f"CoE header needs 2 bytes, got {len(payload)}")
-        word = struct.unpack_from("<H", payload, 0)[0]
-        raw = word >> 12
-        service: CoeService | int
-        try:
-            service = CoeService(raw)
-        except ValueError:
-            service = raw
-        return cls(service=service, number=word & 0x1FF)
+        word = payload[0] | (payload[1] << 8)
+        # Both fields come out of bit masks: no range checks needed (hot path).
+        hdr = object.__new__(cls)
+        object.__setattr__(hdr, "service", _SERVICES.get(word >> 12, word >> 12))
+        object.__setattr__(hdr, "number", word & 0x1FF)
+        return hdr
+
+
+#: Known CoE services by value (cheaper than the enum call).
+_SERVICES: dict[int, CoeService | int] = {s.value: s for s in CoeService}
+
+
+def _coe_header(service: CoeService | int) -> bytes:
+    """The CoE header bytes of a service with number 0 (the SDO and SDO info frames)."""
+    got = _HEADER_BYTES.get(service)
+    if got is None:
+        got = CoeHeader(service).encode()
+    return got
+
+
+_HEADER_BYTES: dict[CoeService | int, bytes] = {
+    s: struct.pack("<H", int(s) << 12) for s in CoeService}
 
 
 def _check(what: str, value: int, maximum: int, minimum: int = 0) -> None:
@@ -339,13 +353,13 @@ class _SdoInitiateWithData:
                 cs |= (4 - len(self.data)) << 2
             field4 = self.data.ljust(4, b"\x00")
             return (
-                CoeHeader(self.SERVICE).encode()
+                _coe_header(self.SERVICE)
                 + struct.pack("<BHB", cs, self.index, self.subindex)
                 + field4
             )
         size = self.total_size if self.size_indicated else 0
         return (
-            CoeHeader(self.SERVICE).encode()
+            _coe_header(self.SERVICE)
             + _SDO.pack(cs, self.index, self.subindex, size)
             + self.data
         )
@@ -398,7 +412,7 @@ class _SdoAddressOnly:
     def encode(self) -> bytes:
         """CoE header + 8-byte SDO frame."""
         cs = (self.COMMAND << 5) | (_CS_CA if self.complete_access else 0)
-        return CoeHeader(self.SERVICE).encode() + _SDO.pack(cs, self.index, self.subindex, 0)
+        return _coe_header(self.SERVICE) + _SDO.pack(cs, self.index, self.subindex, 0)
 
     @classmethod
     def _decode(cls, body: bytes) -> Self:
@@ -449,7 +463,7 @@ class _SdoSegmentWithData:
             | (unused << 1)
             | (_CS_LAST if self.last else 0)
         )
-        return CoeHeader(self.SERVICE).encode() + bytes([cs]) + self.data + bytes(unused)
+        return _coe_header(self.SERVICE) + bytes([cs]) + self.data + bytes(unused)
 
     @classmethod
     def _decode(cls, body: bytes) -> Self:
@@ -488,7 +502,7 @@ class _SdoToggleOnly:
     def encode(self) -> bytes:
         """CoE header + command byte + 7 reserved bytes."""
         cs = (self.COMMAND << 5) | (_CS_TOGGLE if self.toggle else 0)
-        return CoeHeader(self.SERVICE).encode() + bytes([cs]) + bytes(_SEGMENT_MIN_DATA)
+        return _coe_header(self.SERVICE) + bytes([cs]) + bytes(_SEGMENT_MIN_DATA)
 
     @classmethod
     def _decode(cls, body: bytes) -> Self:
@@ -537,7 +551,7 @@ class SdoAbortTransfer:
 
     def encode(self) -> bytes:
         """CoE header + 8-byte SDO frame with the abort code in bytes 4-7."""
-        return CoeHeader(self.service).encode() + _SDO.pack(
+        return _coe_header(self.service) + _SDO.pack(
             _CCS_ABORT << 5, self.index, self.subindex, self.code
         )
 
@@ -652,7 +666,7 @@ class Emergency:
     def encode(self) -> bytes:
         """CoE header + 8 bytes."""
         return (
-            CoeHeader(CoeService.EMERGENCY).encode()
+            _coe_header(CoeService.EMERGENCY)
             + struct.pack("<HB", self.error_code, self.error_register)
             + self.data
         )
@@ -1070,7 +1084,7 @@ class SdoInfoFragment:
     def encode(self) -> bytes:
         """CoE header + SDO info header + this fragment's data."""
         return (
-            CoeHeader(CoeService.SDO_INFORMATION).encode()
+            _coe_header(CoeService.SDO_INFORMATION)
             + struct.pack(
                 "<BBH",
                 self.opcode | (0x80 if self.incomplete else 0),

@@ -138,21 +138,22 @@ class MailboxHeader:
         if len(data) < MAILBOX_HEADER_SIZE:
             raise MailboxError(f"mailbox header needs {MAILBOX_HEADER_SIZE} bytes, got {len(data)}")
         length, address, b4, b5 = _HDR.unpack_from(data, 0)
-        raw_type = b5 & 0x0F
-        mtype: MailboxType | int
-        try:
-            mtype = MailboxType(raw_type)
-        except ValueError:
-            mtype = raw_type
-        return cls(
-            length=length,
-            type=mtype,
-            counter=(b5 >> 4) & 0x7,
-            address=address,
-            channel=b4 & 0x3F,
-            priority=b4 >> 6,
-            reserved=b5 >> 7,
-        )
+        # Every field comes out of a bit mask, so it is in range: skip the checks of
+        # __post_init__ (this runs for every mailbox message, on both sides).
+        hdr = object.__new__(cls)
+        _set = object.__setattr__
+        _set(hdr, "length", length)
+        _set(hdr, "type", _TYPES.get(b5 & 0x0F, b5 & 0x0F))
+        _set(hdr, "counter", (b5 >> 4) & 0x7)
+        _set(hdr, "address", address)
+        _set(hdr, "channel", b4 & 0x3F)
+        _set(hdr, "priority", b4 >> 6)
+        _set(hdr, "reserved", b5 >> 7)
+        return hdr
+
+
+#: Known mailbox types by value (a dict look-up is cheaper than the enum call).
+_TYPES: dict[int, MailboxType | int] = {t.value: t for t in MailboxType}
 
 
 def _check_range(name: str, value: int, maximum: int) -> None:
