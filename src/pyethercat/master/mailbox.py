@@ -10,7 +10,9 @@ One :class:`Mailbox` per slave carries mailbox messages of any protocol
   tried again until the timeout. The same frame carries a speculative FPRD of
   the whole SM1: a fast slave (or a simulator) has the answer ready at once
   and the transaction costs one round trip; an empty SM1 simply refuses the
-  read (working counter 0), which changes nothing in the ESC.
+  read (working counter 0), which changes nothing in the ESC. That frame is
+  encoded once per mailbox and only refilled per message (the scheduler's
+  prepared frames): the path every step of a segmented transfer takes.
 - **Poll**: while a reply is awaited, SM1's status byte (0x080D, bit 3
   "mailbox full") is polled. Without cyclic exchange the polls of all waiting
   mailboxes are batched: one frame reads the status of every slave that has
