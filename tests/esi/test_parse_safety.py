@@ -60,21 +60,21 @@ def _xxe(target: str) -> str:
 """
 
 
-def _run_bounded(path: Path) -> subprocess.CompletedProcess[str]:
-    """Parse ``path`` in a child limited to 1 GiB of address space and 20 s CPU."""
+def _run_bounded(path: Path, cpu_s: int = 20) -> subprocess.CompletedProcess[str]:
+    """Parse ``path`` in a child limited to 1 GiB of address space and ``cpu_s`` s CPU."""
     code = textwrap.dedent(
         f"""
         import resource, sys
         resource.setrlimit(resource.RLIMIT_AS, (1 << 30, 1 << 30))
-        resource.setrlimit(resource.RLIMIT_CPU, (20, 20))
+        resource.setrlimit(resource.RLIMIT_CPU, ({cpu_s}, {cpu_s}))
         from pyethercat.errors import EsiError
         from pyethercat.esi import load_esi
         try:
-            load_esi({str(path)!r})
+            esi = load_esi({str(path)!r})
         except EsiError as exc:
             print("ESIERROR", exc)
             sys.exit(3)
-        print("PARSED")
+        print("PARSED", len(esi.devices))
         """
     )
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
@@ -91,6 +91,19 @@ def test_billion_laughs_rejected_within_bounds(tmp_path: Path) -> None:
     assert "ESIERROR" in res.stdout
     assert "laughs.xml:2:" in res.stdout  # the DOCTYPE line
     assert "DTD" in res.stdout
+
+
+def test_dtd_behind_a_comment_or_pi_rejected_within_bounds(tmp_path: Path) -> None:
+    # A comment or processing instruction holding "<x" before the DOCTYPE must not
+    # make the prolog check take it for the root element.
+    for n, lead in enumerate(["<!-- <x> -->", "<?pi <x> ?>", "<!-- a --><?p ?>\n<!-- <!DOCTYPE -->"]):
+        path = tmp_path / f"lead{n}.xml"
+        path.write_text(BILLION_LAUGHS.replace("\n<!DOCTYPE", f"\n{lead}\n<!DOCTYPE", 1))
+        line = 3 + lead.count("\n")
+        res = _run_bounded(path)
+        assert res.returncode == 3, res.stdout + res.stderr
+        # The up-front check's message (not libxml2's), on the DOCTYPE's own line.
+        assert f"lead{n}.xml:{line}: document type declaration with a DTD (entities" in res.stdout
 
 
 def test_external_entity_rejected_and_not_read(tmp_path: Path) -> None:
@@ -157,6 +170,45 @@ def test_deep_nesting_bounded() -> None:
         parse_esi(doc.encode(), "deep.xml")
 
 
+def test_deep_nesting_inside_a_dictionary() -> None:
+    # Object/Info/SubItem/Info/... is read recursively: 120 levels parse, and libxml2's
+    # depth limit (256, huge_tree off) stops anything deep enough to hurt the stack.
+    def doc(levels: int) -> bytes:
+        inner = "<SubItem><Name>a</Name><Info>" * levels + "</Info></SubItem>" * levels
+        obj = f"<Object><Index>#x2000</Index><Info>{inner}</Info></Object>"
+        dictionary = f"<Profile><Dictionary><Objects>{obj}</Objects></Dictionary></Profile>"
+        return MINIMAL.replace("</Type>", "</Type>" + dictionary).encode()
+
+    dev = parse_esi(doc(120)).devices[0]
+    assert dev.dictionary is not None and len(dev.dictionary.objects) == 1
+    with pytest.raises(EsiError, match=r"^deep\.xml:5: malformed XML: Excessive depth"):
+        parse_esi(doc(600), "deep.xml")
+
+
+def test_huge_values_are_bounded_and_named(tmp_path: Path) -> None:
+    # A 20 MB attribute: libxml2's size limit (huge_tree off), not a 20 MB string.
+    big = MINIMAL.replace('ProductCode="#x1"', 'ProductCode="#x' + "1" * (20 << 20) + '"')
+    with pytest.raises(EsiError, match=r"^a\.xml:5: malformed XML: .*limit"):
+        parse_esi(big.encode(), "a.xml")
+    # 5 million digits: refused by length, and the message quotes only the start.
+    digits = MINIMAL.replace('ProductCode="#x1"', 'ProductCode="' + "9" * 5_000_000 + '"')
+    with pytest.raises(EsiError) as info:
+        parse_esi(digits.encode(), "d.xml")
+    msg = str(info.value)
+    assert msg.startswith("d.xml:5: Type@ProductCode: '99999") and "5000000 digits" in msg
+    assert len(msg) < 200
+
+
+def test_many_devices_within_bounds(tmp_path: Path) -> None:
+    # 100 000 devices (7 MB): all parsed in a child held to 1 GiB and 60 s of CPU.
+    head, tail = MINIMAL.split("<Device>", 1)[0], "</Devices></Descriptions>\n</EtherCATInfo>\n"
+    dev = '<Device><Type ProductCode="#x{:X}" RevisionNo="#x1">D</Type></Device>\n'
+    path = tmp_path / "many.xml"
+    path.write_text(head + "".join(dev.format(i) for i in range(100_000)) + tail)
+    res = _run_bounded(path, cpu_s=60)
+    assert res.returncode == 0 and res.stdout.split() == ["PARSED", "100000"], res.stdout + res.stderr
+
+
 @pytest.mark.parametrize(
     ("doc", "pattern"),
     [
@@ -178,11 +230,40 @@ def test_deep_nesting_bounded() -> None:
         ),
         ("<EtherCATInfo><Vendor><Id>1</Id></Vendor></EtherCATInfo>", "missing <Descriptions>"),
         ("\x00\x01garbage", r"^t\.xml:1: malformed XML"),
+        # NUL bytes and invalid UTF-8 inside the document, named by line, one line long.
+        (MINIMAL.replace(">D<", ">D\x00<"), r"^t\.xml:5: malformed XML: [^\n]*Char 0x0[^\n]*$"),
+        (MINIMAL.replace('"#x1"', '"#x1\x00"'), r"^t\.xml:5: malformed XML: [^\n]*attribute"),
+        (MINIMAL.replace(">D<", ">D\udcff<"), r"^t\.xml:5: malformed XML: [^\n]*encoding"),
+        # Out-of-range numbers are refused where they stand, not when an SII is built.
+        (
+            MINIMAL.replace('"#x1"', '"#x100000000"'),
+            r"^t\.xml:5: Type@ProductCode: 4294967296 is out of range \(0 to 0xFFFFFFFF\)",
+        ),
+        (MINIMAL.replace('RevisionNo="#x2"', 'RevisionNo="-1"'), r"^t\.xml:5: Type@RevisionNo: -1 is out"),
+        (MINIMAL.replace("#x2</Id>", "#x1FFFFFFFF</Id>"), r"^t\.xml:3: Vendor/Id: 8589934591 is out"),
+        (
+            MINIMAL.replace("</Type>", "</Type><Sm StartAddress='#x10000'>Inputs</Sm>"),
+            r"^t\.xml:5: Sm@StartAddress: 65536 is out of range \(0 to 0xFFFF\)",
+        ),
+        (
+            MINIMAL.replace("</Type>", "</Type><Sm ControlByte='#x164'>Inputs</Sm>"),
+            r"^t\.xml:5: Sm@ControlByte: 356 is out of range \(0 to 0xFF\)",
+        ),
+        (
+            MINIMAL.replace("</Type>", "</Type><TxPdo><Index>#x1A000</Index></TxPdo>"),
+            r"^t\.xml:5: TxPdo/Index: 106496 is out of range",
+        ),
+        (
+            MINIMAL.replace("</Type>", "</Type><Mailbox><CoE><InitCmd><Transition>PS</Transition>"
+                            "<Index>#x6060</Index><SubIndex>256</SubIndex></InitCmd></CoE></Mailbox>"),
+            r"^t\.xml:5: CoE/InitCmd/SubIndex: 256 is out of range \(0 to 0xFF\)",
+        ),
     ],
 )
 def test_broken_files_name_file_line_and_problem(doc: str, pattern: str) -> None:
     with pytest.raises(EsiError, match=pattern):
-        parse_esi(doc.encode(), "t.xml")
+        # surrogateescape: "\udcff" in a case stands for the invalid UTF-8 byte 0xFF.
+        parse_esi(doc.encode("utf-8", "surrogateescape"), "t.xml")
 
 
 def test_bad_values_deep_in_a_device() -> None:

@@ -111,7 +111,7 @@ def test_ds402_channels_out_of_range() -> None:
     from pyethercat.esi import parse_esi
 
     doc = bundled_esi().read_bytes().replace(b'DS402Channels="1"', b'DS402Channels="256"')
-    with pytest.raises(EsiError, match=r"drive\.xml:\d+: CoE@DS402Channels: 256"):
+    with pytest.raises(EsiError, match=r"drive\.xml:\d+: CoE@DS402Channels: 256 is out of range"):
         parse_esi(doc, "drive.xml")
 
 

@@ -917,7 +917,8 @@ def parse_eni(
     try:
         root = etree.fromstring(data, parser=_make_parser())
     except etree.XMLSyntaxError as exc:
-        raise EsiError(f"malformed XML: {exc.msg}", source, exc.lineno or None) from None
+        msg = " ".join(exc.msg.split())  # libxml2 messages may hold a newline
+        raise EsiError(f"malformed XML: {msg}", source, exc.lineno or None) from None
     return _Reader(source).config(root)
 
 

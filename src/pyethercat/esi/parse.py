@@ -73,7 +73,9 @@ _Element = etree._Element
 
 # "#x0x6041" is in the wild (poulpe Orbita ESI): a "#x" and a "0x" prefix stacked.
 _INT_RE = re.compile(r"^\s*(-?)\s*(?:(?:#[xX](?:0[xX])?|0[xX])([0-9A-Fa-f]+)|([0-9]+))\s*$")
-_ROOT_START = re.compile(rb"<[A-Za-z_:]")
+#: No ESI number needs more digits (a 64-bit value has 20 decimal digits); longer
+#: ones are refused before int() spends time on them.
+_MAX_DIGITS = 40
 _DOCTYPE = re.compile(rb"<!DOCTYPE", re.IGNORECASE)
 _SPACE = re.compile(r"\s+")
 _DC_TIMES = {
@@ -96,9 +98,18 @@ def parse_int(text: str | None) -> int:
         raise ValueError("missing number")
     m = _INT_RE.match(text)
     if m is None:
-        raise ValueError(f"{text.strip()!r} is not a number")
-    value = int(m.group(2), 16) if m.group(2) is not None else int(m.group(3), 10)
+        raise ValueError(f"{_show(text)} is not a number")
+    digits = m.group(2) if m.group(2) is not None else m.group(3)
+    if len(digits) > _MAX_DIGITS:
+        raise ValueError(f"{_show(text)} has {len(digits)} digits, too many for a number")
+    value = int(digits, 16) if m.group(2) is not None else int(digits, 10)
     return -value if m.group(1) else value
+
+
+def _show(text: str, limit: int = 40) -> str:
+    """``text`` quoted for an error message, cut when it is long."""
+    t = text.strip()
+    return repr(t) if len(t) <= limit else f"{t[:limit]!r}... ({len(t)} characters)"
 
 
 def parse_bool(text: str | None) -> bool:
@@ -108,7 +119,7 @@ def parse_bool(text: str | None) -> bool:
         return True
     if t in ("false", "0"):
         return False
-    raise ValueError(f"{text!r} is not a boolean")
+    raise ValueError(f"{_show(text or '')} is not a boolean")
 
 
 def parse_hex_bytes(text: str | None) -> bytes:
@@ -141,11 +152,26 @@ def _check_prolog(data: bytes, source: str) -> None:
             # Look at the prolog as text; a cut character at the end is harmless.
             head = data[len(bom) : 1 << 20].decode(codec, errors="ignore").encode("utf-8")
             break
-    root = _ROOT_START.search(head)
-    prolog = head if root is None else head[: root.start()]
-    m = _DOCTYPE.search(prolog)
+    # Walk the prolog item by item: comments and processing instructions may hold
+    # "<x" or "<!DOCTYPE" text of their own, which is neither a root nor a DTD.
+    pos = 0
+    while True:
+        lt = head.find(b"<", pos)
+        if lt < 0:
+            return
+        if head.startswith(b"<?", lt):
+            end = head.find(b"?>", lt + 2)
+            pos = end + 2
+        elif head.startswith(b"<!--", lt):
+            end = head.find(b"-->", lt + 4)
+            pos = end + 3
+        else:
+            break
+        if end < 0:
+            return  # unterminated: libxml2 reports the malformed document
+    m = _DOCTYPE.match(head, lt)
     if m is None:
-        return
+        return  # the root element: no DTD
     decl_end = head.find(b">", m.end())
     decl = head[m.end() : decl_end if decl_end >= 0 else len(head)]
     if b"[" in decl or b"SYSTEM" in decl.upper() or b"PUBLIC" in decl.upper():
@@ -219,19 +245,29 @@ class _Parser:
         except ValueError as exc:
             raise self.error(el, f"{what}: {exc}") from None
 
-    def int_text(self, el: _Element, what: str) -> int:
-        """The element's text as a number."""
-        value = self._convert(el, what, el.text, parse_int)
-        assert isinstance(value, int)
+    def _ranged(self, el: _Element, what: str, value: int, bits: int | None) -> int:
+        """``value`` checked to be an unsigned number of ``bits`` bits (if given)."""
+        if bits is not None and not 0 <= value < (1 << bits):
+            raise self.error(el, f"{what}: {value} is out of range (0 to 0x{(1 << bits) - 1:X})")
         return value
 
-    def int_attr(self, el: _Element, name: str, default: int | None = None) -> int | None:
+    def int_text(self, el: _Element, what: str, bits: int | None = None) -> int:
+        """The element's text as a number (unsigned, ``bits`` wide, when ``bits`` is given)."""
+        value = self._convert(el, what, el.text, parse_int)
+        assert isinstance(value, int)
+        return self._ranged(el, what, value, bits)
+
+    def int_attr(
+        self, el: _Element, name: str, default: int | None = None, bits: int | None = None
+    ) -> int | None:
+        """Attribute ``name`` as a number, ``default`` when absent (range as :meth:`int_text`)."""
         raw = el.get(name)
         if raw is None:
             return default
-        value = self._convert(el, f"{_local(el.tag)}@{name}", raw, parse_int)
+        what = f"{_local(el.tag)}@{name}"
+        value = self._convert(el, what, raw, parse_int)
         assert isinstance(value, int)
-        return value
+        return self._ranged(el, what, value, bits)
 
     def bool_attr(self, el: _Element, name: str, default: bool = False) -> bool:
         raw = el.get(name)
@@ -253,12 +289,12 @@ class _Parser:
         assert isinstance(value, bytes)
         return value
 
-    def child_int(self, el: _Element, name: str, what: str) -> int:
+    def child_int(self, el: _Element, name: str, what: str, bits: int | None = None) -> int:
         """A required numeric child element."""
         c = self.child(el, name)
         if c is None:
             raise self.error(el, f"{what}: missing <{name}>")
-        return self.int_text(c, f"{what}/{name}")
+        return self.int_text(c, f"{what}/{name}", bits)
 
     def opt_child_int(self, el: _Element, name: str, what: str) -> int | None:
         c = self.child(el, name)
@@ -319,7 +355,7 @@ class _Parser:
         image = None
         for name, c in _kids(el):
             if name == "Id":
-                vid = self.int_text(c, "Vendor/Id")
+                vid = self.int_text(c, "Vendor/Id", 32)
             elif name == "Name":
                 names.append(c)
             elif name == "ImageData16x14" and _text(c):
@@ -382,11 +418,11 @@ class _Parser:
             elif name == "URL":
                 urls.append(c)
             elif name == "HideType":
-                rev = self.int_attr(c, "RevisionNo")
+                rev = self.int_attr(c, "RevisionNo", bits=32)
                 if rev is not None:
                     hide.append(rev)
             elif name == "AlternativeType":
-                rev = self.int_attr(c, "RevisionNo")
+                rev = self.int_attr(c, "RevisionNo", bits=32)
                 if rev is not None:
                     alt.append(rev)
             elif name == "Info":
@@ -422,8 +458,8 @@ class _Parser:
         if type_el is None:
             raise self.error(el, "Device: missing <Type>")
         return EsiDevice(
-            product_code=self.int_attr(type_el, "ProductCode", 0) or 0,
-            revision=self.int_attr(type_el, "RevisionNo", 0) or 0,
+            product_code=self.int_attr(type_el, "ProductCode", 0, 32) or 0,
+            revision=self.int_attr(type_el, "RevisionNo", 0, 32) or 0,
             type_name=_text(type_el),
             check_revision=type_el.get("CheckRevisionNo"),
             name=self.texts(names),
@@ -471,11 +507,11 @@ class _Parser:
         return EsiSm(
             index=index,
             name=_text(el),
-            start_address=self.int_attr(el, "StartAddress"),
-            control_byte=self.int_attr(el, "ControlByte"),
-            default_size=self.int_attr(el, "DefaultSize"),
-            min_size=self.int_attr(el, "MinSize"),
-            max_size=self.int_attr(el, "MaxSize"),
+            start_address=self.int_attr(el, "StartAddress", bits=16),
+            control_byte=self.int_attr(el, "ControlByte", bits=8),
+            default_size=self.int_attr(el, "DefaultSize", bits=16),
+            min_size=self.int_attr(el, "MinSize", bits=16),
+            max_size=self.int_attr(el, "MaxSize", bits=16),
             enable=self.bool_attr(el, "Enable"),
             virtual=self.bool_attr(el, "Virtual"),
             op_only=self.bool_attr(el, "OpOnly"),
@@ -490,13 +526,13 @@ class _Parser:
         excludes: list[int] = []
         for name, c in _kids(el):
             if name == "Index":
-                index = self.int_text(c, f"{what}/Index")
+                index = self.int_text(c, f"{what}/Index", 16)
             elif name == "Name":
                 names.append(c)
             elif name == "Entry":
                 entries.append(self.entry(c, what))
             elif name == "Exclude":
-                excludes.append(self.int_text(c, f"{what}/Exclude"))
+                excludes.append(self.int_text(c, f"{what}/Exclude", 16))
         if index is None:
             raise self.error(el, f"{what}: missing <Index>")
         return EsiPdo(
@@ -504,7 +540,7 @@ class _Parser:
             index=index,
             name=self.texts(names),
             entries=tuple(entries),
-            sm=self.int_attr(el, "Sm"),
+            sm=self.int_attr(el, "Sm", bits=8),
             su=self.int_attr(el, "Su"),
             fixed=self.bool_attr(el, "Fixed"),
             mandatory=self.bool_attr(el, "Mandatory"),
@@ -593,9 +629,7 @@ class _Parser:
                 cmds.append(self.init_cmd(c, "CoE"))
             elif name == "EdsFile":
                 eds = _text(c) or None
-        ds402 = self.int_attr(el, "DS402Channels", 0) or 0
-        if not 0 <= ds402 <= 0xFF:
-            raise self.error(el, f"CoE@DS402Channels: {ds402} is not between 0 and 255")
+        ds402 = self.int_attr(el, "DS402Channels", 0, 8) or 0
         return EsiCoe(
             sdo_info=self.bool_attr(el, "SdoInfo"),
             pdo_assign=self.bool_attr(el, "PdoAssign"),
@@ -622,9 +656,9 @@ class _Parser:
             if name == "Transition":
                 transitions.append(_text(c).upper())
             elif name in ("Index", "IDN"):
-                index = self.int_text(c, f"{what}/{name}")
+                index = self.int_text(c, f"{what}/{name}", 16)
             elif name == "SubIndex":
-                subindex = self.int_text(c, f"{what}/SubIndex")
+                subindex = self.int_text(c, f"{what}/SubIndex", 8)
             elif name == "Data":
                 data = self.hex_text(c, f"{what}/Data")
             elif name == "Comment":
@@ -661,7 +695,7 @@ class _Parser:
             elif tag == "Desc":
                 kw["desc"] = _text(c) or None
             elif tag == "AssignActivate":
-                kw["assign_activate"] = self.int_text(c, "Dc/OpMode/AssignActivate")
+                kw["assign_activate"] = self.int_text(c, "Dc/OpMode/AssignActivate", 16)
             elif tag in ("CycleTimeSync0", "ShiftTimeSync0", "CycleTimeSync1", "ShiftTimeSync1"):
                 base = _DC_TIMES[tag]
                 kw[base] = self.int_text(c, f"Dc/OpMode/{tag}") if _text(c) else 0
@@ -675,7 +709,7 @@ class _Parser:
                 if no is None:
                     raise self.error(c, "Dc/OpMode/Sm: missing No attribute")
                 pdos = tuple(
-                    self.int_text(p, "Dc/OpMode/Sm/Pdo") for n, p in _kids(c) if n == "Pdo"
+                    self.int_text(p, "Dc/OpMode/Sm/Pdo", 16) for n, p in _kids(c) if n == "Pdo"
                 )
                 sm_pdos.append((no, pdos))
         return EsiDcOpMode(name=name, sm_pdos=tuple(sm_pdos), **kw)  # type: ignore[arg-type]
@@ -693,7 +727,7 @@ class _Parser:
             elif name == "Data":
                 kw["data"] = self.hex_text(c, "Eeprom/Data")
             elif name == "Category":
-                no = self.child_int(c, "CatNo", "Eeprom/Category")
+                no = self.child_int(c, "CatNo", "Eeprom/Category", 16)
                 data_el = self.child(c, "Data")
                 data = (
                     self.hex_text(data_el, "Eeprom/Category/Data") if data_el is not None else b""
@@ -831,7 +865,7 @@ class _Parser:
         flags_el = None
         for name, c in _kids(el):
             if name == "Index":
-                index = self.int_text(c, "Object/Index")
+                index = self.int_text(c, "Object/Index", 16)
             elif name == "Name":
                 names.append(c)
             elif name == "Type":
@@ -881,7 +915,8 @@ def parse_esi(
         root = etree.fromstring(data, parser=_make_parser())
     except etree.XMLSyntaxError as exc:
         line = exc.lineno if exc.lineno else None
-        raise EsiError(f"malformed XML: {exc.msg}", source, line) from None
+        # libxml2 messages may hold a newline; an EsiError is one line.
+        raise EsiError(f"malformed XML: {' '.join(exc.msg.split())}", source, line) from None
     # Belt and braces: the prolog check should already have refused these.
     docinfo: Any = root.getroottree().docinfo  # lxml-stubs lacks system_url / iterentities
     dtd = docinfo.internalDTD
