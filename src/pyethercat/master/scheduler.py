@@ -800,6 +800,10 @@ class Scheduler:
     @staticmethod
     def _mismatch(entry: _InFlight, got: list[Datagram]) -> tuple[bool, str] | None:
         """None if ``got`` answers ``entry``; else (looks foreign, reason)."""
+        if got and entry.datagrams and int(got[0].command) != int(entry.datagrams[0].command):
+            # Another frame's reply that happens to carry this index.
+            return (True, f"datagram 0 is {command_name(int(got[0].command))}, sent "
+                          f"{command_name(int(entry.datagrams[0].command))}")
         if len(got) != len(entry.datagrams):
             return (False, f"{len(got)} datagrams, sent {len(entry.datagrams)}")
         for n, (s, g) in enumerate(zip(entry.datagrams, got, strict=True)):
