@@ -174,3 +174,69 @@ def test_brd_after_a_loop_control_write_in_the_same_frame_sees_the_new_dl_status
                               Datagram.positional(Command.APWR, 1, R.DL_CONTROL_LOOP, bytes([loop])),
                               brd])
         assert fast.process(frame) == ref.process(frame)
+
+
+def _old_refresh_system_time(seg: Segment, slaves: np.ndarray) -> None:
+    """The system-time refresh as first written (reference for the inlined one)."""
+    mem = seg.memory.mem
+    local = seg.local_time(slaves, seg._pass_time(slaves))
+    offset = mem[slaves, R.DC_SYSTEM_TIME_OFFSET: R.DC_SYSTEM_TIME_OFFSET + 8].copy().view("<i8")[:, 0]
+    st_ = (local + offset).astype("<i8")
+    mem[slaves, R.DC_SYSTEM_TIME: R.DC_SYSTEM_TIME + 8] = st_.view(np.uint8).reshape(-1, 8)
+
+
+def _old_time_loop_write(seg: Segment, slaves: np.ndarray, data: bytes, offset: int) -> None:
+    """0x092C from a write to 0x0910 as first written (reads 0x0910 back from memory)."""
+    if not len(slaves) or offset != 0 or len(data) < 4:
+        return
+    mem = seg.memory.mem
+    _old_refresh_system_time(seg, slaves)
+    if len(data) >= 8:
+        received = np.int64(int.from_bytes(data[:8], "little", signed=True))
+        own = mem[slaves, R.DC_SYSTEM_TIME: R.DC_SYSTEM_TIME + 8].copy().view("<i8")[:, 0]
+    else:
+        received = np.int64(int.from_bytes(data[:4], "little"))
+        own = mem[slaves, R.DC_SYSTEM_TIME: R.DC_SYSTEM_TIME + 4].copy().view("<u4")[:, 0].astype(np.int64)
+    delay = mem[slaves, R.DC_SYSTEM_TIME_DELAY: R.DC_SYSTEM_TIME_DELAY + 4].copy().view("<u4")[:, 0]
+    diff = own - delay.astype(np.int64) - received
+    mag = np.minimum(np.abs(diff), 0x7FFFFFFF).astype(np.uint32)
+    value = (mag | np.where(diff >= 0, np.uint32(0x80000000), np.uint32(0))).astype("<u4")
+    mem[slaves, R.DC_SYSTEM_TIME_DIFFERENCE: R.DC_SYSTEM_TIME_DIFFERENCE + 4] = value.view(
+        np.uint8).reshape(-1, 4)
+
+
+_DC_OP = st.tuples(
+    st.sampled_from([Command.FRMW, Command.ARMW, Command.BWR, Command.APWR, Command.BRD, Command.FPRD]),
+    st.sampled_from([(R.DC_SYSTEM_TIME, 8), (R.DC_SYSTEM_TIME, 4), (R.DC_SYSTEM_TIME_OFFSET, 8),
+                     (R.DC_SYSTEM_TIME_DELAY, 4), (R.DC_SYSTEM_TIME_DIFFERENCE, 4)]),
+    st.integers(0, 3), st.binary(min_size=8, max_size=8), st.integers(0, 50_000_000))
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.floats(-100.0, 100.0), min_size=1, max_size=4), st.lists(_DC_OP, min_size=1, max_size=20))
+def test_dc_system_time_path_matches_its_first_version(drifts: list[float], ops: list[tuple]) -> None:
+    segs = []
+    for new in (True, False):
+        seg = Segment(VirtualClock(1_000_000))
+        for i, ppm in enumerate(drifts):
+            seg.add_slave(spec(f"s{i}", "ET1100", drift_ppm=ppm))
+        if not new:
+            seg.refresh_system_time = lambda sl, _s=seg: _old_refresh_system_time(_s, sl)  # type: ignore[method-assign]
+            seg.time_loop_write = lambda sl, d, o, _s=seg: _old_time_loop_write(_s, sl, d, o)  # type: ignore[method-assign]
+        segs.append(seg)
+    for cmd, (ado, n), pos, payload, wait in ops:
+        if cmd in (Command.APWR, Command.ARMW):
+            d = Datagram.positional(cmd, pos, ado, payload[:n])
+        elif cmd in (Command.BWR, Command.BRD):
+            d = Datagram.device(cmd, 0, ado, payload[:n])
+        else:
+            d = Datagram.device(cmd, 0, ado, payload[:n])  # station 0: all unaddressed slaves
+        frame = encode_frame([d])
+        replies = []
+        for seg in segs:
+            assert isinstance(seg.clock, VirtualClock)
+            seg.clock.advance(wait)
+            replies.append(seg.process(frame))
+        assert replies[0] == replies[1]
+    n_slaves = len(drifts)
+    assert np.array_equal(segs[0].memory.mem[:n_slaves], segs[1].memory.mem[:n_slaves])

@@ -835,13 +835,18 @@ class Segment:
         t = route.epu_ns[slaves]
         return self._frame_t0 + np.maximum(t, 0)
 
-    def refresh_system_time(self, slaves: I64) -> None:
-        """Write the system time (local time + offset 0x0920) into 0x0910 of ``slaves``."""
+    def refresh_system_time(self, slaves: I64) -> I64:
+        """Write the system time (local time + offset 0x0920) into 0x0910 of ``slaves``; return it."""
         mem = self.memory.mem
-        local = self.local_time(slaves, self._pass_time(slaves))
+        # local_time(slaves, _pass_time(slaves)), inlined: this runs for every FRMW/ARMW
+        # of the DC cycle.
+        route = self._route if self._route is not None and not self.topology_dirty else self.route
+        t = self._frame_t0 + np.maximum(route.epu_ns[slaves], 0)
+        local = ((t - self.dc_t0[slaves]) * self.dc_rate[slaves]).astype(np.int64)
         offset = mem[slaves, R.DC_SYSTEM_TIME_OFFSET: R.DC_SYSTEM_TIME_OFFSET + 8].copy().view("<i8")[:, 0]
-        st = (local + offset).astype("<i8")
+        st: I64 = (local + offset).astype("<i8")
         mem[slaves, R.DC_SYSTEM_TIME: R.DC_SYSTEM_TIME + 8] = st.view(np.uint8).reshape(-1, 8)
+        return st
 
     def latch_receive_times(self, slaves: I64) -> None:
         """A write to 0x0900 passed ``slaves``: latch the port receive times and 0x0918."""
@@ -871,13 +876,12 @@ class Segment:
         if not len(slaves) or offset != 0 or len(data) < 4:
             return
         mem = self.memory.mem
-        self.refresh_system_time(slaves)
+        own = self.refresh_system_time(slaves)  # what 0x0910 now holds
         if len(data) >= 8:
             received = np.int64(int.from_bytes(data[:8], "little", signed=True))
-            own = mem[slaves, R.DC_SYSTEM_TIME: R.DC_SYSTEM_TIME + 8].copy().view("<i8")[:, 0]
         else:
             received = np.int64(int.from_bytes(data[:4], "little"))
-            own = mem[slaves, R.DC_SYSTEM_TIME: R.DC_SYSTEM_TIME + 4].copy().view("<u4")[:, 0].astype(np.int64)
+            own = own & 0xFFFFFFFF  # the low double word, as an unsigned value
         delay = mem[slaves, R.DC_SYSTEM_TIME_DELAY: R.DC_SYSTEM_TIME_DELAY + 4].copy().view("<u4")[:, 0]
         diff = own - delay.astype(np.int64) - received
         mag = np.minimum(np.abs(diff), 0x7FFFFFFF).astype(np.uint32)
