@@ -133,3 +133,26 @@ def test_esi_specs_from_files(corpus_dir: Path) -> None:
     specs = esi_specs([(bundled_esi(), None, None),
                        (corpus_dir / "esi" / "beckhoff_EL1xxx.xml", 0x03EC3052, None)])  # fmt: skip
     assert specs[1].identity.revision == 0x00130000 and specs[1].device is not None
+
+
+def test_scan_does_not_wait_out_the_ack_echo_of_device_emulation_slaves(
+    tmp_path: Path, corpus_dir: Path
+) -> None:
+    """An EL1004 (no firmware) reads back the reset's INIT+ack as 0x0011 until INIT is
+    written alone; the scan writes it, so all slaves read plain INIT and the scan does
+    not poll until its INIT timeout (it used to: 2 s, hundreds of frames)."""
+    from pyethercat.sim.topology import load_topology
+    from pyethercat.wire.registers import AL_STATUS
+
+    seg = load_topology(_topology(tmp_path, corpus_dir)).build()
+    frames = 0
+
+    def counting(frame: bytes) -> bytes | None:
+        nonlocal frames
+        frames += 1
+        return seg.process(frame)
+
+    m = Master(PairLink.responder_link(counting), deterministic=True)
+    m.scan(read_sii=False)
+    assert [m.read_u16(s.position, AL_STATUS) for s in m.slaves] == [int(AlState.INIT)] * 3
+    assert frames < 40, frames
