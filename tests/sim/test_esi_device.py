@@ -31,6 +31,19 @@ CASES = [
 ]
 
 
+# The same layouts written out by hand from the ESI text ({SM: (bytes, PDO indices)}),
+# so that a fault in EsiDevice.pdo_layout() itself cannot hide behind the comparison.
+LAYOUTS = [
+    {2: (3, (0x1600,)), 3: (7, (0x1A00,))},  # seed drive: 16+8 bit out, 16+8+32 bit in
+    {2: (2, (0x1600,)), 3: (1, (0x1A00,))},
+    {2: (2, (0x1600, 0x1601, 0x1602)), 3: (1, (0x1A00, 0x1A01))},
+    {2: (43, (0x1600,)), 3: (66, (0x1700, 0x1800))},  # two Fixed/Mandatory TxPDOs on SM3
+    {2: (2, (0x1600,)), 3: (28, (0x1A00,))},
+    {2: (11, (0x1600,)), 3: (11, (0x1A00,))},  # the Sm-less PDOs are only selectable
+    {0: (1, (0x1A00, 0x1A01, 0x1A02, 0x1A03))},  # EL1004: 4 x 1 bit on SM0
+]
+
+
 def _topology(tmp_path: Path, corpus_dir: Path) -> Path:
     lines = [f'[[slave]]\nname = "seed"\nesi = "{bundled_esi()}"\n']
     for n, (name, product, revision) in enumerate(CASES):
@@ -51,7 +64,7 @@ def test_esi_slaves_reach_op_with_the_declared_layout(tmp_path: Path, corpus_dir
     cfg = m.configure()
     files = [bundled_esi()] + [corpus_dir / "esi" / c[0] for c in CASES]
     products = [None] + [c[1] for c in CASES]
-    for slave, path, product in zip(m.slaves, files, products, strict=True):
+    for slave, path, product, by_hand in zip(m.slaves, files, products, LAYOUTS, strict=True):
         esi = load_esi(path)
         dev = esi.find_device(product) if product else esi.devices[0]
         assert slave.identity.product_code == dev.product_code
@@ -61,7 +74,7 @@ def test_esi_slaves_reach_op_with_the_declared_layout(tmp_path: Path, corpus_dir
             for sm in cfg.slaves[slave.position].process_data_sync_managers
         }
         want = {s.sm.index: (s.byte_size, s.pdo_indices) for s in layout.sms if s.pdos}
-        assert got == want, path.name
+        assert got == want == by_hand, path.name
     stats = m.run(cycle=0.002, seconds=0.1)
     assert all(s.al_state == AlState.OP for s in m.slaves)
     assert stats.wkc_errors == 0  # type: ignore[union-attr]
