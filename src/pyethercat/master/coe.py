@@ -38,7 +38,7 @@ import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 
-from pyethercat.errors import ConfigError, MailboxError, SdoAbort
+from pyethercat.errors import ConfigError, EtherCATError, MailboxError, SdoAbort
 from pyethercat.errors import TimeoutError as EcTimeoutError
 from pyethercat.master.config import Direction, Pdo, PdoEntry
 from pyethercat.master.mailbox import Mailbox, MailboxMessage
@@ -252,9 +252,8 @@ class CoeClient:
         """Write an object (SDO download) with the raw bytes ``data``."""
         if complete_access and subindex > 1:
             subindex = 1
-        if not data:
-            raise ConfigError(f"{self.label}: SDO download to {_addr(index, subindex)} "
-                              "needs at least one byte")
+        # No data is a normal transfer with complete size 0 (an empty string, say):
+        # expedited frames carry 1..4 bytes only.
         machine = SdoDownloadClient(index, subindex, bytes(data),
                                     mailbox_size=min(self.mailbox.rx_size, self.mailbox.tx_size),
                                     complete_access=complete_access, expedited=expedited)
@@ -710,11 +709,11 @@ class StartupCommand:
                 f"{self.data.hex(' ')}{note}")
 
     def run(self, client: CoeClient) -> None:
-        """Do the download; aborts raise :class:`SdoAbort` naming the command."""
+        """Do the download; errors (aborts, timeouts, error replies) name the command."""
         try:
             client.download(self.index, self.subindex, self.data,
                             complete_access=self.complete_access, timeout=self.timeout)
-        except SdoAbort as exc:
+        except EtherCATError as exc:
             exc.args = (f"start-up command {self.describe()}: {exc}",)
             raise
 

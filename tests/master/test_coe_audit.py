@@ -1,0 +1,99 @@
+"""Audit of the CoE client against the simulator: edge cases the other tests left open.
+
+Zero-byte downloads (a normal transfer with complete size 0), start-up
+command failures (named clearly, and the state request is not made).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from pyethercat.errors import SdoAbort
+from pyethercat.errors import TimeoutError as EcTimeoutError
+from pyethercat.link.pair import PairLink
+from pyethercat.master.master import Master
+from pyethercat.wire import registers as R
+from pyethercat.wire.al import AlState
+from pyethercat.wire.datagram import Command, Datagram
+from pyethercat.wire.mailbox.coe import SdoAbortCode, SdoDownloadClient
+
+TOPOLOGY = """
+[[slave]]
+name = "io"
+device = "builtin:coe-io"
+[[slave]]
+name = "drive"
+device = "builtin:seed002-drive"
+"""
+
+
+@pytest.fixture
+def m(tmp_path: Path) -> Master:
+    from pyethercat.sim.topology import load_topology
+
+    path = tmp_path / "coe.toml"
+    path.write_text(TOPOLOGY)
+    seg = load_topology(path).build()
+    master = Master(PairLink.responder_link(seg.process), deterministic=True)
+    master.scan()
+    master.set_state("PREOP")
+    return master
+
+
+def test_zero_byte_download_is_a_normal_transfer_of_size_zero() -> None:
+    req = SdoDownloadClient(0x8000, 6, b"", mailbox_size=128).start()
+    # CoE header (service 2), command 0x21 (initiate, size indicated, not expedited),
+    # index, subindex, complete size 0, no data
+    assert req.encode() == bytes.fromhex("0020" "21" "0080" "06" "00000000")
+
+
+def test_zero_byte_download_empties_a_string(m: Master) -> None:
+    io = m.slaves[0]
+    io.sdo_write(0x8000, 6, b"")
+    assert io.sdo_read(0x8000, 6) == b""
+    assert io.sdo_read(0x8000, 6, "string") == ""
+    with pytest.raises(SdoAbort) as err:  # a fixed-size entry refuses 0 bytes
+        io.sdo_write(0x8000, 1, b"")
+    assert err.value.code == SdoAbortCode.LENGTH_TOO_LOW
+
+
+def _al_control(m: Master, station: int) -> int:
+    reply = m.scheduler.transact_one(Datagram.device(Command.FPRD, station, R.AL_CONTROL, 2))
+    return int.from_bytes(reply.data, "little") & 0x0F
+
+
+def test_failing_ps_startup_command_names_slave_object_abort_and_stops(m: Master) -> None:
+    io = m.slaves[0]
+    # 0x8000:01 takes at most 10000: the slave aborts with 0x06090031
+    m.add_startup_command(io, "PS", 0x8000, 1, 20000, dtype="uint16", comment="filter")
+    with pytest.raises(SdoAbort) as err:
+        m.set_state("SAFEOP", [io])
+    text = str(err.value)
+    assert "start-up command PS 0x8000:01 = 20 4e (filter)" in text
+    assert io.describe() in text
+    assert "0x06090031" in text and "too high" in text
+    assert err.value.code == SdoAbortCode.VALUE_TOO_HIGH
+    # the SAFE-OP request was never written: AL control still asks for PRE-OP
+    assert _al_control(m, io.station_address) == int(AlState.PREOP)
+    status = m.scheduler.transact_one(
+        Datagram.device(Command.FPRD, io.station_address, R.AL_STATUS, 2))
+    assert int.from_bytes(status.data, "little") & 0x0F == int(AlState.PREOP)
+
+
+def test_startup_command_timeout_names_the_command(m: Master,
+                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    drive = m.slaves[1]
+    m.add_startup_command(drive, "PS", 0x6060, 0, 3, dtype="int8", comment="mode")
+    assert drive.coe is not None
+
+    def silent(*_a: object, **_k: object) -> None:
+        raise EcTimeoutError(f"{drive.describe()}: no reply to SDO download 0x6060:00 within 2 s")
+
+    monkeypatch.setattr(drive.coe, "download", silent)
+    with pytest.raises(EcTimeoutError) as err:
+        m.set_state("SAFEOP", [drive])
+    assert str(err.value).startswith("start-up command PS 0x6060:00 = 03 (mode): ")
+    assert drive.describe() in str(err.value)
+    assert _al_control(m, drive.station_address) == int(AlState.PREOP)
