@@ -12,8 +12,10 @@ import threading
 from collections.abc import Callable
 from pathlib import Path
 
+import pytest
 from mini_coe import coe_segment
 
+from pyethercat.errors import ConfigError
 from pyethercat.link.pair import PairLink
 from pyethercat.master.master import Master
 from pyethercat.wire import registers as reg
@@ -130,3 +132,35 @@ def test_coe_io_sdos_and_emergency_while_cyclic_runs(tmp_path: Path) -> None:
         assert runner.groups[0].wkc_ok and runner.stats.wkc_errors == 0
     finally:
         runner.stop()
+
+
+def test_runner_public_wait_and_group_status() -> None:
+    """The API CyclicMailboxStatus uses: wait_exchanges and a read-only group status."""
+    _seg, _apps, _drop, link = coe_segment(1)
+    m = Master(link)
+    m.coe_pdo_config = False
+    m.scan()
+    cfg = m.configure()
+    name = cfg.groups[0].name
+    at = cfg.slaves[0].mailbox_status_offset
+    runner = m.start(cycle=0.001)
+    try:
+        before = runner.group_status(name)
+        assert runner.wait_exchanges(name, 3, timeout=2.0)
+        after = runner.group_status(name)
+        assert after.exchanges >= before.exchanges + 3 and after.wkc_ok
+        # the image view is read-only and holds SM1's status byte (mailbox empty: bit 3 clear)
+        assert after.image.readonly
+        assert not after.image[at] & reg.SM_STATUS_MAILBOX_FULL
+        # from inside the loop thread the wait would wait for itself: refused at once
+        seen: list[bool] = []
+        runner.callback = lambda _c: seen.append(runner.wait_exchanges(name, 1, 1.0)) \
+            if not seen else None
+        assert runner.wait_exchanges(name, 2, timeout=2.0)
+        assert seen == [False]
+        runner.callback = None
+        with pytest.raises(ConfigError, match="no such group"):
+            runner.group_status("no such group")
+    finally:
+        m.stop()
+    assert not runner.wait_exchanges(name, 1, timeout=0.5)  # stopped: no wait

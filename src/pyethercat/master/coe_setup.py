@@ -30,7 +30,6 @@ import contextlib
 import logging
 import queue
 import threading
-import time
 from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
@@ -55,7 +54,7 @@ from pyethercat.wire.sii.model import CoeDetails, MailboxProtocol, SiiInfo, Sync
 
 if TYPE_CHECKING:
     from pyethercat.master.config import ProcessDataConfig
-    from pyethercat.master.cyclic import CyclicRunner, GroupRuntime
+    from pyethercat.master.cyclic import CyclicRunner
     from pyethercat.master.scheduler import Scheduler
 
 __all__ = ["CoeMasterMixin", "CyclicMailboxStatus", "PdoSpec", "pdo_names_from_sii"]
@@ -122,9 +121,9 @@ class CyclicMailboxStatus:
     def __init__(self, master: CoeMasterMixin, position: int) -> None:
         self._master = master
         self.position = position
-        self._where: tuple[CyclicRunner, GroupRuntime, int] | None = None
+        self._where: tuple[CyclicRunner, str, int] | None = None
 
-    def _locate(self) -> tuple[CyclicRunner, GroupRuntime, int] | None:
+    def _locate(self) -> tuple[CyclicRunner, str, int] | None:
         runner = self._master.runner
         if runner is None or not runner.running:
             return None
@@ -134,10 +133,9 @@ class CyclicMailboxStatus:
         sc = runner.config.slaves.get(self.position)
         if sc is None or sc.mailbox_status_offset < 0:
             return None
-        group = next((g for g in runner.groups if g.name == sc.group), None)
-        if group is None:
-            return None
-        self._where = (runner, group, sc.mailbox_status_offset)
+        if not any(g.name == sc.group for g in runner.groups):
+            return None  # the runner does not exchange this slave's group
+        self._where = (runner, sc.group, sc.mailbox_status_offset)
         return self._where
 
     def __call__(self, budget: float) -> int | None:
@@ -145,20 +143,12 @@ class CyclicMailboxStatus:
         if where is None:
             return None
         runner, group, at = where
-        if threading.current_thread() is runner._thread:
-            return None  # (a callback in the cycle thread would wait for itself)
-        if budget > 0:
-            want = group.exchanges + 2
-            limit = time.monotonic() + budget
-            # The loop notifies this condition after every cycle (CyclicRunner.cycles too).
-            cond = runner._cond
-            with cond:
-                while group.exchanges < want:
-                    left = limit - time.monotonic()
-                    if left <= 0 or not runner.running:
-                        return None
-                    cond.wait(min(left, 0.05))
-        return group.image.buffer[at] if group.wkc_ok else None
+        # Two more exchanges: the second began after this call, so its byte is newer
+        # than the caller's last SM1 read. (False from the loop thread itself.)
+        if budget > 0 and not runner.wait_exchanges(group, 2, budget):
+            return None
+        status = runner.group_status(group)
+        return status.image[at] if status.wkc_ok else None
 
 
 class CoeMasterMixin:

@@ -62,6 +62,7 @@ __all__ = [
     "CycleStats",
     "Cycle",
     "GroupRuntime",
+    "GroupStatus",
     "CyclicRunner",
     "SlaveHealth",
     "JITTER_BINS_US",
@@ -333,6 +334,21 @@ class _Event:
 # --- the runner ---------------------------------------------------------------------------
 
 
+@dataclass(frozen=True, slots=True)
+class GroupStatus:
+    """A snapshot of one group's exchange state, for readers outside the loop.
+
+    ``image`` is a read-only view of the group's process image (it changes
+    with every exchange; copy what must stay). ``wkc_ok`` tells whether the
+    last exchange came back with the expected working counters.
+    """
+
+    name: str
+    exchanges: int
+    wkc_ok: bool
+    image: memoryview
+
+
 class CyclicRunner:
     """The cyclic loop over one or more groups (see the module text).
 
@@ -446,6 +462,42 @@ class CyclicRunner:
     @property
     def running(self) -> bool:
         return self._thread is not None and self._thread.is_alive()
+
+    def _group(self, name: str) -> GroupRuntime:
+        for g in self.groups:
+            if g.name == name:
+                return g
+        raise ConfigError(f"the cyclic runner has no group {name!r} "
+                          f"(groups: {', '.join(g.name for g in self.groups)})")
+
+    def group_status(self, name: str) -> GroupStatus:
+        """Exchanges so far, last working-counter verdict and a read-only image view."""
+        g = self._group(name)
+        return GroupStatus(g.name, g.exchanges, g.wkc_ok,
+                           memoryview(g.image.buffer).toreadonly())
+
+    def wait_exchanges(self, name: str, count: int, timeout: float) -> bool:
+        """Wait until group ``name`` completed ``count`` more exchanges than now.
+
+        False when they did not come within ``timeout`` seconds, when the loop
+        thread (:meth:`start`) is not running, or when called from the loop
+        thread itself (its callback would wait for itself).
+        """
+        g = self._group(name)
+        if count <= 0:
+            return True
+        if not self.running or threading.current_thread() is self._thread:
+            return False
+        want = g.exchanges + count
+        limit = time.monotonic() + timeout
+        # The loop notifies this condition after every cycle.
+        with self._cond:
+            while g.exchanges < want:
+                left = limit - time.monotonic()
+                if left <= 0 or not self.running:
+                    return False
+                self._cond.wait(min(left, 0.05))
+        return True
 
     def __enter__(self) -> CyclicRunner:
         return self if self._thread is not None else self.start()
