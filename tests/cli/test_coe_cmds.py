@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import struct
 from pathlib import Path
 
 import pytest
@@ -34,12 +35,52 @@ def test_upload_by_described_type_and_given_type(topo: str) -> None:
     r = run(topo, "upload", "-p", "0", "0x1018", "1")
     assert r.exit_code == 0, r.output
     assert r.output == "0x00504543 5260611\n"
+    # IgH refuses a type whose size differs from what the slave sent
     r = run(topo, "upload", "-p", "0", "0x1018", "1", "--type", "uint16")
-    assert r.output == "0x4543 17731\n"
+    assert r.exit_code == 1
+    assert "Data type mismatch. Expected uint16 with 2 bytes, but got 4 bytes" in r.output
     r = run(topo, "upload", "-p", "0", "0x1008", "0")
     assert r.output.startswith("PEC-COEIO")
+    # octet strings and raw data as IgH's printRawData shows bytes
     r = run(topo, "upload", "-p", "0", "0x2000", "0", "--type", "octet_string")
-    assert r.output.startswith("00 01 02 03") and len(r.output.split()) == 4096
+    assert r.output.startswith("0x00 0x01 0x02 0x03") and len(r.output.split()) == 4096
+    r = run(topo, "upload", "-p", "0", "0x2000", "0", "--type", "raw")
+    assert r.output.startswith("0x00 0x01 0x02 0x03")
+
+
+def test_upload_formats_as_igh_prints_them() -> None:
+    from pyethercat.cli.coe_cmds import format_upload, upload_type
+    from pyethercat.errors import ConfigError
+
+    def out(t: str, raw: bytes) -> str:
+        return format_upload(upload_type(t), raw)
+
+    # integers: hex of the bytes (two's complement, type width) then decimal
+    assert out("int16", b"\xf6\xff") == "0xfff6 -10"
+    assert out("int8", b"\xf6") == "0xf6 -10"
+    assert out("int32", (-2).to_bytes(4, "little", signed=True)) == "0xfffffffe -2"
+    assert out("int64", (-1).to_bytes(8, "little", signed=True)) == "0xffffffffffffffff -1"
+    assert out("uint8", b"\x07") == "0x07 7"
+    assert out("uint64", (1 << 40).to_bytes(8, "little")) == "0x0000010000000000 1099511627776"
+    assert out("bool", b"\x01") == "0x01 1"
+    # sign-and-magnitude: the top bit is the sign, the rest the magnitude
+    assert out("sm16", b"\x05\x80") == "0x8005 -5"
+    assert out("sm8", b"\x05") == "0x05 5"
+    # floats as C++ streams them (6 significant digits)
+    assert out("float", b"\x00\x00\x20\x40") == "2.5"
+    assert out("double", struct.pack("<d", 3.14159265)) == "3.14159"
+    assert out("string", b"pump\x00\x00") == "pump"
+    with pytest.raises(ConfigError, match="Expected int32 with 4 bytes, but got 2 bytes"):
+        out("int32", b"\x01\x02")
+
+
+def test_download_sign_magnitude(topo: str) -> None:
+    from pyethercat.cli.coe_cmds import encode_download, upload_type
+
+    assert encode_download(upload_type("sm16"), "-5") == b"\x05\x80"
+    assert encode_download(upload_type("sm32"), "7") == b"\x07\x00\x00\x00"
+    r = run(topo, "download", "-p", "0", "--type", "sm16", "0x8001", "1", "--", "-5")
+    assert r.exit_code == 0, r.output
 
 
 def test_download_typed_by_description_and_option(topo: str) -> None:

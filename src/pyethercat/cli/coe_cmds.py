@@ -14,6 +14,7 @@ brought to PRE-OP first, because the mailbox works only from there.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import click
@@ -27,17 +28,21 @@ from pyethercat.wire.al import AlState
 from pyethercat.wire.mailbox.datatypes import (
     TYPE_NAMES,
     DataType,
-    Value,
-    format_value,
+    decode_value,
+    encode_value,
     parse_value,
 )
 
-__all__ = ["register", "format_sdos", "type_name", "format_upload"]
+__all__ = ["CliType", "register", "format_sdos", "type_name", "format_upload", "upload_type",
+           "encode_download"]
 
 # IgH spellings first in TYPE_NAMES: the first name of each type is what we print.
 _IGH_NAMES: dict[int, str] = {}
 for _name, _dt in TYPE_NAMES.items():
-    _IGH_NAMES.setdefault(int(_dt), _name)
+    if not _name.startswith("sm"):  # sign-magnitude names are no CANopen types
+        _IGH_NAMES.setdefault(int(_dt), _name)
+_INTEGER_TYPES = frozenset(t for t in DataType
+                           if t.name.startswith(("INTEGER", "UNSIGNED")) or t is DataType.BOOLEAN)
 
 
 def type_name(code: int) -> str:
@@ -82,14 +87,87 @@ def _entry_type(client: CoeClient, index: int, subindex: int) -> DataType | None
         return None
 
 
-def format_upload(dtype: DataType | None, raw: bytes) -> str:
-    """How ``upload`` prints a value: by type, or the bytes in hex."""
-    if dtype is None:
-        return raw.hex(" ")
-    from pyethercat.wire.mailbox.datatypes import decode_value
+#: IgH's sign-and-magnitude types: the top bit is the sign, the other bits the magnitude.
+_SIGN_MAGNITUDE = {"sm8": DataType.INTEGER8, "sm16": DataType.INTEGER16,
+                   "sm32": DataType.INTEGER32, "sm64": DataType.INTEGER64}
 
-    value: Value = decode_value(dtype, raw)
-    return format_value(dtype, value)
+
+@dataclass(frozen=True, slots=True)
+class CliType:
+    """A ``--type`` as the CLI understands it: the CANopen type, and IgH's sign-magnitude."""
+
+    dtype: DataType
+    sign_magnitude: bool = False
+
+    @property
+    def name(self) -> str:
+        if self.sign_magnitude:
+            return f"sm{self.dtype.bit_size}"
+        return type_name(int(self.dtype))
+
+
+def upload_type(name: str) -> CliType:
+    """The type a ``--type`` names (IgH names first); :class:`ConfigError` if unknown."""
+    key = name.strip().lower()
+    if key in _SIGN_MAGNITUDE:
+        return CliType(_SIGN_MAGNITUDE[key], True)
+    return CliType(resolve_dtype(name))
+
+
+def format_upload(ctype: CliType | DataType | None, raw: bytes) -> str:
+    """How ``upload`` prints a value, in the format of IgH's ``ethercat upload``.
+
+    Integers (and bool): ``0x`` + the value's bytes in hex (two's complement,
+    the type's width), a space, the decimal value; sign-and-magnitude types
+    show the raw hex and the signed magnitude. Floats: 6 significant digits
+    (C++ stream default). Strings: the text without trailing NULs (IgH
+    prints them raw). Everything else, octet strings included (which IgH
+    writes to stdout as binary): ``0x00 0x01 ...``. A fixed-size type whose
+    size differs from the data raises :class:`ConfigError`, as IgH refuses it.
+    """
+    if ctype is None:
+        return _raw_text(raw)
+    if isinstance(ctype, DataType):
+        ctype = CliType(ctype)
+    dtype = ctype.dtype
+    size = dtype.byte_size
+    if size is not None and len(raw) != size:
+        raise ConfigError(f"Data type mismatch. Expected {ctype.name} with {size} byte"
+                          f"{'s' if size != 1 else ''}, but got {len(raw)} byte"
+                          f"{'s' if len(raw) != 1 else ''}.")
+    if dtype in _INTEGER_TYPES and size is not None:
+        unsigned = int.from_bytes(raw, "little")
+        if ctype.sign_magnitude:
+            top = 1 << (8 * size - 1)
+            value = -(unsigned & (top - 1)) if unsigned & top else unsigned
+        else:
+            value = int.from_bytes(raw, "little", signed=dtype.name.startswith("INTEGER"))
+        return f"0x{unsigned:0{2 * size}x} {value}"
+    if dtype in (DataType.REAL32, DataType.REAL64):
+        return f"{float(decode_value(dtype, raw)):g}"
+    if dtype in (DataType.VISIBLE_STRING, DataType.UNICODE_STRING):
+        return str(decode_value(dtype, raw))
+    return _raw_text(raw)
+
+
+def _raw_text(raw: bytes) -> str:
+    """IgH's printRawData: every byte as ``0xNN``, separated by spaces."""
+    return " ".join(f"0x{b:02x}" for b in raw)
+
+
+def encode_download(ctype: CliType, text: str) -> bytes:
+    """The bytes ``download`` writes for ``text`` typed as ``ctype``."""
+    if ctype.sign_magnitude:
+        size = ctype.dtype.byte_size or 1
+        try:
+            value = int(text.strip(), 0)
+        except ValueError:
+            raise ConfigError(f"{text!r} is not a valid {ctype.name} value") from None
+        top = 1 << (8 * size - 1)
+        if abs(value) >= top:
+            raise ConfigError(f"value {value} out of range for {ctype.name}")
+        return ((top if value < 0 else 0) | abs(value)).to_bytes(size, "little")
+    return encode_value(ctype.dtype, parse_value(ctype.dtype, text))
 
 
 def format_sdos(client: CoeClient, quiet: bool = False) -> list[str]:
@@ -128,13 +206,14 @@ def register(cli: click.Group) -> None:
         """Read an object with an SDO upload and print its value."""
         idx = _number(index, "index", 0xFFFF)
         sub = _number(subindex, "subindex", 0xFF)
-        dt = resolve_dtype(dtype) if dtype is not None else None
+        ct = upload_type(dtype) if dtype is not None else None
         with connect(obj) as conn:
             _s, client = _slave(conn.master, position)
             raw = client.upload(idx, sub, complete_access=complete_access)
-            if dt is None and not complete_access:
-                dt = _entry_type(client, idx, sub)
-            click.echo(format_upload(dt, raw))
+            if ct is None and not complete_access:
+                described = _entry_type(client, idx, sub)
+                ct = CliType(described) if described is not None else None
+            click.echo(format_upload(ct, raw))
 
     @cli.command("download")
     @click.option("-p", "--position", metavar="POS", required=True, help="Ring position.")
@@ -150,18 +229,19 @@ def register(cli: click.Group) -> None:
         """Write VALUE to an object with an SDO download."""
         idx = _number(index, "index", 0xFFFF)
         sub = _number(subindex, "subindex", 0xFF)
-        dt = resolve_dtype(dtype) if dtype is not None else None
+        ct = upload_type(dtype) if dtype is not None else None
         with connect(obj) as conn:
             _s, client = _slave(conn.master, position)
-            if dt is None:
+            if ct is None:
                 dt = _entry_type(client, idx, sub) if not complete_access else None
+                if dt is None and complete_access:
+                    dt = DataType.OCTET_STRING
                 if dt is None:
-                    dt = DataType.OCTET_STRING if complete_access else None
-            if dt is None:
-                raise ConfigError(f"the slave does not describe 0x{idx:04X}:{sub:02X}: "
-                                  "give --type")
-            client.write(idx, sub, parse_value(dt, value), dt,
-                         complete_access=complete_access)
+                    raise ConfigError(f"the slave does not describe 0x{idx:04X}:{sub:02X}: "
+                                      "give --type")
+                ct = CliType(dt)
+            client.download(idx, sub, encode_download(ct, value),
+                            complete_access=complete_access)
 
     @cli.command("sdos")
     @click.option("-p", "--position", metavar="POS", help="Only this slave.")
