@@ -97,3 +97,39 @@ def test_startup_command_timeout_names_the_command(m: Master,
     assert str(err.value).startswith("start-up command PS 0x6060:00 = 03 (mode): ")
     assert drive.describe() in str(err.value)
     assert _al_control(m, drive.station_address) == int(AlState.PREOP)
+
+
+# --- mailbox counters and error replies --------------------------------------------------
+
+
+def test_sim_engine_counters_zero_wrap_and_duplicates() -> None:
+    from pyethercat.sim.mailbox import MailboxEngine
+    from pyethercat.wire.mailbox.header import MailboxHeader, MailboxType, encode_mailbox
+
+    eng = MailboxEngine(None)
+    got: list[int] = []
+    eng.register(MailboxType.COE, lambda h, p: got.append(h.counter))
+    for cnt in (0, 0, 6, 7, 1, 1, 2, 0, 0):
+        eng.receive(encode_mailbox(MailboxType.COE, b"\x00\x20", counter=cnt, size=32))
+    # 0 means "counter not used": never a repetition; 7 -> 1 is a new request;
+    # only a repeated non-zero counter is dropped
+    assert got == [0, 0, 6, 7, 1, 2, 0, 0]
+    assert eng.duplicates == 1
+    for _ in range(9):  # the slave's own counter runs 1..7 and wraps to 1
+        eng.send(MailboxType.COE, b"x")
+    assert [MailboxHeader.decode(r).counter for r in eng.queue] == [1, 2, 3, 4, 5, 6, 7, 1, 2]
+
+
+@pytest.mark.parametrize("code,name", [
+    (0x0001, "syntax"), (0x0002, "protocol not supported"), (0x0003, "channel"),
+    (0x0004, "service"), (0x0005, "invalid mailbox protocol header"),
+    (0x0006, "too short"), (0x0007, "memory"), (0x0008, "length inconsistent"),
+])
+def test_every_mailbox_error_code_is_typed_and_named(code: int, name: str) -> None:
+    from pyethercat.errors import MailboxErrorReply
+    from pyethercat.wire.mailbox.header import decode_mailbox_error, encode_mailbox_error
+
+    reply = decode_mailbox_error(encode_mailbox_error(code))
+    assert isinstance(reply, MailboxErrorReply)
+    assert reply.code == code and name in reply.name
+    assert f"0x{code:04X}" in str(reply)
