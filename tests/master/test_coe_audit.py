@@ -133,3 +133,15 @@ def test_every_mailbox_error_code_is_typed_and_named(code: int, name: str) -> No
     assert isinstance(reply, MailboxErrorReply)
     assert reply.code == code and name in reply.name
     assert f"0x{code:04X}" in str(reply)
+
+
+def test_emergency_event_text_names_code_class_and_register_bits() -> None:
+    from pyethercat.master.coe import EmergencyEvent
+    from pyethercat.wire.mailbox.coe import Emergency
+
+    ev = EmergencyEvent("slave 1", 1, Emergency(0x8130, 0x11, b"\x01\x02\x03\x04\x05"), 0.0)
+    assert str(ev) == ("slave 1: emergency 0x8130 (life guard or heartbeat error), error "
+                       "register 0x11 (generic, communication), data 01 02 03 04 05")
+    assert ev.register_names == ("generic", "communication")
+    clear = EmergencyEvent("slave 1", 1, Emergency(0x0000, 0x00), 0.0)
+    assert "error register 0x00, " in str(clear)

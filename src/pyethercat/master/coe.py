@@ -48,6 +48,7 @@ from pyethercat.wire.mailbox.coe import (
     CoeMessage,
     CoeService,
     Emergency,
+    ErrorRegister,
     ObjectAccess,
     ObjectCode,
     OdListType,
@@ -162,9 +163,17 @@ class EmergencyEvent:
         """Class name of the error code (CiA 301 table)."""
         return self.emergency.name
 
+    @property
+    def register_names(self) -> tuple[str, ...]:
+        """Names of the error register bits set (object 0x1001: generic, current, ...)."""
+        return tuple(bit.name.lower().replace("_", " ") for bit in ErrorRegister
+                     if self.error_register & bit and bit.name)
+
     def __str__(self) -> str:
+        bits = self.register_names
+        reg = f" ({', '.join(bits)})" if bits else ""
         return (f"{self.slave}: emergency 0x{self.error_code:04X} ({self.name}), "
-                f"error register 0x{self.error_register:02X}, data {self.data.hex(' ')}")
+                f"error register 0x{self.error_register:02X}{reg}, data {self.data.hex(' ')}")
 
 
 # --- the client ---------------------------------------------------------------------------
