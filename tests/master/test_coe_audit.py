@@ -145,3 +145,15 @@ def test_emergency_event_text_names_code_class_and_register_bits() -> None:
     assert ev.register_names == ("generic", "communication")
     clear = EmergencyEvent("slave 1", 1, Emergency(0x0000, 0x00), 0.0)
     assert "error register 0x00, " in str(clear)
+
+
+def test_seed002_entry_names_follow_the_seed_tables(m: Master) -> None:
+    drive = m.slaves[1]
+    assert drive.coe is not None
+    name = lambda i, s: drive.coe.entry_description(i, s, value_info=0).description  # noqa: E731
+    assert name(0x1C00, 0) == "Number of used Sync Manager Channels"
+    assert [name(0x1C00, s) for s in range(1, 5)] == [
+        f"Communication Type Sync Channel {n}" for n in range(4)]
+    assert name(0x1C10, 0) == name(0x1C12, 0) == "Number of assigned PDOs"
+    assert name(0x1C12, 1) == "PDO Mapping object Number of assigned RxPDO"
+    assert name(0x1C13, 4) == "PDO Mapping object number of assigned TxPDO"

@@ -251,6 +251,19 @@ def add_seed002_objects(od: ObjectDictionary, *, serial: int = 0,
     rx.name = "Sync manager channel 2 (process data output)"
     tx = add_pdo_assignment(od, 0x1C13, [0x1A00, 0x1A01, 0x1A02, 0x1A03], assigned=assigned_tx)
     tx.name = "Sync manager channel 3 (process data input)"
+    # Entry names as the seed's tables give them (entry descriptions, `sdos`).
+    types = od.find(0x1C00)
+    assert types is not None
+    types.entries[0].name = "Number of used Sync Manager Channels"
+    for n in range(1, 5):
+        types.entries[n].name = f"Communication Type Sync Channel {n - 1}"
+    for index in (0x1C10, 0x1C11, 0x1C12, 0x1C13):
+        obj = od.find(index)
+        assert obj is not None
+        obj.entries[0].name = "Number of assigned PDOs"
+    for n in range(1, 5):
+        rx.entries[n].name = "PDO Mapping object Number of assigned RxPDO"
+        tx.entries[n].name = "PDO Mapping object number of assigned TxPDO"
 
 
 class Seed002DriveApp(CoeDevice):
