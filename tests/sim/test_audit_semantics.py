@@ -676,7 +676,6 @@ def test_mailbox_sm_event_in_the_irq_field() -> None:
     assert one(seg, Datagram.device(Command.NOP, 0, 0, 1)).irq == 0
 
 
-@pytest.mark.xfail(strict=True, reason="a corrupted frame is processed by no slave at all")
 def test_crc_error_slaves_before_the_fault_still_process_the_frame() -> None:
     # An ESC commits a frame's writes when the frame's FCS checks out as it passes
     # (seed 000, 'Sicherungsmassnahmen'): slaves the frame passed before it was
@@ -687,3 +686,30 @@ def test_crc_error_slaves_before_the_fault_still_process_the_frame() -> None:
     frame = encode_frame([Datagram.device(Command.BWR, 0, R.USER_RAM, b"\x77")])
     assert seg.process(frame) is None
     assert [s.read(R.USER_RAM, 1) for s in seg.slaves] == [b"\x77", b"\x77", b"\x00", b"\x00"]
+
+
+def test_crc_error_on_the_return_path_after_every_pass_keeps_all_writes() -> None:
+    # corrupted on its way back into slave 0 (port 1): every slave has processed the
+    # frame with a good FCS; the master's NIC drops it (bad FCS), the counters say where
+    seg = seg_n(3, profile="ET1200")
+    seg.corrupt_frames(0, 1, count=1)
+    frame = encode_frame([Datagram.device(Command.BWR, 0, R.USER_RAM, b"\x55"),
+                          Datagram.device(Command.BRD, 0, R.TYPE, 1)])
+    assert seg.process(frame) is None
+    assert [s.read(R.USER_RAM, 1) for s in seg.slaves] == [b"\x55"] * 3
+    assert seg.slaves[0].read(R.RX_ERROR_COUNTER + 2, 1) == b"\x01"
+    assert seg.process(frame) is not None  # the fault hit one frame only
+
+
+def test_crc_error_receiving_slave_and_downstream_keep_their_memory_and_count() -> None:
+    seg = seg_n(4, profile="ET1200")
+    seg.corrupt_frames(1, 0, count=1)
+    frame = encode_frame([Datagram.positional(Command.APWR, 0, R.USER_RAM, b"\x11"),
+                          Datagram.positional(Command.APWR, -1 & 0xFFFF, R.USER_RAM, b"\x22"),
+                          Datagram.positional(Command.APWR, -3 & 0xFFFF, R.USER_RAM, b"\x33")])
+    assert seg.process(frame) is None
+    assert [s.read(R.USER_RAM, 1) for s in seg.slaves] == [b"\x11", b"\x00", b"\x00", b"\x00"]
+    c = [s.read(R.RX_ERROR_COUNTER, 12) for s in seg.slaves]
+    assert c[1][0] == 1 and c[1][8] == 0  # detected on port 0: not also a forwarded error there
+    assert c[2][8] == 1 and c[3][8] == 1  # downstream: forwarded errors on port 0
+    assert c[0][8] == 0 and c[0][9] == 1  # slave 0 only sees it come back on port 1

@@ -198,7 +198,8 @@ class Route:
 
     passes: I64                # slave index of each processing-unit pass, in order
     port0_closed: list[bool]   # per pass: the slave's port 0 is closed (circulating rule)
-    arrivals: list[tuple[int, int, int]]  # (slave, port, ns after entry) of every port arrival
+    #: (slave, port, ns after entry, processing-unit passes before it) of every port arrival
+    arrivals: list[tuple[int, int, int, int]]
     arrive_ns: I64             # (slaves x 4) first arrival time per port, -1 = not visited
     epu_ns: I64                # per slave: time of its (first) processing-unit pass, -1 = none
     returned: bool             # the frame comes back to the master
@@ -282,6 +283,8 @@ class Segment:
         #: ECAT event bits that may be set in some slave (cleared by vectorised reads).
         self._event_bits = 0xFFFF
         self._cur_passes: I64 = _EMPTY
+        #: Passes before a CRC-corrupted arrival in the current frame (-1: none).
+        self._crc_cut = -1
         self._frame_t0 = 0
         self._complete_plans: dict[bytes, tuple[I64, I64, I64, npt.NDArray[np.uint8], I64]] = {}
         #: Slaves with a SAFEOP -> OP request waiting for their first outputs.
@@ -458,7 +461,7 @@ class Segment:
         n = len(self.slaves)
         passes: list[int] = []
         port0_closed: list[bool] = []
-        arrivals: list[tuple[int, int, int]] = []
+        arrivals: list[tuple[int, int, int, int]] = []
         arrive = np.full((n, 4), -1, np.int64)
         epu = np.full(n, -1, np.int64)
         returned = False
@@ -471,7 +474,7 @@ class Segment:
         while steps < limit:
             steps += 1
             if via_link:
-                arrivals.append((s, p, t))
+                arrivals.append((s, p, t, len(passes)))
                 if arrive[s, p] < 0:
                     arrive[s, p] = t
             if p == 0:
@@ -1020,6 +1023,16 @@ class Segment:
                 count = len(passes)
             else:
                 set_c = True
+        if self._crc_cut >= 0:
+            # CRC error on a link (facts 3.7, seed 000 'Sicherungsmassnahmen'): the
+            # slaves passed before the bad link took the frame (FCS good there);
+            # the receiving slave and all after it discard it; the master's NIC
+            # drops it for its bad FCS.
+            if self._crc_cut < count:
+                passes = passes[: self._crc_cut]
+                count = self._crc_cut
+            destroy = True
+            self._crc_cut = -1
         self._frame_t0 = now
         self._cur_passes = passes
         if self.irq_dirty:
@@ -1091,10 +1104,7 @@ class Segment:
             if len(route.passes) and self.memory.mem[route.passes[0], R.DL_CONTROL] & R.DL_CONTROL_FORWARDING_RULE:
                 return None
             return bytes(buf) if route.returned else None  # passed on unchanged
-        if self._corrupt and self._apply_corruption(route):
-            self.frames_lost += 1
-            self._advance(len(buf))
-            return None
+        cut = self._apply_corruption(route) if self._corrupt else -1
         word = buf[start] | (buf[start + 1] << 8)
         length = word & ECAT_LENGTH_MASK
         if word >> ECAT_TYPE_SHIFT != _DATAGRAMS:
@@ -1127,11 +1137,8 @@ class Segment:
             if len(self._parsed) >= 1024:
                 self._parsed.clear()
             self._parsed[bytes(buf[12:26])] = (end, heads, any_c)
+        self._crc_cut = cut
         return heads, any_c
-
-    def _advance(self, frame_len: int) -> None:
-        if self.advance_clock and isinstance(self.clock, VirtualClock):
-            self.clock.advance(self.wire_time_ns(frame_len))
 
     def _processing_error(self, route: Route) -> None:
         """A malformed EtherCAT frame: counted by the first slave's processing unit."""
@@ -1141,15 +1148,23 @@ class Segment:
             c = int(self.memory.mem[s, R.ECAT_PROCESSING_ERROR_COUNTER])
             self.memory.mem[s, R.ECAT_PROCESSING_ERROR_COUNTER] = min(255, c + 1)
 
-    def _apply_corruption(self, route: Route) -> bool:
-        """Count CRC errors along the walk; True if the frame got corrupted."""
+    def _apply_corruption(self, route: Route) -> int:
+        """Count CRC errors along the walk.
+
+        Returns the number of processing-unit passes made before the corrupted
+        arrival (those slaves execute the frame), or -1 if no pending fault hit
+        this frame. The receiving port counts an invalid frame; every later
+        arrival counts a forwarded error (the detecting port counts only the
+        first)."""
         mem = self.memory.mem
         corrupted = False
-        for s, p, _t in route.arrivals:
+        cut = -1
+        for s, p, _t, before in route.arrivals:
             if not corrupted:
                 left = self._corrupt.get((s, p), 0)
                 if left:
                     corrupted = True
+                    cut = before
                     if left == 1:
                         del self._corrupt[(s, p)]
                     else:
@@ -1159,7 +1174,7 @@ class Segment:
             else:
                 a = R.FORWARDED_RX_ERROR_COUNTER + p
                 mem[s, a] = min(255, int(mem[s, a]) + 1)
-        return corrupted
+        return cut
 
     # --- datagrams ------------------------------------------------------------------------------
 
