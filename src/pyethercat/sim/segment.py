@@ -524,9 +524,22 @@ class Segment:
     # --- faults ------------------------------------------------------------------------
 
     def _peer_key(self, slave: int, port: int) -> tuple[int, int] | None:
-        if not 0 <= slave < len(self.slaves) or not 0 <= port <= 3:
-            raise ConfigError(f"no port {port} on slave {slave}")
-        return self._links[slave][port]
+        """The far end of the cable at ``slave``'s ``port`` (None: the master's cable).
+
+        A fault on a port the chip does not have, or on one without a cable,
+        would do nothing at all; it is refused instead (ConfigError naming the
+        slave and the port)."""
+        n = len(self.slaves)
+        if not 0 <= slave < n:
+            raise ConfigError(f"no slave {slave} (the segment has {n})")
+        name = f"slave {self.slaves[slave].name!r} (index {slave})"
+        ports = self.slaves[slave].spec.profile.implemented_ports
+        if port not in ports:
+            raise ConfigError(f"{name} has no port {port} (ports {', '.join(map(str, ports))})")
+        peer = self._links[slave][port]
+        if peer is None and not (slave == 0 and port == 0):
+            raise ConfigError(f"{name}: port {port} has no cable")
+        return peer
 
     def break_link(self, slave: int, port: int) -> None:
         """Cut the cable at ``slave``'s ``port`` (both ends lose the link)."""
