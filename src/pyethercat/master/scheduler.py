@@ -33,6 +33,7 @@ offsets (no datagram objects, no decoding of the cyclic part).
 from __future__ import annotations
 
 import contextlib
+import os
 import threading
 import time
 from collections import deque
@@ -79,6 +80,8 @@ DEFAULT_TIMEOUT = 0.05
 DEFAULT_RETRIES = 3
 #: Default number of frames in flight at once.
 DEFAULT_MAX_IN_FLIGHT = 8
+#: Default ``Scheduler.reply_spin``: poll up to 0.5 ms for a cyclic reply before blocking.
+DEFAULT_REPLY_SPIN = 0.0005
 
 _INDEX_COUNT = 256
 # Where the EtherCAT header and the first datagram's index sit in an untagged frame.
@@ -364,6 +367,13 @@ class Scheduler:
         self.clock = clock
         #: Seconds an acyclic request waits for a cyclic frame to carry it (0: never).
         self.acyclic_hold = 0.0
+        #: Seconds the cyclic thread polls the link for a prepared frame's reply
+        #: before it blocks (0: block at once). Waking from a blocking receive
+        #: costs tens of microseconds on a busy or virtual machine, and the CPU
+        #: comes back with cold caches; SOEM polls the same way. Only
+        #: ``wait_raw`` (the cyclic path) polls; with one CPU it never does,
+        #: as the spinning would keep the CPU from whoever has to answer.
+        self.reply_spin = DEFAULT_REPLY_SPIN if (os.cpu_count() or 1) > 1 else 0.0
         self.stats = SchedulerStats()
         self._lock = threading.Lock()
         self._cond = threading.Condition(self._lock)
@@ -859,7 +869,9 @@ class Scheduler:
     def _await(self, ticket: CyclicFrame, timeout: float | None) -> None:
         """``_wait_until(ticket.done)`` without the calls: the cyclic thread's wait."""
         clock = self.clock
-        limit = None if timeout is None else clock() + timeout
+        start = clock()
+        limit = None if timeout is None else start + timeout
+        spin_end = 0.0 if self.deterministic else start + self.reply_spin
         with self._lock:
             while ticket.raw is None and not ticket.lost and ticket.replies is None:
                 now = clock()
@@ -867,6 +879,10 @@ class Scheduler:
                     return
                 if self._queue:
                     self._flush_locked(now)
+                if now < spin_end and not self._receiving:
+                    # Poll (a receive that does not block); see ``reply_spin``.
+                    self._receive_once_locked(now, now)
+                    continue
                 if self._receiving:
                     self._sleepers += 1
                     try:
