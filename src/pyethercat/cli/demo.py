@@ -188,7 +188,8 @@ def slave_table(master: Master) -> Table:
     t = Table(title=f"{len(master.slaves)} slaves", show_edge=False)
     for col in ("pos", "address", "state"):
         t.add_column(col, no_wrap=True)
-    t.add_column("name", no_wrap=True, overflow="ellipsis", max_width=32)
+    # Whole SII names (up to 64 characters); only a narrow terminal cuts them.
+    t.add_column("name", no_wrap=True, overflow="ellipsis")
     for col in ("vendor", "product", "out bits", "in bits"):
         t.add_column(col, no_wrap=True)
     cfg = master.process_data

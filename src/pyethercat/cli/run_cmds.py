@@ -12,6 +12,7 @@ checked, PDO assignment and InitCmds from the file, its cycle time the default).
 from __future__ import annotations
 
 import math
+import sys
 import time
 from collections.abc import Callable
 from typing import Any
@@ -101,7 +102,8 @@ def live_view(master: Master, runner: CyclicRunner, extra: Callable[[], list[str
     slaves = Table(title="slaves", expand=False, show_edge=False)
     for col in ("pos", "address"):
         slaves.add_column(col, no_wrap=True)
-    slaves.add_column("name", no_wrap=True, overflow="ellipsis", max_width=32)
+    # Whole SII names (up to 64 characters); only a narrow terminal cuts them.
+    slaves.add_column("name", no_wrap=True, overflow="ellipsis")
     for col in ("state", "supervision"):
         slaves.add_column(col, no_wrap=True)
     for s in master.slaves:
@@ -202,7 +204,8 @@ def register(cli: click.Group) -> None:
             cycle = 1e-3
         if cycle <= 0:
             raise ConfigError(f"cycle time must be positive, got {cycle_us} us")
-        console = Console()
+        # Off a terminal rich would squeeze the table into 80 columns: give it room.
+        console = Console() if sys.stdout.isatty() else Console(width=140)
         with connect(obj, pcap=pcap) as conn:
             m = conn.master
             if eni is not None:
@@ -224,4 +227,7 @@ def register(cli: click.Group) -> None:
                 pass
             finally:
                 runner.stop()
+            # The live table's last line has no line end (off a terminal the summary
+            # would start on it).
+            console.print()
             click.echo(format_summary(runner))
