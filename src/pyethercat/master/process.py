@@ -99,10 +99,9 @@ class ProcessDataMixin:
             for s in self.slaves:
                 sc = cfg.slaves[s.position]
                 img = self.images.get(sc.group)
-                s.config = sc  # type: ignore[attr-defined]
-                if img is not None:
-                    s.inputs = img.slave_inputs(s.position)  # type: ignore[attr-defined]
-                    s.outputs = img.slave_outputs(s.position)  # type: ignore[attr-defined]
+                s.config = sc
+                s.inputs = img.slave_inputs(s.position) if img is not None else None
+                s.outputs = img.slave_outputs(s.position) if img is not None else None
             return cfg
 
     def _writes(self, items: list[tuple[Slave, int, bytes]], what: str) -> None:

@@ -13,6 +13,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from pyethercat.errors import ConfigError
 from pyethercat.wire.al import AlState, al_status_code_name, state_name
 from pyethercat.wire.registers import (
     Feature,
@@ -27,7 +28,8 @@ from pyethercat.wire.sii.model import GeneralFlags, MailboxProtocol, SiiInfo
 if TYPE_CHECKING:
     from pyethercat.master.coe import CoeClient, DTypeLike, ObjectDictionary
     from pyethercat.master.coe_setup import PdoSpec
-    from pyethercat.master.config import Pdo
+    from pyethercat.master.config import Pdo, SlaveConfig
+    from pyethercat.master.image import SlaveIO
     from pyethercat.master.mailbox import Mailbox
     from pyethercat.wire.mailbox.datatypes import Value
 
@@ -194,6 +196,46 @@ class Slave:
         self.pdo_mapping: dict[int, list[Pdo]] | None = None
         self._mapping_changed: Any = None
         self._startup: list[Any] | None = None
+        #: Process-data configuration of this slave (set by ``master.configure()``).
+        self.config: SlaveConfig | None = None
+        self._inputs: SlaveIO | None = None
+        self._outputs: SlaveIO | None = None
+
+    # -- process data ------------------------------------------------------------------
+
+    def _no_image(self) -> str:
+        if self.config is None:
+            return (f"slave {self.position} ({self.address_text}): no process image yet, "
+                    "call master.configure() first")
+        return f"slave {self.position} ({self.address_text}) is in no process-data group"
+
+    @property
+    def inputs(self) -> SlaveIO:
+        """The slave's input PDO entries by name (``slave.inputs["Input 1"]``), read-only.
+
+        Set by ``master.configure()``; before that :class:`ConfigError`.
+        """
+        if self._inputs is None:
+            raise ConfigError(self._no_image())
+        return self._inputs
+
+    @inputs.setter
+    def inputs(self, io: SlaveIO | None) -> None:
+        self._inputs = io
+
+    @property
+    def outputs(self) -> SlaveIO:
+        """The slave's output PDO entries by name (``slave.outputs["Output 1"] = 1``).
+
+        Set by ``master.configure()``; before that :class:`ConfigError`.
+        """
+        if self._outputs is None:
+            raise ConfigError(self._no_image())
+        return self._outputs
+
+    @outputs.setter
+    def outputs(self, io: SlaveIO | None) -> None:
+        self._outputs = io
 
     # -- derived -------------------------------------------------------------------
 
@@ -247,8 +289,6 @@ class Slave:
 
     def _coe_client(self) -> CoeClient:
         if self.coe is None:
-            from pyethercat.errors import ConfigError
-
             raise ConfigError(f"{self.describe()} has no mailbox (or was not scanned by a "
                               "master): no CoE")
         return self.coe
