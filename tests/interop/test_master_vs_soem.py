@@ -57,9 +57,15 @@ def test_same_slave_list_as_soem(veth_pair: tuple[str, str], tmp_path: Path) -> 
             slaves = m.scan()
             ours = [(s.identity.vendor_id, s.identity.product_code, s.identity.revision,
                      s.sii.string(1) if s.sii is not None else None) for s in slaves]
+            cfg = m.configure()
     assert count == len(slaves) == 5
     assert ours == theirs
-    # Process-data sizes as the SII describes them (what SOEM maps without CoE).
-    our_sizes = [((s.sii.input_bits + 7) // 8, (s.sii.output_bits + 7) // 8)
+    # Process-data sizes as the SII describes them (what SOEM maps without CoE) ...
+    sii_sizes = [((s.sii.input_bits + 7) // 8, (s.sii.output_bits + 7) // 8)
                  for s in slaves if s.sii is not None]
+    assert sii_sizes == their_sizes
+    # ... and as our configuration maps them into the process image.
+    our_sizes = [((cfg.slaves[s.position].input_bits + 7) // 8,
+                  (cfg.slaves[s.position].output_bits + 7) // 8) for s in slaves]
     assert our_sizes == their_sizes
+    assert sum(i for i, _ in their_sizes) > 0 and sum(o for _, o in their_sizes) > 0
