@@ -18,16 +18,16 @@ import pytest
 from pyethercat.errors import EsiError
 from pyethercat.esi import load_esi, parse_esi
 from pyethercat.esi.sii_from_esi import (
-    SM_NOT_ASSIGNED,
-    SiiPdoFlags,
     esi_to_sii,
     sii_differences,
     sii_image_from_file,
 )
 from pyethercat.wire.sii import (
+    SM_NOT_ASSIGNED,
     CoeDetails,
     FmmuUsage,
     MailboxProtocol,
+    SiiPdoFlags,
     SyncManagerType,
     build_sii,
     parse_sii,

@@ -18,12 +18,15 @@ from lxml import etree
 
 from pyethercat.wire.mailbox.datatypes import DataType
 from pyethercat.wire.sii import (
+    SM_NOT_ASSIGNED,
     CoeDetails,
     FmmuUsage,
+    GeneralFlags,
     MailboxProtocol,
     PortType,
     SiiInfo,
     SiiPdo,
+    SiiPdoFlags,
     SyncManagerType,
 )
 
@@ -155,11 +158,11 @@ def _dictionary(parent: etree._Element, objects: Sequence[DictObject]) -> None:
 
 def _pdo(parent: etree._Element, info: SiiInfo, p: SiiPdo, tag: str) -> None:
     attrs: dict[str, str] = {}
-    if p.flags & 0x10:
+    if p.flags & SiiPdoFlags.FIXED_CONTENT:
         attrs["Fixed"] = "1"
-    if p.flags & 0x01:
+    if p.flags & SiiPdoFlags.MANDATORY:
         attrs["Mandatory"] = "1"
-    if p.sync_manager != 0xFF:
+    if p.sync_manager != SM_NOT_ASSIGNED:
         attrs["Sm"] = str(p.sync_manager)
     el = _sub(parent, tag, **attrs)
     _sub(el, "Index", f"#x{p.index:04X}")
@@ -222,7 +225,7 @@ def esi_from_sii(
         _pdo(dev, info, p, "TxPdo")
     if info.mailbox_protocols:
         gen = info.general
-        mb = _sub(dev, "Mailbox", DataLinkLayer="true" if gen and gen.flags & 0x04 else "false")
+        mb = _sub(dev, "Mailbox", DataLinkLayer="true" if gen and gen.flags & GeneralFlags.MBOX_DATA_LINK_LAYER else "false")
         for name, bit in _PROTOCOLS:
             if not info.mailbox_protocols & bit:
                 continue

@@ -34,11 +34,11 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass, field
-from enum import IntFlag
 
 from pyethercat.errors import EsiError, SiiError
 from pyethercat.esi.model import LCID_ENGLISH, EsiDevice, EsiPdo, EsiSm
 from pyethercat.wire.sii import (
+    SM_NOT_ASSIGNED,
     CategoryType,
     CoeDetails,
     FmmuUsage,
@@ -53,6 +53,7 @@ from pyethercat.wire.sii import (
     SiiInfo,
     SiiPdo,
     SiiPdoEntry,
+    SiiPdoFlags,
     SiiPdos,
     SiiRawCategory,
     SiiStrings,
@@ -67,7 +68,6 @@ __all__ = [
     "DEFAULT_EEPROM_BYTES",
     "SiiDifference",
     "SiiFromEsi",
-    "SiiPdoFlags",
     "esi_to_sii",
     "esi_to_sii_info",
     "sii_differences",
@@ -76,20 +76,6 @@ __all__ = [
 
 #: EEPROM size used when the ESI gives no ``ByteSize`` (16 Kbit, the common part).
 DEFAULT_EEPROM_BYTES = 2048
-
-#: PDO entry "not assigned to a sync manager" in the SII PDO header.
-SM_NOT_ASSIGNED = 0xFF
-
-
-class SiiPdoFlags(IntFlag):
-    """Flags word of an SII PDO header (ETG.2010 PDO flags)."""
-
-    NONE = 0
-    MANDATORY = 0x0001
-    DEFAULT = 0x0002
-    OVERSAMPLE = 0x0004
-    FIXED_CONTENT = 0x0010
-    VIRTUAL_CONTENT = 0x0020
 
 
 # ESI mailbox element name -> protocol bit of SII word 0x1C.

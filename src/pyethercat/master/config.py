@@ -54,6 +54,7 @@ from pyethercat.errors import ConfigError
 from pyethercat.wire import registers as reg
 from pyethercat.wire.datagram import MAX_DATA, Command
 from pyethercat.wire.sii.model import (
+    SM_NOT_ASSIGNED,
     FmmuUsage,
     GeneralFlags,
     SiiInfo,
@@ -145,12 +146,12 @@ def _pdo_from_sii(sii: SiiInfo, pdo: SiiPdo, direction: Direction) -> Pdo:
 def pdos_from_sii(sii: SiiInfo) -> dict[int, list[Pdo]]:
     """The PDOs the SII assigns to sync managers, keyed by sync manager index.
 
-    PDOs with sync manager 0xFF (not assigned by default) are left out.
+    PDOs with sync manager ``SM_NOT_ASSIGNED`` (0xFF, none by default) are left out.
     """
     out: dict[int, list[Pdo]] = {}
     for direction, pdos in ((Direction.OUTPUTS, sii.rx_pdos), (Direction.INPUTS, sii.tx_pdos)):
         for p in pdos:
-            if p.sync_manager == 0xFF:
+            if p.sync_manager == SM_NOT_ASSIGNED:
                 continue
             out.setdefault(p.sync_manager, []).append(_pdo_from_sii(sii, p, direction))
     return out

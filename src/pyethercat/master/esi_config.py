@@ -55,8 +55,10 @@ from pyethercat.master.slave import Identity, Slave
 from pyethercat.wire.mailbox.datatypes import DataType
 from pyethercat.wire.sii import (
     FmmuUsage,
+    GeneralFlags,
     MailboxProtocol,
     SiiInfo,
+    SiiPdoFlags,
     SyncManagerType,
     parse_sii,
 )
@@ -324,7 +326,8 @@ def _eni_slave_of(master: Master, slave: Slave) -> EniSlave:
             add(p.index, direction, sii.pdo_name(p) or "", tuple(
                 EniPdoEntry(index=e.index, subindex=e.subindex, bit_len=e.bit_length,
                             name=sii.pdo_name(e) or "", data_type=_dtype_name(e.data_type))
-                for e in p.entries), bool(p.flags & 0x10), bool(p.flags & 0x01))  # fmt: skip
+                for e in p.entries), bool(p.flags & SiiPdoFlags.FIXED_CONTENT),
+                bool(p.flags & SiiPdoFlags.MANDATORY))  # fmt: skip
     for mapped in mapping.values():
         for q in mapped:
             known = pdos_seen.get(q.index)  # keep the SII's Fixed/Mandatory flags
@@ -344,7 +347,8 @@ def _eni_slave_of(master: Master, slave: Slave) -> EniSlave:
         gen = sii.general
         mbx = EniMailbox(out_start=m.rx_offset, out_size=m.rx_size, in_start=m.tx_offset,
                          in_size=m.tx_size, protocols=_protocols(m.protocols),
-                         data_link_layer=bool(gen and gen.flags & 0x04), init_cmds=cmds)  # fmt: skip
+                         data_link_layer=bool(gen and gen.flags & GeneralFlags.MBOX_DATA_LINK_LAYER),
+                         init_cmds=cmds)  # fmt: skip
     dc = getattr(slave, "dc_op_mode", None)
     if dc is None and sii.dc_modes:
         mode = sii.dc_modes[0]

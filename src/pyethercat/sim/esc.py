@@ -37,7 +37,7 @@ from pyethercat.sim.device import DeviceApp, Pdi
 from pyethercat.sim.profiles import PROFILES, EscProfile, profile
 from pyethercat.wire import registers as R
 from pyethercat.wire.al import AlState, AlStatusCode
-from pyethercat.wire.sii import SiiInfo, parse_sii, sii_crc
+from pyethercat.wire.sii import SM_NOT_ASSIGNED, SiiInfo, parse_sii, sii_crc
 
 if TYPE_CHECKING:
     from pyethercat.sim.segment import Segment
@@ -210,8 +210,8 @@ class Esc:
         info = self.sii_info
         if info is None:
             return out_sm, in_sm
-        rx = [p.sync_manager for p in info.rx_pdos if p.sync_manager != 0xFF and p.entries]
-        tx = [p.sync_manager for p in info.tx_pdos if p.sync_manager != 0xFF and p.entries]
+        rx = [p.sync_manager for p in info.rx_pdos if p.sync_manager != SM_NOT_ASSIGNED and p.entries]
+        tx = [p.sync_manager for p in info.tx_pdos if p.sync_manager != SM_NOT_ASSIGNED and p.entries]
         types = [s.sm_type for s in info.sync_managers]
         if rx:
             out_sm = rx[0]

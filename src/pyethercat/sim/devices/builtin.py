@@ -44,6 +44,7 @@ from pyethercat.wire.sii import (
     SiiInfo,
     SiiPdo,
     SiiPdoEntry,
+    SiiPdoFlags,
     SiiPdos,
     SiiStrings,
     SiiSyncManager,
@@ -206,13 +207,13 @@ class BuiltinDevice:
                     )
                     for e in pdo.entries
                 ]
-                # flags 0x0011: mandatory + fixed content, as Beckhoff images carry.
+                # Mandatory + fixed content (0x0011), as Beckhoff images carry.
                 out.pdos.append(
                     SiiPdo(
                         index=pdo.index,
                         sync_manager=pdo.sm,
                         name_index=intern(pdo.name),
-                        flags=0x0011,
+                        flags=SiiPdoFlags.MANDATORY | SiiPdoFlags.FIXED_CONTENT,
                         entries=entries,
                     )
                 )

@@ -20,6 +20,7 @@ from pyethercat.wire.sii.codec import (
 )
 from pyethercat.wire.sii.format import format_sii
 from pyethercat.wire.sii.model import (
+    SM_NOT_ASSIGNED,
     CategoryType,
     CoeDetails,
     FmmuUsage,
@@ -34,6 +35,7 @@ from pyethercat.wire.sii.model import (
     SiiInfo,
     SiiPdo,
     SiiPdoEntry,
+    SiiPdoFlags,
     SiiPdos,
     SiiRawCategory,
     SiiStrings,
@@ -49,6 +51,7 @@ SiiImage = SiiInfo
 
 __all__ = [
     "SII_DEFAULT_MAX_BYTES",
+    "SM_NOT_ASSIGNED",
     "CategoryType",
     "CoeDetails",
     "FmmuUsage",
@@ -64,6 +67,7 @@ __all__ = [
     "SiiInfo",
     "SiiPdo",
     "SiiPdoEntry",
+    "SiiPdoFlags",
     "SiiPdos",
     "SiiRawCategory",
     "SiiStrings",

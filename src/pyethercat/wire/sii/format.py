@@ -8,6 +8,7 @@ from enum import IntFlag
 from pyethercat.errors import SiiError
 from pyethercat.wire.sii.codec import category_body
 from pyethercat.wire.sii.model import (
+    SM_NOT_ASSIGNED,
     WORD_FIRST_CATEGORY,
     CategoryType,
     FmmuUsage,
@@ -16,6 +17,7 @@ from pyethercat.wire.sii.model import (
     SiiFmmus,
     SiiGeneral,
     SiiInfo,
+    SiiPdoFlags,
     SiiPdos,
     SiiRawCategory,
     SiiStrings,
@@ -141,10 +143,11 @@ def _format_category(cat: SiiCategory, named: Callable[[int], str]) -> list[str]
     elif isinstance(cat, SiiPdos):
         kind = "TxPDO" if cat.type == CategoryType.TXPDO else "RxPDO"
         for p in cat.pdos:
-            sm_text = "none" if p.sync_manager == 0xFF else str(p.sync_manager)
+            sm_text = "none" if p.sync_manager == SM_NOT_ASSIGNED else str(p.sync_manager)
             out.append(
                 f"  {kind} 0x{p.index:04X} {named(p.name_index)}: SM {sm_text}, DC sync {p.dc_sync},"
-                f" flags 0x{p.flags:04X}, {len(p.entries)} entries, {p.bit_length} bits"
+                f" flags 0x{p.flags:04X} ({_flag_names(p.flags, SiiPdoFlags)}),"
+                f" {len(p.entries)} entries, {p.bit_length} bits"
             )
             for e in p.entries:
                 out.append(

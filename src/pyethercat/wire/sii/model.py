@@ -45,6 +45,9 @@ PDO_HEADER_SIZE = 8
 PDO_ENTRY_SIZE = 8
 DC_MODE_SIZE = 24
 
+#: ``SiiPdo.sync_manager`` of a PDO that is not assigned to any sync manager.
+SM_NOT_ASSIGNED = 0xFF
+
 
 class CategoryType(IntEnum):
     """Category type codes (facts 5.4). Bit 15 of the type word marks vendor categories."""
@@ -144,6 +147,21 @@ class SyncManagerEnable(IntFlag):
     FIXED_CONTENT = 0x02
     VIRTUAL = 0x04
     OP_ONLY = 0x08
+
+
+class SiiPdoFlags(IntFlag):
+    """Flags word of a TxPDO/RxPDO category PDO header (ETG.2010 PDO flags).
+
+    ``SiiPdo.flags`` stays a plain ``int`` (unknown bits survive a round trip);
+    test it against these members.
+    """
+
+    NONE = 0
+    MANDATORY = 0x0001
+    DEFAULT = 0x0002
+    OVERSAMPLE = 0x0004
+    FIXED_CONTENT = 0x0010
+    VIRTUAL_CONTENT = 0x0020
 
 
 def _enum_or_int(enum: type[IntEnum], value: int) -> int:
@@ -260,7 +278,10 @@ class SiiPdoEntry:
 
 @dataclass
 class SiiPdo:
-    """One PDO (8-byte header + entries). ``sync_manager`` 0xFF = not assigned."""
+    """One PDO (8-byte header + entries). ``sync_manager`` :data:`SM_NOT_ASSIGNED` = none.
+
+    ``flags`` holds :class:`SiiPdoFlags` bits.
+    """
 
     index: int = 0
     sync_manager: int = 0
@@ -482,10 +503,10 @@ class SiiInfo:
 
     @property
     def output_bits(self) -> int:
-        """Bits of all RxPDOs assigned to a SyncManager (sync_manager != 0xFF)."""
-        return sum(p.bit_length for p in self.rx_pdos if p.sync_manager != 0xFF)
+        """Bits of all RxPDOs assigned to a SyncManager (not SM_NOT_ASSIGNED)."""
+        return sum(p.bit_length for p in self.rx_pdos if p.sync_manager != SM_NOT_ASSIGNED)
 
     @property
     def input_bits(self) -> int:
-        """Bits of all TxPDOs assigned to a SyncManager (sync_manager != 0xFF)."""
-        return sum(p.bit_length for p in self.tx_pdos if p.sync_manager != 0xFF)
+        """Bits of all TxPDOs assigned to a SyncManager (not SM_NOT_ASSIGNED)."""
+        return sum(p.bit_length for p in self.tx_pdos if p.sync_manager != SM_NOT_ASSIGNED)
