@@ -94,3 +94,33 @@ def test_bit_values() -> None:
     assert tuple(b"RES") == R.ESC_RESET_SEQUENCE
     assert (R.DC_SPEED_COUNTER_START_DEFAULT, R.DC_TIME_FILTER_DEPTH_DEFAULT,
             R.DC_SPEED_FILTER_DEPTH_DEFAULT) == (0x1000, 4, 12)
+
+
+def test_esc_features_decoded_once_for_master_and_simulator() -> None:
+    """Master's EscInfo and simulator's EscProfile read 0x0008 through the same mixin."""
+    from pyethercat.master.slave import EscInfo
+    from pyethercat.sim.profiles import PROFILES
+
+    class Word(R.EscFeaturesMixin):
+        def __init__(self, features: int) -> None:
+            self.features = features
+
+    ek1100 = Word(0x00FC)  # corpus EK1100 register 0x0008
+    assert (ek1100.dc_supported, ek1100.dc_64bit, ek1100.lrw_supported) == (True, True, True)
+    assert (ek1100.rw_supported, ek1100.bitwise_fmmu, ek1100.fixed_fmmu_sm) == (True, True, False)
+    limited = Word(0x0E01)  # byte FMMUs, no LRW, no RW, fixed FMMU/SM, no DC
+    assert (limited.dc_supported, limited.dc_64bit, limited.lrw_supported) == (False, False, False)
+    assert (limited.rw_supported, limited.bitwise_fmmu, limited.fixed_fmmu_sm) == (False, False, True)
+    for word in (0x00FC, 0x0E01, 0x0004):
+        master_view, sim_view = EscInfo(features=word), PROFILES["ET1100"].replace(features=word)
+        for name in ("dc_supported", "dc_64bit", "lrw_supported", "rw_supported",
+                     "bitwise_fmmu", "fixed_fmmu_sm"):
+            assert getattr(master_view, name) == getattr(sim_view, name) == getattr(Word(word), name)
+
+
+def test_port_descriptor_round_trip() -> None:
+    for descriptor in range(256):
+        assert R.port_descriptor(R.port_types(descriptor)) == descriptor
+    assert R.port_descriptor([R.PortType.EBUS, R.PortType.EBUS]) == 0x0A
+    implemented = [t for t in R.PortType if t.implemented]
+    assert implemented == [R.PortType.EBUS, R.PortType.MII]

@@ -161,8 +161,11 @@ def pdos_from_sii(sii: SiiInfo) -> dict[int, list[Pdo]]:
 
 
 @dataclass
-class SlaveSpec:
-    """What the configuration needs to know about one scanned slave."""
+class SlaveSpec(reg.EscFeaturesMixin):
+    """What the configuration needs to know about one scanned slave.
+
+    ``lrw_supported``, ``bitwise_fmmu`` ... decode ``features`` (register 0x0008).
+    """
 
     position: int
     station_address: int
@@ -179,15 +182,10 @@ class SlaveSpec:
     @property
     def supports_lrw(self) -> bool:
         """False when the ESC (feature bit 9) or the SII (General flag) rules LRW out."""
-        if self.features & reg.Feature.LRW_NOT_SUPPORTED:
+        if not self.lrw_supported:
             return False
         gen = self.sii.general
         return not (gen is not None and gen.flags & GeneralFlags.NOT_LRW)
-
-    @property
-    def bitwise_fmmu(self) -> bool:
-        """Whether the FMMUs map bitwise (feature bit 0 clear, Beckhoff datasheet reading)."""
-        return not self.features & reg.Feature.FMMU_BYTE_ORIENTED
 
 
 @dataclass
@@ -543,7 +541,7 @@ class _FmmuAllocator:
             if usage == want and n not in self.used and n < count:
                 self.used.add(n)
                 return n
-        if self.spec.features & reg.Feature.FIXED_FMMU_SM:
+        if self.spec.fixed_fmmu_sm:
             fixed = 0 if direction is Direction.OUTPUTS else 1
             if fixed not in self.used:
                 self.used.add(fixed)

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 from pyethercat.errors import ConfigError
 from pyethercat.wire.al import AlState, al_status_code_name, state_name
 from pyethercat.wire.registers import (
-    Feature,
+    EscFeaturesMixin,
     PortType,
     dl_status_com,
     dl_status_link,
@@ -68,8 +68,8 @@ class Identity:
 
 
 @dataclass(frozen=True, slots=True)
-class EscInfo:
-    """ESC identification registers 0x0000-0x0009."""
+class EscInfo(EscFeaturesMixin):
+    """ESC identification registers 0x0000-0x0009 (``dc_supported`` etc. decode 0x0008)."""
 
     type: int = 0
     revision: int = 0
@@ -81,19 +81,8 @@ class EscInfo:
     features: int = 0
 
     @property
-    def dc_supported(self) -> bool:
-        return bool(self.features & Feature.DC_SUPPORTED)
-
-    @property
-    def dc_64bit(self) -> bool:
-        return bool(self.features & Feature.DC_64BIT)
-
-    @property
-    def lrw_supported(self) -> bool:
-        return not self.features & Feature.LRW_NOT_SUPPORTED
-
-    @property
     def port_types(self) -> list[PortType]:
+        """Types of ports 0-3 from the port descriptor 0x0007."""
         return port_types(self.port_descriptor)
 
 
@@ -111,7 +100,7 @@ class Port:
 
     @property
     def implemented(self) -> bool:
-        return self.type not in (PortType.NOT_IMPLEMENTED, PortType.NOT_CONFIGURED)
+        return self.type.implemented
 
     @property
     def active(self) -> bool:

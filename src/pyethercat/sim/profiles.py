@@ -23,7 +23,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
-from pyethercat.wire.registers import Feature, PortType
+from pyethercat.wire.registers import EscFeaturesMixin, Feature, PortType, port_descriptor
 
 # Real EK1100 and EL2889 (corpus captures) read 0x0008 = 0x00FC (EL2828, EL1004: 0x01FC).
 _DC_FULL = (Feature.DC_SUPPORTED | Feature.DC_64BIT | Feature.LOW_JITTER_EBUS
@@ -32,7 +32,7 @@ _DC_FULL = (Feature.DC_SUPPORTED | Feature.DC_64BIT | Feature.LOW_JITTER_EBUS
 
 
 @dataclass(frozen=True)
-class EscProfile:
+class EscProfile(EscFeaturesMixin):
     """Resources and identity of one ESC family.
 
     ``ports`` gives the type of ports 0-3 (``PortType.NOT_IMPLEMENTED`` for a
@@ -87,29 +87,17 @@ class EscProfile:
     @property
     def port_descriptor(self) -> int:
         """Value of register 0x0007 (two bits per port)."""
-        value = 0
-        for n, ptype in enumerate(self.ports):
-            value |= (int(ptype) & 3) << (2 * n)
-        return value
+        return port_descriptor(self.ports)
 
     @property
     def implemented_ports(self) -> tuple[int, ...]:
         """Port numbers the chip has."""
-        return tuple(n for n, p in enumerate(self.ports)
-                     if p not in (PortType.NOT_IMPLEMENTED, PortType.NOT_CONFIGURED))
+        return tuple(n for n, p in enumerate(self.ports) if p.implemented)
 
     @property
     def ram_end(self) -> int:
         """First address after the process RAM."""
         return min(0x1000 + self.ram_kib * 1024, 0x10000)
-
-    @property
-    def dc_supported(self) -> bool:
-        return bool(self.features & Feature.DC_SUPPORTED)
-
-    @property
-    def dc_64bit(self) -> bool:
-        return bool(self.features & Feature.DC_64BIT)
 
     @property
     def default_forwarding_delay_ns(self) -> int:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import bisect
 import enum
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 
@@ -186,6 +187,48 @@ class Feature(enum.IntFlag):
     FIXED_FMMU_SM = 1 << 11
 
 
+class EscFeaturesMixin:
+    """What the ESC features register 0x0008 says, decoded once for master and simulator.
+
+    Mixed into the classes that hold the register value as ``features``
+    (the master's ``EscInfo``, the simulator's ``EscProfile``).
+    """
+
+    __slots__ = ()
+    #: Value of register 0x0008 (see :class:`Feature`).
+    features: int
+
+    @property
+    def dc_supported(self) -> bool:
+        """Distributed clocks are available (bit 2)."""
+        return bool(self.features & Feature.DC_SUPPORTED)
+
+    @property
+    def dc_64bit(self) -> bool:
+        """The DC system time is 64 bits wide (bit 3; else 32)."""
+        return bool(self.features & Feature.DC_64BIT)
+
+    @property
+    def lrw_supported(self) -> bool:
+        """The ESC executes LRW (bit 9 clear)."""
+        return not self.features & Feature.LRW_NOT_SUPPORTED
+
+    @property
+    def rw_supported(self) -> bool:
+        """The ESC executes the read/write commands APRW/FPRW/BRW (bit 10 clear)."""
+        return not self.features & Feature.RW_NOT_SUPPORTED
+
+    @property
+    def bitwise_fmmu(self) -> bool:
+        """The FMMUs map bit by bit (bit 0 clear; set: byte-oriented only)."""
+        return not self.features & Feature.FMMU_BYTE_ORIENTED
+
+    @property
+    def fixed_fmmu_sm(self) -> bool:
+        """FMMU and sync manager use is fixed by the chip (bit 11)."""
+        return bool(self.features & Feature.FIXED_FMMU_SM)
+
+
 class PortType(enum.IntEnum):
     """Port descriptor 0x0007, two bits per port."""
 
@@ -194,10 +237,23 @@ class PortType(enum.IntEnum):
     EBUS = 2
     MII = 3
 
+    @property
+    def implemented(self) -> bool:
+        """The chip has this port as an E-Bus or MII port."""
+        return self in (PortType.EBUS, PortType.MII)
+
 
 def port_types(descriptor: int) -> list[PortType]:
     """Decode the port descriptor byte into the four ports' types."""
     return [PortType((descriptor >> (2 * n)) & 3) for n in range(4)]
+
+
+def port_descriptor(types: Sequence[PortType]) -> int:
+    """Encode up to four ports' types as the port descriptor byte (inverse of :func:`port_types`)."""
+    value = 0
+    for n, ptype in enumerate(types):
+        value |= (int(ptype) & 3) << (2 * n)
+    return value
 
 
 class LoopControl(enum.IntEnum):
