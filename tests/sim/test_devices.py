@@ -25,7 +25,7 @@ from pyethercat.wire.mailbox.header import (
 )
 from pyethercat.wire.sii import (
     FmmuUsage,
-    PortType,
+    SiiPortType,
     SyncManagerType,
     parse_sii,
     sii_crc,
@@ -81,7 +81,7 @@ def test_process_data_sizes() -> None:
 def test_coupler_has_four_ports_and_no_process_data() -> None:
     info = parse_sii(BUILTINS["coupler"].sii_image())
     assert info.general is not None
-    assert info.general.ports == (PortType.MII, PortType.EBUS, PortType.MII, PortType.MII)
+    assert info.general.ports == (SiiPortType.MII, SiiPortType.EBUS, SiiPortType.MII, SiiPortType.MII)
     assert info.sync_managers == [] and info.fmmus == []
     assert info.general.ebus_current_ma < 0  # it feeds the E-Bus
 

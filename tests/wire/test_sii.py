@@ -16,7 +16,6 @@ from pyethercat.wire.sii import (
     FmmuUsage,
     GeneralFlags,
     MailboxProtocol,
-    PortType,
     SiiDc,
     SiiDcMode,
     SiiFmmus,
@@ -25,6 +24,7 @@ from pyethercat.wire.sii import (
     SiiPdo,
     SiiPdoEntry,
     SiiPdos,
+    SiiPortType,
     SiiRawCategory,
     SiiStrings,
     SiiSyncManager,
@@ -133,7 +133,7 @@ def test_parse_hand_image() -> None:
     assert g.flags == GeneralFlags.ENABLE_SAFEOP | GeneralFlags.NOT_LRW
     assert g.foe_details == 1
     assert g.ebus_current_ma == -2000
-    assert g.ports == (PortType.MII, PortType.EBUS, PortType.NOT_USED, PortType.NOT_USED)
+    assert g.ports == (SiiPortType.MII, SiiPortType.EBUS, SiiPortType.NOT_USED, SiiPortType.NOT_USED)
     assert g.physical_memory_address == 0x1234
     assert info.fmmus == [
         FmmuUsage.OUTPUTS,

@@ -23,10 +23,10 @@ from pyethercat.wire.sii import (
     FmmuUsage,
     GeneralFlags,
     MailboxProtocol,
-    PortType,
     SiiInfo,
     SiiPdo,
     SiiPdoFlags,
+    SiiPortType,
     SyncManagerType,
 )
 
@@ -197,7 +197,7 @@ def esi_from_sii(
     _sub(g, "Type", group)
     _sub(g, "Name", group, LcId="1033")
     ports = info.general.ports if info.general is not None else (0, 0, 0, 0)
-    physics = "".join({PortType.MII: "Y", PortType.EBUS: "K"}.get(p, " ") for p in ports)  # type: ignore[call-overload]
+    physics = "".join({SiiPortType.MII: "Y", SiiPortType.EBUS: "K"}.get(p, " ") for p in ports)  # type: ignore[call-overload]
     dev = _sub(_sub(desc, "Devices"), "Device", Physics=physics.rstrip() or "YY")
     type_name = info.order_number or info.device_name or f"0x{info.product_code:08X}"
     _sub(dev, "Type", type_name, ProductCode=f"#x{info.product_code:08X}",

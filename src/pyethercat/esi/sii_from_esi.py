@@ -44,7 +44,6 @@ from pyethercat.wire.sii import (
     FmmuUsage,
     GeneralFlags,
     MailboxProtocol,
-    PortType,
     SiiCategory,
     SiiDc,
     SiiDcMode,
@@ -55,6 +54,7 @@ from pyethercat.wire.sii import (
     SiiPdoEntry,
     SiiPdoFlags,
     SiiPdos,
+    SiiPortType,
     SiiRawCategory,
     SiiStrings,
     SiiSyncManager,
@@ -104,7 +104,7 @@ _SM_TYPE: dict[str, SyncManagerType] = {
 
 # Device@Physics letters, one per port: Y/H = MII (100BASE-TX, H with fast
 # hot connect), K = E-Bus (LVDS); anything else (space, empty) is not used.
-_PHYSICS_PORT: dict[str, PortType] = {"Y": PortType.MII, "H": PortType.MII, "K": PortType.EBUS}
+_PHYSICS_PORT: dict[str, SiiPortType] = {"Y": SiiPortType.MII, "H": SiiPortType.MII, "K": SiiPortType.EBUS}
 
 
 @dataclass
@@ -186,7 +186,7 @@ def _fmmu_usage(device: EsiDevice, name: str, sm_index: int | None) -> int:
 def _ports(physics: str | None) -> int:
     value = 0
     for n, letter in enumerate((physics or "")[:4]):
-        value |= int(_PHYSICS_PORT.get(letter.upper(), PortType.NOT_USED)) << (4 * n)
+        value |= int(_PHYSICS_PORT.get(letter.upper(), SiiPortType.NOT_USED)) << (4 * n)
     return value
 
 

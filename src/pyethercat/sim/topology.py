@@ -51,8 +51,8 @@ from pyethercat.errors import ConfigError, SiiError
 from pyethercat.sim.devices.builtin import BuiltinDevice, get_builtin
 from pyethercat.sim.devices.esi_device import EsiSlave, load_esi_device
 from pyethercat.sim.profiles import DEVICE_PROFILES, PROFILES, EscProfile
-from pyethercat.wire.registers import PortType as RegPortType
-from pyethercat.wire.sii import PortType, SiiInfo, parse_sii
+from pyethercat.wire.registers import PortType
+from pyethercat.wire.sii import SiiInfo, SiiPortType, parse_sii
 
 __all__ = [
     "FaultConfig",
@@ -535,15 +535,15 @@ def default_profile(builtin: BuiltinDevice | None, info: SiiInfo) -> str:
     gen = info.general
     if gen is None or gen.physical_ports == 0:
         return "ET1100"
-    used = [p for p in gen.ports if p != PortType.NOT_USED]
-    if len(used) <= 2 and all(p == PortType.EBUS for p in used):
+    used = [p for p in gen.ports if p != SiiPortType.NOT_USED]
+    if len(used) <= 2 and all(p == SiiPortType.EBUS for p in used):
         return "ET1200"
     return "ET1100"
 
 
 _SII_TO_REG_PORT = {
-    PortType.MII: RegPortType.MII,
-    PortType.EBUS: RegPortType.EBUS,
+    SiiPortType.MII: PortType.MII,
+    SiiPortType.EBUS: PortType.EBUS,
 }
 
 
@@ -562,10 +562,10 @@ def profile_for(profile: EscProfile, info: SiiInfo) -> EscProfile:
         return profile
     ports = list(profile.ports)
     for n, sii_type in enumerate(gen.ports):
-        reg = _SII_TO_REG_PORT.get(sii_type) if isinstance(sii_type, PortType) else None
+        reg = _SII_TO_REG_PORT.get(sii_type) if isinstance(sii_type, SiiPortType) else None
         if reg is None:
-            keep = ports[n] == RegPortType.NOT_CONFIGURED
-            ports[n] = RegPortType.NOT_CONFIGURED if keep else RegPortType.NOT_IMPLEMENTED
+            keep = ports[n] == PortType.NOT_CONFIGURED
+            ports[n] = PortType.NOT_CONFIGURED if keep else PortType.NOT_IMPLEMENTED
         else:
             ports[n] = reg
     if tuple(ports) == profile.ports:

@@ -38,7 +38,6 @@ from pyethercat.wire.sii import (
     CoeDetails,
     FmmuUsage,
     MailboxProtocol,
-    PortType,
     SiiFmmus,
     SiiGeneral,
     SiiInfo,
@@ -46,6 +45,7 @@ from pyethercat.wire.sii import (
     SiiPdoEntry,
     SiiPdoFlags,
     SiiPdos,
+    SiiPortType,
     SiiStrings,
     SiiSyncManager,
     SiiSyncManagers,
@@ -141,7 +141,7 @@ class BuiltinDevice:
     name: str  # device name string (what SOEM shows as the slave name)
     group: str
     profile: str  # default ESC profile (sim.esc.PROFILES key)
-    ports: tuple[PortType, PortType, PortType, PortType]
+    ports: tuple[SiiPortType, SiiPortType, SiiPortType, SiiPortType]
     sync_managers: tuple[SyncManager, ...]
     fmmus: tuple[FmmuUsage, ...]
     tx_pdos: tuple[Pdo, ...] = ()
@@ -291,7 +291,7 @@ def _bits(prefix: int, count: int, name: str, sm: int, obj_base: int) -> tuple[P
     )
 
 
-_EBUS2 = (PortType.EBUS, PortType.EBUS, PortType.NOT_USED, PortType.NOT_USED)
+_EBUS2 = (SiiPortType.EBUS, SiiPortType.EBUS, SiiPortType.NOT_USED, SiiPortType.NOT_USED)
 
 COUPLER = BuiltinDevice(
     key="coupler",
@@ -302,7 +302,7 @@ COUPLER = BuiltinDevice(
     profile="ET1100",
     # Port 0 in (MII), port 1 to the terminals (E-Bus), ports 2 and 3 out
     # (MII): a branch can hang off port 3 or port 2.
-    ports=(PortType.MII, PortType.EBUS, PortType.MII, PortType.MII),
+    ports=(SiiPortType.MII, SiiPortType.EBUS, SiiPortType.MII, SiiPortType.MII),
     sync_managers=(),
     fmmus=(),
     ebus_current_ma=-2000,  # feeds the E-Bus

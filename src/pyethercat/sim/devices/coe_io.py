@@ -38,8 +38,8 @@ from pyethercat.wire.sii import (
     CoeDetails,
     FmmuUsage,
     MailboxProtocol,
-    PortType,
     SiiInfo,
+    SiiPortType,
     SyncManagerType,
 )
 
@@ -61,8 +61,8 @@ _SMS_STANDARD = (
     SyncManager(0x1080, 128, R.SM_CONTROL_MAILBOX_IN, SyncManagerType.MAILBOX_IN),
 )
 _PD_CAPACITY = 128  # SM2 at 0x1100 and SM3 at 0x1180: room for 128 bytes each
-_EBUS2 = (PortType.EBUS, PortType.EBUS, PortType.NOT_USED, PortType.NOT_USED)
-_MII2 = (PortType.MII, PortType.MII, PortType.NOT_USED, PortType.NOT_USED)
+_EBUS2 = (SiiPortType.EBUS, SiiPortType.EBUS, SiiPortType.NOT_USED, SiiPortType.NOT_USED)
+_MII2 = (SiiPortType.MII, SiiPortType.MII, SiiPortType.NOT_USED, SiiPortType.NOT_USED)
 
 #: Size of the octet-string object 0x2000 (segmented transfers).
 DATA_BLOCK_SIZE = 4096

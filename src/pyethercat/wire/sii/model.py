@@ -110,8 +110,12 @@ class GeneralFlags(IntFlag):
     IDENT_PHYSICAL_MEMORY = 0x10
 
 
-class PortType(IntEnum):
-    """Physical port description, 4 bits per port in General byte 0x10."""
+class SiiPortType(IntEnum):
+    """Physical port description, 4 bits per port in General bytes 0x10-0x11.
+
+    Not the ESC's port descriptor 0x0007 (``pyethercat.wire.registers.PortType``),
+    whose numbers mean other things (there MII = 3, E-Bus = 2).
+    """
 
     NOT_USED = 0
     MII = 1
@@ -216,13 +220,13 @@ class SiiGeneral:
 
     @property
     def ports(self) -> tuple[int, int, int, int]:
-        """Port types of ports 0-3 (``PortType`` where known)."""
+        """Port types of ports 0-3 (``SiiPortType`` where known)."""
         p = self.physical_ports
         return (
-            _enum_or_int(PortType, p & 0xF),
-            _enum_or_int(PortType, (p >> 4) & 0xF),
-            _enum_or_int(PortType, (p >> 8) & 0xF),
-            _enum_or_int(PortType, (p >> 12) & 0xF),
+            _enum_or_int(SiiPortType, p & 0xF),
+            _enum_or_int(SiiPortType, (p >> 4) & 0xF),
+            _enum_or_int(SiiPortType, (p >> 8) & 0xF),
+            _enum_or_int(SiiPortType, (p >> 12) & 0xF),
         )
 
 
