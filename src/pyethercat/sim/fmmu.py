@@ -15,6 +15,15 @@ seed 004 hold: a logical byte may be read by one FMMU and written by another,
 bit operations leave unmapped bits untouched (``ufunc.at`` read-modify-write),
 unconfigured logical addresses pass unchanged.
 
+Sync managers (facts 3.13) are compiled in as well, so that a logical access
+obeys the same rules as FPRD/FPWR: write entries whose physical byte lies in
+an enabled ECAT-read SM (inputs, send mailbox) are dropped, as the ESC
+refuses EtherCAT writes there (and they do not count in the working
+counter); read entries on the last byte of an enabled buffered ECAT-read SM
+complete a buffer read (status 'read event', the SM's AL event, its ECAT
+event cleared). Each datagram shape's status updates are two cached fancy-
+index operations.
+
 Ordering along the ring matters only where mappings overlap: when a logical
 byte read by one slave is written by a later slave on the route (cross
 traffic), or when byte and bit entries of different slaves read the same
@@ -85,14 +94,73 @@ def _cat(parts: list[I64]) -> I64:
     return np.concatenate(parts).astype(np.int64) if parts else np.zeros(0, np.int64)
 
 
+@dataclass
+class SmReads:
+    """ECAT-read sync managers of a route, compiled by the segment (see the module docstring).
+
+    ``refused[slave]`` lists the [start, end) ranges of the slave's enabled
+    ECAT-read SMs; ``last[slave]`` maps the last byte of each enabled
+    buffered ECAT-read SM to its entry in the flat arrays: SM status byte,
+    AL event byte and bit (0: no AL event), ECAT event byte and bit (0: no
+    ECAT event), all as indices into the flat memory.
+    """
+
+    refused: dict[int, list[tuple[int, int]]]
+    last: dict[int, dict[int, int]]
+    status: I64
+    al_byte: I64
+    al_bit: U8
+    ev_byte: I64
+    ev_bit: U8
+
+    @staticmethod
+    def empty() -> SmReads:
+        z = np.zeros(0, np.int64)
+        return SmReads({}, {}, z, z, np.zeros(0, np.uint8), z, np.zeros(0, np.uint8))
+
+
+def _in_ranges(phys: I64, ranges: list[tuple[int, int]]) -> BoolA:
+    m = np.zeros(len(phys), bool)
+    for a, b in ranges:
+        m |= (phys >= a) & (phys < b)
+    return m
+
+
+def _sm_ids(phys: I64, last: dict[int, int]) -> I64:
+    """Per physical byte: the SM entry whose last byte it is, else -1."""
+    ids = np.full(len(phys), -1, np.int64)
+    for byte, k in last.items():
+        ids[phys == byte] = k
+    return ids
+
+
+def _combine(idx: I64, val: U8, op: np.ufunc) -> tuple[I64, U8]:
+    """Unique indices with their values combined by ``op`` (one fancy assignment then)."""
+    if not len(idx):
+        return idx, val
+    order = np.argsort(idx, kind="stable")
+    idx, val = idx[order], val[order]
+    first = np.ones(len(idx), bool)
+    first[1:] = idx[1:] != idx[:-1]
+    starts = np.nonzero(first)[0]
+    return idx[starts], op.reduceat(val, starts).astype(np.uint8)
+
+
 class _Plan:
     """Cached index slices of one logical datagram shape."""
 
     __slots__ = ("wkc", "ordered", "done", "r_phys", "r_rel", "t_pbyte", "t_shift", "t_rel",
-                 "w_phys", "w_rel", "b_pbyte", "b_shift", "b_clear", "b_rel")
+                 "w_phys", "w_rel", "b_pbyte", "b_shift", "b_clear", "b_rel",
+                 "or_idx", "or_val", "and_idx", "and_val", "and_hit")
 
     def __init__(self, wkc: int) -> None:
         self.wkc = wkc
+        #: Buffer-read completion: status/AL event bytes to OR, ECAT event bytes to AND.
+        self.or_idx: I64 | None = None
+        self.or_val: U8 | None = None
+        self.and_idx: I64 | None = None
+        self.and_val: U8 | None = None
+        self.and_hit: U8 | None = None
         self.ordered = False
         self.done: I64 = np.zeros(0, np.int64)
         self.r_phys: I64 | None = None
@@ -117,20 +185,31 @@ class LogicalMap:
     """
 
     def __init__(self, configs: list[FmmuConfig], writable: list[npt.NDArray[np.bool_]],
-                 complete: dict[int, set[int]], implemented: list[npt.NDArray[np.bool_]]) -> None:
+                 complete: dict[int, set[int]], implemented: list[npt.NDArray[np.bool_]],
+                 sm_reads: SmReads | None = None) -> None:
         self.configs = configs
-        rb_log, rb_phys, rb_pos = [], [], []
+        smr = sm_reads if sm_reads is not None else SmReads.empty()
+        self._smr = smr
+        rb_log, rb_phys, rb_pos, rb_sm = [], [], [], []
         wb_log, wb_phys, wb_pos, wb_done = [], [], [], []
-        rt_lbit, rt_pbyte, rt_shift, rt_pos = [], [], [], []
+        rt_lbit, rt_pbyte, rt_shift, rt_pos, rt_sm = [], [], [], [], []
         wt_lbit, wt_pbyte, wt_shift, wt_pos, wt_done = [], [], [], [], []
+        # Logical bytes a write FMMU may count for (not refused by an ECAT-read SM).
+        wc_log, wc_pos = [], []
         for c in configs:
             base = c.slave * SLAVE_STRIDE
             impl = implemented[c.slave]
             wmask = writable[c.slave]
             done = complete.get(c.slave, set())
+            refused = smr.refused.get(c.slave)
+            last = smr.last.get(c.slave)
             if c.byte_aligned:
                 log = np.arange(c.logical, c.logical + c.length, dtype=np.int64)
                 phys = np.arange(c.physical, c.physical + c.length, dtype=np.int64)
+                if c.write:
+                    cnt = ~_in_ranges(phys, refused) if refused else np.ones(len(log), bool)
+                    wc_log.append(log[cnt])
+                    wc_pos.append(np.full(int(cnt.sum()), c.pos, np.int64))
                 keep = phys < R.ADDRESS_SPACE
                 log, phys = log[keep], phys[keep]
                 pos = np.full(len(log), c.pos, np.int64)
@@ -139,8 +218,11 @@ class LogicalMap:
                     rb_log.append(log[ok])
                     rb_phys.append(phys[ok] + base)
                     rb_pos.append(pos[ok])
+                    rb_sm.append(_sm_ids(phys[ok], last) if last else np.full(int(ok.sum()), -1, np.int64))
                 if c.write:
                     ok = wmask[phys]
+                    if refused:
+                        ok &= ~_in_ranges(phys, refused)
                     wb_log.append(log[ok])
                     wb_phys.append(phys[ok] + base)
                     wb_pos.append(pos[ok])
@@ -149,6 +231,10 @@ class LogicalMap:
                 k = np.arange(c.bits, dtype=np.int64)
                 lbit = c.logical * 8 + c.start_bit + k
                 pbit = c.physical * 8 + c.physical_bit + k
+                if c.write:
+                    cnt = ~_in_ranges(pbit >> 3, refused) if refused else np.ones(len(lbit), bool)
+                    wc_log.append(np.unique(lbit[cnt] >> 3))
+                    wc_pos.append(np.full(len(wc_log[-1]), c.pos, np.int64))
                 keep = (pbit >> 3) < R.ADDRESS_SPACE
                 lbit, pbit = lbit[keep], pbit[keep]
                 pos = np.full(len(lbit), c.pos, np.int64)
@@ -158,8 +244,11 @@ class LogicalMap:
                     rt_pbyte.append((pbit[ok] >> 3) + base)
                     rt_shift.append(pbit[ok] & 7)
                     rt_pos.append(pos[ok])
+                    rt_sm.append(_sm_ids(pbit[ok] >> 3, last) if last else np.full(int(ok.sum()), -1, np.int64))
                 if c.write:
                     ok = wmask[pbit >> 3]
+                    if refused:
+                        ok &= ~_in_ranges(pbit >> 3, refused)
                     wt_lbit.append(lbit[ok])
                     wt_pbyte.append((pbit[ok] >> 3) + base)
                     wt_shift.append(pbit[ok] & 7)
@@ -171,13 +260,15 @@ class LogicalMap:
             order = np.lexsort((cols[-1], keys)) if len(keys) else np.zeros(0, np.int64)
             return (keys[order],) + tuple(c[order] for c in cols)
 
-        self.rb_log, self.rb_phys, self.rb_pos = sort(_cat(rb_log), _cat(rb_phys), _cat(rb_pos))
+        self.rb_log, self.rb_phys, self.rb_sm, self.rb_pos = sort(
+            _cat(rb_log), _cat(rb_phys), _cat(rb_sm), _cat(rb_pos))
         wdone = np.concatenate(wb_done).astype(bool) if wb_done else np.zeros(0, bool)
         self.wb_log, self.wb_phys, wdone_i, self.wb_pos = sort(
             _cat(wb_log), _cat(wb_phys), wdone.astype(np.int64), _cat(wb_pos))
         self.wb_done: BoolA = wdone_i.astype(bool)
-        self.rt_lbit, self.rt_pbyte, self.rt_shift, self.rt_pos = sort(
-            _cat(rt_lbit), _cat(rt_pbyte), _cat(rt_shift), _cat(rt_pos))
+        self.rt_lbit, self.rt_pbyte, self.rt_shift, self.rt_sm, self.rt_pos = sort(
+            _cat(rt_lbit), _cat(rt_pbyte), _cat(rt_shift), _cat(rt_sm), _cat(rt_pos))
+        self.wc_log, self.wc_pos = sort(_cat(wc_log), _cat(wc_pos))
         tdone = np.concatenate(wt_done).astype(bool) if wt_done else np.zeros(0, bool)
         self.wt_lbit, self.wt_pbyte, self.wt_shift, tdone_i, self.wt_pos = sort(
             _cat(wt_lbit), _cat(wt_pbyte), _cat(wt_shift), tdone.astype(np.int64), _cat(wt_pos))
@@ -190,7 +281,6 @@ class LogicalMap:
         self.f_hi = np.array([c.logical + c.length for c in configs], dtype=np.int64)
         self.f_pos = np.array([c.pos for c in configs], dtype=np.int64)
         self.f_read = np.array([c.read for c in configs], dtype=bool)
-        self.f_write = np.array([c.write for c in configs], dtype=bool)
         self.has_bits = bool(len(self.rt_lbit) or len(self.wt_lbit))
         self.conflicts = self._find_conflicts()
         self.empty = not configs
@@ -228,13 +318,14 @@ class LogicalMap:
 
     # --- execution --------------------------------------------------------------------
 
-    def run(self, flat: U8, lo: int, data: U8, reads: bool, writes: bool) -> tuple[int, I64]:
-        """Apply a logical datagram: (working counter, slaves whose write SM completed).
+    def run(self, flat: U8, lo: int, data: U8, reads: bool, writes: bool) -> tuple[int, I64, bool]:
+        """Apply a logical datagram: (working counter, slaves whose write SM completed,
+        whether an ECAT event request bit was cleared).
 
-        The index slices, the working counter and the completed slaves depend
-        only on (address, length, command), so they are computed once per
-        datagram shape and cached: the cyclic cost is a gather, a scatter and
-        a placement.
+        The index slices, the working counter, the completed slaves and the
+        buffer reads depend only on (address, length, command), so they are
+        computed once per datagram shape and cached: the cyclic cost is a
+        gather, a scatter, a placement and the SM status updates.
         """
         key = (lo, len(data), reads, writes)
         plan = self._plans.get(key)
@@ -244,9 +335,10 @@ class LogicalMap:
                 self._plans.clear()
             self._plans[key] = plan
         if not plan.wkc:
-            return 0, plan.done
+            return 0, plan.done, False
         if plan.ordered:
-            return plan.wkc, self._execute_ordered(flat, lo, data, reads, writes)
+            done = self._execute_ordered(flat, lo, data, reads, writes)
+            return plan.wkc, done, self._sm_read_events(flat, plan)
         # Gather first (a slave reads its memory as it was), scatter the data as
         # it arrived (``data`` is unchanged until the reads are placed), then place.
         rvals = flat[plan.r_phys] if plan.r_phys is not None else None
@@ -267,7 +359,25 @@ class LogicalMap:
             bits = np.unpackbits(data, bitorder="little")
             bits[plan.t_rel] = tvals
             data[:] = np.packbits(bits, bitorder="little")
-        return plan.wkc, plan.done
+        if plan.or_idx is None:
+            return plan.wkc, plan.done, False
+        return plan.wkc, plan.done, self._sm_read_events(flat, plan)
+
+    @staticmethod
+    def _sm_read_events(flat: U8, plan: _Plan) -> bool:
+        """Buffers read completely: status read event and AL events set, ECAT events cleared."""
+        if plan.or_idx is None:
+            return False
+        assert plan.or_val is not None
+        flat[plan.or_idx] |= plan.or_val
+        if plan.and_idx is None:
+            return False
+        assert plan.and_val is not None and plan.and_hit is not None
+        old = flat[plan.and_idx]
+        if not (old & plan.and_hit).any():
+            return False
+        flat[plan.and_idx] = old & plan.and_val
+        return True
 
     def _plan(self, lo: int, hi: int, reads: bool, writes: bool) -> _Plan:
         wkc = self.working_counter(lo, hi, reads, writes)
@@ -279,6 +389,7 @@ class LogicalMap:
             plan.ordered = bool(c1 > c0)
         done_parts: list[I64] = []
         if reads:
+            self._plan_sm_reads(plan, lo, hi)
             r0, r1 = np.searchsorted(self.rb_log, (lo, hi))
             if r1 > r0:
                 plan.r_phys = self.rb_phys[r0:r1].copy()
@@ -307,6 +418,27 @@ class LogicalMap:
             plan.done = np.unique(np.concatenate(done_parts)).astype(np.int64)
         return plan
 
+    def _plan_sm_reads(self, plan: _Plan, lo: int, hi: int) -> None:
+        """The buffered ECAT-read SMs whose last byte this datagram reads, as status updates."""
+        smr = self._smr
+        if not len(smr.status):
+            return
+        r0, r1 = np.searchsorted(self.rb_log, (lo, hi))
+        t0, t1 = np.searchsorted(self.rt_lbit, (lo * 8, hi * 8))
+        ids = np.concatenate([self.rb_sm[r0:r1], self.rt_sm[t0:t1]])
+        ids = np.unique(ids[ids >= 0])
+        if not len(ids):
+            return
+        al = smr.al_bit[ids] != 0
+        or_idx = np.concatenate([smr.status[ids], smr.al_byte[ids][al]])
+        or_val = np.concatenate([np.full(len(ids), R.SM_STATUS_READ_EVENT, np.uint8), smr.al_bit[ids][al]])
+        plan.or_idx, plan.or_val = _combine(or_idx, or_val, np.bitwise_or)
+        ev = smr.ev_bit[ids] != 0
+        if ev.any():
+            and_idx, hit = _combine(smr.ev_byte[ids][ev], smr.ev_bit[ids][ev], np.bitwise_or)
+            plan.and_idx, plan.and_hit = and_idx, hit
+            plan.and_val = (~hit).astype(np.uint8)
+
     @staticmethod
     def _count(pos: I64) -> int:
         if len(pos) == 0:
@@ -322,7 +454,10 @@ class LogicalMap:
         if reads:
             wkc += self._count(self.f_pos[hit & self.f_read])
         if writes:
-            nw = self._count(self.f_pos[hit & self.f_write])
+            # Per slave: at least one byte it may write (bytes an ECAT-read SM
+            # refuses do not count, as for FPWR).
+            w0, w1 = np.searchsorted(self.wc_log, (lo, hi))
+            nw = len(np.unique(self.wc_pos[w0:w1])) if w1 > w0 else 0
             wkc += 2 * nw if reads else nw
         return wkc
 

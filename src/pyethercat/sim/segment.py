@@ -44,7 +44,7 @@ from pyethercat.errors import ConfigError
 from pyethercat.sim.clock import Clock, VirtualClock
 from pyethercat.sim.device import DeviceApp
 from pyethercat.sim.esc import _WRITE_TRIGGER, SIDE_EFFECT_MASK, Esc
-from pyethercat.sim.fmmu import SLAVE_STRIDE, LogicalMap, parse_fmmus
+from pyethercat.sim.fmmu import SLAVE_STRIDE, LogicalMap, SmReads, parse_fmmus
 from pyethercat.sim.memory import EscMemory
 from pyethercat.sim.profiles import EscProfile
 from pyethercat.wire import registers as R
@@ -265,6 +265,7 @@ class Segment:
         self._irq = 0
         self._sm_span = (0, 0)
         self._sm_areas = np.zeros(0, bool)
+        self._sm_reads = SmReads.empty()
         self._bw: dict[str, Any] = {}
         self._wire_idx: tuple[I64, I64, I64, I64] | None = None
         self._bplan: dict[tuple[int, int, int] | int, _BrdPlan] = {}
@@ -666,6 +667,11 @@ class Segment:
         pair_slave, pair_n, pair_status, pair_al, pair_wd = [], [], [], [], []
         lo, hi = R.ADDRESS_SPACE, 0
         complete: dict[int, set[int]] = {}
+        # ECAT-read SMs, for logical access (sim.fmmu.SmReads): refused write
+        # ranges, and per buffered one its last byte, status and event bytes.
+        refused: dict[int, list[tuple[int, int]]] = {}
+        last: dict[int, dict[int, int]] = {}
+        rd: list[tuple[int, int, int, int, int]] = []
         for s in range(n):
             esc = self.slaves[s].esc
             if not esc.powered:
@@ -675,6 +681,21 @@ class Segment:
                 if not sm.enabled:
                     continue
                 lo, hi = min(lo, sm.start), max(hi, sm.end)
+                if not sm.ecat_writes:
+                    refused.setdefault(s, []).append((sm.start, min(sm.end, R.ADDRESS_SPACE)))
+                    if sm.mode != R.SmMode.MAILBOX and sm.end <= R.ADDRESS_SPACE:
+                        # (the mailbox's read completion stays on the ESC's own path)
+                        last.setdefault(s, {})[sm.end - 1] = len(rd)
+                        base = s * SLAVE_STRIDE
+                        al_bit = 8 + k  # AL event bit of SM k (facts 3.8)
+                        ev_bit = 4 + k  # ECAT event bit of SM k
+                        rd.append((
+                            base + R.sm_address(k) + R.SM_STATUS,
+                            base + R.AL_EVENT_REQUEST + (al_bit >> 3),
+                            (1 << (al_bit & 7)) if sm.control & R.SM_CONTROL_AL_EVENT else 0,
+                            base + R.ECAT_EVENT_REQUEST + (ev_bit >> 3),
+                            (1 << (ev_bit & 7)) if sm.control & R.SM_CONTROL_ECAT_EVENT and ev_bit < 16
+                            else 0))
                 if sm.mode == R.SmMode.BUFFERED and sm.ecat_writes:
                     idx_parts.append(np.arange(sm.start, min(sm.end, R.ADDRESS_SPACE)) + s * SLAVE_STRIDE)
                     owner_parts.append(np.full(len(idx_parts[-1]), s, np.int64))
@@ -693,6 +714,10 @@ class Segment:
             "wd": np.array(pair_wd, bool),
             "complete": complete,
         }
+        cols = list(zip(*rd, strict=True)) if rd else [(), (), (), (), ()]
+        self._sm_reads = SmReads(refused, last, np.array(cols[0], np.int64), np.array(cols[1], np.int64),
+                                 np.array(cols[2], np.uint8), np.array(cols[3], np.int64),
+                                 np.array(cols[4], np.uint8))
         self._sm_span = (lo, hi) if hi > lo else (0, 0)
         self._fast_ok.clear()
         self._complete_plans.clear()
@@ -716,7 +741,7 @@ class Segment:
             configs.extend(parse_fmmus(raw, count, pos, s))
         writable = [sl.esc.writable for sl in self.slaves]
         impl = [sl.esc.impl for sl in self.slaves]
-        self._lmap = LogicalMap(configs, writable, self._bw["complete"], impl)
+        self._lmap = LogicalMap(configs, writable, self._bw["complete"], impl, self._sm_reads)
         self.fmmu_dirty = False
 
     def _refresh_addressing(self) -> None:
@@ -1483,7 +1508,9 @@ class Segment:
             return 0
         reads = cmd != Command.LWR
         writes = cmd != Command.LRD
-        wkc, done = lmap.run(self.memory.flat, address & 0xFFFFFFFF, data, reads, writes)
+        wkc, done, events = lmap.run(self.memory.flat, address & 0xFFFFFFFF, data, reads, writes)
+        if events:
+            self.irq_dirty = True
         if len(done):
             self.complete_write_sms(done)
         return wkc
