@@ -58,10 +58,9 @@ from pyethercat.esi.model import (
 )
 from pyethercat.esi.parse import (
     DEFAULT_MAX_BYTES,
-    _check_prolog,
     _kids,
     _line,
-    _make_parser,
+    _safe_xml_root,
     _text,
     parse_bool,
     parse_hex_bytes,
@@ -908,18 +907,7 @@ def parse_eni(
     data: bytes, source: str = "<bytes>", *, max_bytes: int = DEFAULT_MAX_BYTES
 ) -> EniConfig:
     """Parse ENI XML (same safety rules as ESI: no DTD, no network, bounded size)."""
-    data = bytes(data)
-    if len(data) > max_bytes:
-        raise EsiError(f"file is {len(data)} bytes, more than the limit of {max_bytes}", source)
-    if not data.strip():
-        raise EsiError("file is empty", source)
-    _check_prolog(data, source)
-    try:
-        root = etree.fromstring(data, parser=_make_parser())
-    except etree.XMLSyntaxError as exc:
-        msg = " ".join(exc.msg.split())  # libxml2 messages may hold a newline
-        raise EsiError(f"malformed XML: {msg}", source, exc.lineno or None) from None
-    return _Reader(source).config(root)
+    return _Reader(source).config(_safe_xml_root(data, source, max_bytes))
 
 
 def load_eni(path: str | os.PathLike[str], *, max_bytes: int = DEFAULT_MAX_BYTES) -> EniConfig:

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 from lxml import etree
 
+from pyethercat.wire.mailbox.coe import ObjectAccess
 from pyethercat.wire.mailbox.datatypes import DataType
 from pyethercat.wire.sii import (
     SM_NOT_ASSIGNED,
@@ -31,12 +32,6 @@ from pyethercat.wire.sii import (
 )
 
 __all__ = ["DictEntry", "DictObject", "esi_from_sii"]
-
-# Bits of ObjectAccess (wire/mailbox/coe.py) as the entry description reports them.
-_READ = 0x07
-_WRITE = 0x38
-_RXPDO = 0x40
-_TXPDO = 0x80
 
 _TYPE_NAMES: dict[int, str] = {
     DataType.BOOLEAN: "BOOL", DataType.INTEGER8: "SINT", DataType.INTEGER16: "INT",
@@ -95,9 +90,9 @@ def _sub(parent: etree._Element, tag: str, text: object = None, **attrs: str) ->
 
 
 def _access(a: int) -> str:
-    if a & _WRITE and a & _READ:
+    if a & ObjectAccess.WRITE and a & ObjectAccess.READ:
         return "rw"
-    return "wo" if a & _WRITE else "ro"
+    return "wo" if a & ObjectAccess.WRITE else "ro"
 
 
 def _dictionary(parent: etree._Element, objects: Sequence[DictObject]) -> None:
@@ -125,7 +120,8 @@ def _dictionary(parent: etree._Element, objects: Sequence[DictObject]) -> None:
                 _sub(_sub(ob, "Info"), "DefaultData", e.default.hex().upper())
             flags = _sub(ob, "Flags")
             _sub(flags, "Access", _access(e.access))
-            pm = ("R" if e.access & _RXPDO else "") + ("T" if e.access & _TXPDO else "")
+            pm = (("R" if e.access & ObjectAccess.RXPDO_MAPPABLE else "")
+                  + ("T" if e.access & ObjectAccess.TXPDO_MAPPABLE else ""))
             if pm:
                 _sub(flags, "PdoMapping", pm)
             continue

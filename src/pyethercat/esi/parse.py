@@ -905,6 +905,13 @@ def parse_esi(
     """
     if not isinstance(data, bytes | bytearray | memoryview):
         raise TypeError("parse_esi takes bytes (the encoding is declared inside the XML)")
+    return _Parser(source).file(_safe_xml_root(data, source, max_bytes))
+
+
+def _safe_xml_root(
+    data: bytes | bytearray | memoryview, source: str, max_bytes: int
+) -> etree._Element:
+    """Root element of an ESI or ENI document: bounded size, no DTD, no network."""
     data = bytes(data)
     if len(data) > max_bytes:
         raise EsiError(f"file is {len(data)} bytes, more than the limit of {max_bytes}", source)
@@ -922,7 +929,7 @@ def parse_esi(
     dtd = docinfo.internalDTD
     if docinfo.system_url or docinfo.public_id or (dtd is not None and any(dtd.iterentities())):
         raise EsiError("document type declaration with a DTD is not allowed", source, 1)
-    return _Parser(source).file(root)
+    return root
 
 
 def load_esi(path: str | os.PathLike[str], *, max_bytes: int = DEFAULT_MAX_BYTES) -> EsiFile:
