@@ -61,3 +61,26 @@ def test_a_slave_in_no_group_says_so() -> None:
     assert m.slaves[0].config is not None
     with pytest.raises(ConfigError, match=r"slave 0 \(0x1001\) is in no process-data group"):
         _ = m.slaves[0].inputs
+
+
+def test_two_groups_with_different_cycle_times_exchange_at_their_own_rates() -> None:
+    """Seed 004 'cyclic mode': the loop ticks at the fast cycle, the slow group every 5th tick."""
+    from pyethercat.master.cyclic import CyclicRunner, VirtualClock
+
+    m = scanned()
+    cfg = m.configure(groups=[GroupSpec("fast", [1, 2], cycle=0.001),
+                              GroupSpec("slow", [3, 4, 5], cycle=0.005)])
+    assert cfg.group("fast").logical_base != cfg.group("slow").logical_base
+    m._bring_up(m.slaves, 2.0)
+    r = CyclicRunner(m.scheduler, cfg, m.images, m.slaves, cycle=0.001, clock=VirtualClock(),
+                     check_interval=0)
+    assert r.period_ns == 1_000_000
+    r.run(cycles=20)
+    fast, slow = r.groups
+    assert (fast.name, fast.exchanges, slow.name, slow.exchanges) == ("fast", 20, "slow", 4)
+    assert fast.wkc_ok and slow.wkc_ok and r.stats.wkc_errors == 0
+    # the slow group's outputs reach the di8 only on its own ticks: do8 (3) -> di8 (2)
+    m.slaves[3].outputs["Output 3"] = 1
+    r.run(cycles=1)  # a new run starts at tick 0, both groups due: the do8's write lands
+    r.run(cycles=2)  # the fast group reads the di8 the wiring drove
+    assert m.slaves[2].inputs["Input 3"] is True
