@@ -205,6 +205,9 @@ class Route:
     returned: bool             # the frame comes back to the master
     delay_ns: int              # forwarding + cable delays of the whole walk
     contiguous: bool           # passes == arange(len(passes)) (fast slicing)
+    #: (slave, port, arrival index) of arrivals at an auto-close port held closed
+    #: after its link came back: a valid frame there re-opens it (facts 3.4).
+    reopen: list[tuple[int, int, int]]
     #: Pass indices where the slave's port 0 is closed (derived, for the frame path).
     closed_idx: list[int] = field(init=False)
     #: len(passes), and whether the frame is processed at all (derived).
@@ -284,8 +287,10 @@ class Segment:
         #: ECAT event bits that may be set in some slave (cleared by vectorised reads).
         self._event_bits = 0xFFFF
         self._cur_passes: I64 = _EMPTY
-        #: Passes before a CRC-corrupted arrival in the current frame (-1: none).
+        #: Passes before a CRC-corrupted arrival in the current frame (-1: none),
+        #: and that arrival's index into Route.arrivals.
         self._crc_cut = -1
+        self._crc_at = _NEVER
         self._frame_t0 = 0
         self._complete_plans: dict[bytes, tuple[I64, I64, I64, npt.NDArray[np.uint8], I64]] = {}
         #: Slaves with a SAFEOP -> OP request waiting for their first outputs.
@@ -468,13 +473,17 @@ class Segment:
         returned = False
         t = 0
         if n == 0 or not links[0][0]:
-            return Route(np.zeros(0, np.int64), [], [], arrive, epu, False, 0, True)
+            return Route(np.zeros(0, np.int64), [], [], arrive, epu, False, 0, True, [])
         s, p, via_link = 0, 0, True
         limit = 16 * n + 16
         steps = 0
+        reopen: list[tuple[int, int, int]] = []
+        latched = self._autoclose_latched
         while steps < limit:
             steps += 1
             if via_link:
+                if (s, p) in latched and closed[s][p]:
+                    reopen.append((s, p, len(arrivals)))
                 arrivals.append((s, p, t, len(passes)))
                 if arrive[s, p] < 0:
                     arrive[s, p] = t
@@ -501,7 +510,7 @@ class Segment:
             s, p, via_link = peer[0], peer[1], True
         arr = np.array(passes, dtype=np.int64)
         contiguous = bool(len(arr) == 0 or np.array_equal(arr, np.arange(len(arr))))
-        return Route(arr, port0_closed, arrivals, arrive, epu, returned, t, contiguous)
+        return Route(arr, port0_closed, arrivals, arrive, epu, returned, t, contiguous, reopen)
 
     @property
     def route(self) -> Route:
@@ -521,6 +530,24 @@ class Segment:
             if (new >> (2 * p)) & 3 == R.LoopControl.AUTO_CLOSE and self._link_up(index, p):
                 self._autoclose_latched.discard((index, p))
         self.topology_dirty = True
+
+    def _reopen_ports(self, route: Route, any_c: bool) -> None:
+        """A valid frame arrived at latched auto-close ports: they open (facts 3.4).
+
+        Valid: it arrived before the frame got a CRC error (arrival index below
+        the corrupted one) and before the circulating-frame rule destroyed it
+        (at most that many processing-unit passes before the arrival). The
+        frame itself was handled with the port closed; the next walk has it
+        open."""
+        crc_at, self._crc_at = self._crc_at, _NEVER
+        closed = route.closed_idx
+        passes_done = route.count
+        if closed and (any_c or len(closed) > 1):
+            passes_done = closed[0] if any_c else closed[1]
+        for s, p, i in route.reopen:
+            if i < crc_at and route.arrivals[i][3] <= passes_done:
+                self._autoclose_latched.discard((s, p))
+                self.topology_dirty = True
 
     # --- faults ------------------------------------------------------------------------
 
@@ -1045,6 +1072,8 @@ class Segment:
         else:
             parsed = self._parse(buf, route)
             if parsed is None or isinstance(parsed, bytes):
+                if parsed is not None and route.reopen:
+                    self._reopen_ports(route, False)  # a forwarded non-EtherCAT frame
                 return parsed
             heads, any_c = parsed
         passes = route.passes
@@ -1071,6 +1100,8 @@ class Segment:
                 count = self._crc_cut
             destroy = True
             self._crc_cut = -1
+            if not route.reopen:
+                self._crc_at = _NEVER
         self._frame_t0 = now
         self._cur_passes = passes
         if self.irq_dirty:
@@ -1122,6 +1153,8 @@ class Segment:
                 walk = self.route
             size = len(buf)  # (no max(): a builtin call costs more than the whole sum)
             vclock._now += ((size if size > 60 else 60) + FCS_SIZE) * self.mac_wire_ns + walk.delay_ns
+        if route.reopen:
+            self._reopen_ports(route, any_c)
         if destroy or not route.returned:
             self.frames_lost += 1
             return None
@@ -1142,7 +1175,7 @@ class Segment:
             if len(route.passes) and self.memory.mem[route.passes[0], R.DL_CONTROL] & R.DL_CONTROL_FORWARDING_RULE:
                 return None
             return bytes(buf) if route.returned else None  # passed on unchanged
-        cut = self._apply_corruption(route) if self._corrupt else -1
+        cut, cut_at = self._apply_corruption(route) if self._corrupt else (-1, _NEVER)
         word = buf[start] | (buf[start + 1] << 8)
         length = word & ECAT_LENGTH_MASK
         if word >> ECAT_TYPE_SHIFT != _DATAGRAMS:
@@ -1175,7 +1208,7 @@ class Segment:
             if len(self._parsed) >= 1024:
                 self._parsed.clear()
             self._parsed[bytes(buf[12:26])] = (end, heads, any_c)
-        self._crc_cut = cut
+        self._crc_cut, self._crc_at = cut, cut_at
         return heads, any_c
 
     def _processing_error(self, route: Route) -> None:
@@ -1186,23 +1219,23 @@ class Segment:
             c = int(self.memory.mem[s, R.ECAT_PROCESSING_ERROR_COUNTER])
             self.memory.mem[s, R.ECAT_PROCESSING_ERROR_COUNTER] = min(255, c + 1)
 
-    def _apply_corruption(self, route: Route) -> int:
+    def _apply_corruption(self, route: Route) -> tuple[int, int]:
         """Count CRC errors along the walk.
 
         Returns the number of processing-unit passes made before the corrupted
-        arrival (those slaves execute the frame), or -1 if no pending fault hit
-        this frame. The receiving port counts an invalid frame; every later
+        arrival (those slaves execute the frame) and that arrival's index in
+        ``route.arrivals``, or (-1, never) if no pending fault hit this frame. The receiving port counts an invalid frame; every later
         arrival counts a forwarded error (the detecting port counts only the
         first)."""
         mem = self.memory.mem
         corrupted = False
-        cut = -1
-        for s, p, _t, before in route.arrivals:
+        cut, at = -1, _NEVER
+        for i, (s, p, _t, before) in enumerate(route.arrivals):
             if not corrupted:
                 left = self._corrupt.get((s, p), 0)
                 if left:
                     corrupted = True
-                    cut = before
+                    cut, at = before, i
                     if left == 1:
                         del self._corrupt[(s, p)]
                     else:
@@ -1212,7 +1245,7 @@ class Segment:
             else:
                 a = R.FORWARDED_RX_ERROR_COUNTER + p
                 mem[s, a] = min(255, int(mem[s, a]) + 1)
-        return cut
+        return cut, at
 
     # --- datagrams ------------------------------------------------------------------------------
 
