@@ -9,6 +9,27 @@ from __future__ import annotations
 
 import builtins
 
+__all__ = [
+    "AlStatusError",
+    "CaptureError",
+    "ConfigError",
+    "EsiError",
+    "EtherCATError",
+    "FrameError",
+    "FrameTooLargeError",
+    "LinkClosedError",
+    "LinkError",
+    "MailboxError",
+    "MailboxErrorReply",
+    "PermissionError",
+    "SdoAbort",
+    "SiiError",
+    "StateTimeoutError",
+    "TimeoutError",
+    "TopologyMismatchError",
+    "WorkingCounterError",
+]
+
 
 class EtherCATError(Exception):
     """Base class of every pyethercat error."""

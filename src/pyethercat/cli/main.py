@@ -14,6 +14,8 @@ import click
 
 from pyethercat.errors import EtherCATError
 
+__all__ = ["cli", "main", "parse_int"]
+
 
 class _Group(click.Group):
     """Click group that turns library errors into one-line messages."""

@@ -6,6 +6,8 @@ import click
 
 from pyethercat.errors import ConfigError
 
+__all__ = ["register", "sim_command"]
+
 
 @click.command("sim")
 @click.argument("topology", type=click.Path(dir_okay=False))

@@ -27,6 +27,44 @@ from pyethercat.wire.registers import (
     SmMode,
 )
 
+__all__ = [
+    "BASE_TYPES",
+    "LCID_ENGLISH",
+    "LCID_GERMAN",
+    "EsiCoe",
+    "EsiDataType",
+    "EsiDc",
+    "EsiDcOpMode",
+    "EsiDevice",
+    "EsiDeviceInfo",
+    "EsiDictionary",
+    "EsiEeprom",
+    "EsiEoe",
+    "EsiFile",
+    "EsiFlags",
+    "EsiFmmu",
+    "EsiGroup",
+    "EsiInitCmd",
+    "EsiMailbox",
+    "EsiObject",
+    "EsiObjectSubItem",
+    "EsiOdEntry",
+    "EsiPdo",
+    "EsiPdoEntry",
+    "EsiProfile",
+    "EsiSm",
+    "EsiSubItemType",
+    "EsiValueInfo",
+    "EsiVendor",
+    "PdoDirection",
+    "PdoLayout",
+    "SmKind",
+    "SmLayout",
+    "Text",
+    "TypeInfo",
+    "type_info",
+]
+
 #: LcId of US English, the language ESI tools fall back to.
 LCID_ENGLISH = 1033
 #: LcId of German, the other language common in vendor files.

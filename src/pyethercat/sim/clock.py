@@ -10,6 +10,12 @@ from __future__ import annotations
 import time
 from typing import Protocol, runtime_checkable
 
+__all__ = [
+    "Clock",
+    "VirtualClock",
+    "WallClock",
+]
+
 
 @runtime_checkable
 class Clock(Protocol):

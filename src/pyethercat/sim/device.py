@@ -16,6 +16,12 @@ from pyethercat.wire.al import AlState
 if TYPE_CHECKING:
     from pyethercat.sim.profiles import EscProfile
 
+__all__ = [
+    "DeviceApp",
+    "Pdi",
+    "PdiTarget",
+]
+
 
 class PdiTarget(Protocol):
     """What a :class:`Pdi` needs from the ESC model (implemented by ``sim.esc.Esc``)."""

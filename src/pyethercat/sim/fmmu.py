@@ -44,6 +44,14 @@ import numpy.typing as npt
 
 from pyethercat.wire import registers as R
 
+__all__ = [
+    "SLAVE_STRIDE",
+    "FmmuConfig",
+    "LogicalMap",
+    "SmReads",
+    "parse_fmmus",
+]
+
 I64 = npt.NDArray[np.int64]
 U8 = npt.NDArray[np.uint8]
 BoolA = npt.NDArray[np.bool_]

@@ -15,6 +15,8 @@ import numpy.typing as npt
 
 from pyethercat.wire.registers import ADDRESS_SPACE
 
+__all__ = ["EscMemory"]
+
 U8Array = npt.NDArray[np.uint8]
 
 

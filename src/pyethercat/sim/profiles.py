@@ -25,6 +25,13 @@ from dataclasses import dataclass
 
 from pyethercat.wire.registers import EscFeaturesMixin, Feature, PortType, port_descriptor
 
+__all__ = [
+    "DEVICE_PROFILES",
+    "PROFILES",
+    "EscProfile",
+    "profile",
+]
+
 # Real EK1100 and EL2889 (corpus captures) read 0x0008 = 0x00FC (EL2828, EL1004: 0x01FC).
 _DC_FULL = (Feature.DC_SUPPORTED | Feature.DC_64BIT | Feature.LOW_JITTER_EBUS
             | Feature.ENHANCED_LINK_EBUS | Feature.ENHANCED_LINK_MII

@@ -69,6 +69,16 @@ from pyethercat.wire.frame import (
     FrameType,
 )
 
+__all__ = [
+    "FCS_SIZE",
+    "MASTER",
+    "NEXT_PORT",
+    "Route",
+    "Segment",
+    "SimSlave",
+    "SlaveSpec",
+]
+
 I64 = npt.NDArray[np.int64]
 
 #: Next port in the forwarding order 0 -> 3 -> 1 -> 2 -> 0.

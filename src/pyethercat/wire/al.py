@@ -7,6 +7,14 @@ import enum
 from pyethercat.errors import ConfigError
 from pyethercat.wire.registers import AL_ERROR_FLAG, AL_STATE_MASK
 
+__all__ = [
+    "AL_STATUS_CODE_NAMES",
+    "AlState",
+    "AlStatusCode",
+    "al_status_code_name",
+    "state_name",
+]
+
 
 class AlState(enum.IntEnum):
     """EtherCAT state machine states (AL control/status bits 3:0)."""

@@ -14,6 +14,26 @@ from dataclasses import dataclass, field
 
 from pyethercat.errors import FrameError, FrameTooLargeError
 
+__all__ = [
+    "CIRCULATING_BIT",
+    "HEADER",
+    "HEADER_SIZE",
+    "LEN_MASK",
+    "LEN_RESERVED_MASK",
+    "MAX_DATA",
+    "MAX_PAYLOAD",
+    "MORE_BIT",
+    "OVERHEAD",
+    "WKC_SIZE",
+    "Command",
+    "Datagram",
+    "command_name",
+    "datagrams_size",
+    "decode_datagrams",
+    "encode_datagram_into",
+    "encode_datagrams",
+]
+
 #: Datagram header: cmd, idx, address (u32), length word, irq.
 HEADER = struct.Struct("<BBIHH")
 HEADER_SIZE = HEADER.size  # 10

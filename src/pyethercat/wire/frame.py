@@ -21,6 +21,37 @@ from pyethercat.wire.datagram import (
     encode_datagram_into,
 )
 
+__all__ = [
+    "BROADCAST_MAC",
+    "ECAT_HEADER_SIZE",
+    "ECAT_LENGTH_MASK",
+    "ECAT_RESERVED_BIT",
+    "ECAT_TYPE_SHIFT",
+    "ETHERTYPE_ETHERCAT",
+    "ETHERTYPE_VLAN",
+    "ETH_HEADER_SIZE",
+    "LOCALLY_ADMINISTERED_BIT",
+    "MASTER_MAC",
+    "MAX_FRAME_SIZE",
+    "MIN_FRAME_SIZE",
+    "SECONDARY_MAC",
+    "UDP_PORT",
+    "EtherCATFrame",
+    "FrameBuilder",
+    "FrameType",
+    "NotEtherCATError",
+    "decode_ecat_payload",
+    "decode_frame",
+    "decode_udp_payload",
+    "ecat_header",
+    "encode_ecat_payload",
+    "encode_frame",
+    "encode_mailbox_frame",
+    "encode_udp_payload",
+    "is_ethercat",
+    "returned_source_mac",
+]
+
 ETHERTYPE_ETHERCAT = 0x88A4
 ETHERTYPE_VLAN = 0x8100
 #: EtherCAT over UDP (and the mailbox gateway) listen on this port.

@@ -46,6 +46,16 @@ from pyethercat.wire.sii.model import (
     category_name,
 )
 
+__all__ = [
+    "SII_DEFAULT_MAX_BYTES",
+    "build_sii",
+    "category_body",
+    "parse_sii",
+    "sii_bytes_needed",
+    "sii_crc",
+    "sii_fix_checksum",
+]
+
 # Fixed area, bytes 0x00-0x7F: words 0-4, reserved 5-6, checksum 7, identity
 # 8-0xF, reserved 0x10-0x13, mailboxes 0x14-0x1B, protocols 0x1C, reserved
 # 0x1D-0x3D, size 0x3E, version 0x3F.

@@ -27,6 +27,8 @@ from pyethercat.wire.sii.model import (
     category_name,
 )
 
+__all__ = ["format_sii"]
+
 _MAX_SHOWN = 60  # characters of a string (an icon stored as a string is long)
 
 
