@@ -116,6 +116,7 @@ class Master(CoeMasterMixin, ProcessDataMixin):
 
     @property
     def closed(self) -> bool:
+        """True once :meth:`close` ran (the master sends nothing more)."""
         return self._closed
 
     def __enter__(self) -> Self:
@@ -236,6 +237,7 @@ class Master(CoeMasterMixin, ProcessDataMixin):
                                       1, reply.wkc)
 
     def read_u16(self, slave: SlaveRef, address: int) -> int:
+        """Read a 16-bit little-endian register of one slave (see :meth:`read`)."""
         value: int = struct.unpack("<H", self.read(slave, address, 2))[0]
         return value
 

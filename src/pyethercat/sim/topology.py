@@ -45,7 +45,7 @@ from __future__ import annotations
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pyethercat.errors import ConfigError, SiiError
 from pyethercat.sim.devices.builtin import BuiltinDevice, get_builtin
@@ -53,6 +53,10 @@ from pyethercat.sim.devices.esi_device import EsiSlave, load_esi_device
 from pyethercat.sim.profiles import DEVICE_PROFILES, PROFILES, EscProfile
 from pyethercat.wire.registers import PortType
 from pyethercat.wire.sii import SiiInfo, SiiPortType, parse_sii
+
+if TYPE_CHECKING:
+    from pyethercat.sim.clock import Clock
+    from pyethercat.sim.segment import Segment
 
 __all__ = [
     "FaultConfig",
@@ -164,7 +168,7 @@ class Topology:
                 return i
         raise ConfigError(f"{self.source}: no slave named {name!r}")
 
-    def build(self, clock: Any = None) -> Any:
+    def build(self, clock: Clock | None = None) -> Segment:
         """Build the segment (see :func:`build_segment`)."""
         return build_segment(self, clock=clock)
 
@@ -471,8 +475,11 @@ def _parse_fault(raw: dict[str, Any], i: int, topo: Topology) -> FaultConfig:
 # --- building ------------------------------------------------------------------------
 
 
-def build_segment(topo: Topology, clock: Any = None) -> Any:
-    """Make a :class:`pyethercat.sim.segment.Segment` from a parsed topology."""
+def build_segment(topo: Topology, clock: Clock | None = None) -> Segment:
+    """Make a :class:`pyethercat.sim.segment.Segment` from a parsed topology.
+
+    ``clock``: the segment's time source (a virtual clock by default).
+    """
     from pyethercat.sim.devices import make_app
     from pyethercat.sim.devices.esi_device import esi_app
     from pyethercat.sim.segment import Segment, SlaveSpec
