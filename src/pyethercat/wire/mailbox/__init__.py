@@ -2,7 +2,8 @@
 
 Modules: :mod:`.header` (mailbox header, types, error replies, counters),
 :mod:`.coe` (CoE: SDO, SDO information, emergency, transfer state machines),
-:mod:`.datatypes` (CANopen basic data types), :mod:`.foe`, :mod:`.eoe`, :mod:`.soe`.
+:mod:`.datatypes` (CANopen basic data types), :mod:`.objects` (the standard
+CoE object indices and subindices, one table), :mod:`.foe`, :mod:`.eoe`, :mod:`.soe`.
 
 :func:`decode_message` turns a whole mailbox buffer into its header and a typed
 message of the protocol the header names.
@@ -25,6 +26,13 @@ from pyethercat.wire.mailbox.header import (
     encode_mailbox,
     next_counter,
 )
+from pyethercat.wire.mailbox.objects import (
+    StandardObject,
+    SyncSub,
+    is_rxpdo_mapping,
+    is_txpdo_mapping,
+    sm_pdo_assignment,
+)
 from pyethercat.wire.mailbox.soe import SoeMessage, decode_soe
 
 __all__ = [
@@ -32,10 +40,15 @@ __all__ = [
     "MailboxHeader",
     "MailboxType",
     "MailboxMessage",
+    "StandardObject",
+    "SyncSub",
     "decode_mailbox",
     "decode_message",
     "encode_mailbox",
+    "is_rxpdo_mapping",
+    "is_txpdo_mapping",
     "next_counter",
+    "sm_pdo_assignment",
 ]
 
 MailboxMessage: TypeAlias = (
