@@ -19,6 +19,7 @@ from typing import Literal
 
 from pyethercat.errors import EsiError
 from pyethercat.wire.mailbox.datatypes import DATA_TYPE_BITS, DataType
+from pyethercat.wire.mailbox.objects import mapping_word
 from pyethercat.wire.registers import (
     SM_CONTROL_DIRECTION_MASK,
     SM_CONTROL_DIRECTION_SHIFT,
@@ -329,8 +330,11 @@ class EsiPdoEntry:
 
     @property
     def mapping(self) -> int:
-        """The 32-bit PDO mapping value (index << 16 | subindex << 8 | bits)."""
-        return (self.index << 16) | (self.subindex << 8) | (self.bit_len & 0xFF)
+        """The 32-bit PDO mapping value (index << 16 | subindex << 8 | bits).
+
+        Only the low 8 bits of the length fit the word.
+        """
+        return mapping_word(self.index, self.subindex, self.bit_len & 0xFF)
 
     @property
     def type_info(self) -> TypeInfo | None:

@@ -78,6 +78,7 @@ from pyethercat.wire.mailbox.datatypes import (
     parse_type_name,
 )
 from pyethercat.wire.mailbox.header import MailboxType
+from pyethercat.wire.mailbox.objects import mapping_word, sm_pdo_assignment, split_mapping_word
 
 __all__ = [
     "DEFAULT_SDO_TIMEOUT",
@@ -102,9 +103,6 @@ DEFAULT_SDO_TIMEOUT = 2.0
 #: Value-info bits asked for in entry descriptions: unit, default, minimum, maximum.
 _ENTRY_VALUE_INFO = (ValueInfo.UNIT_TYPE | ValueInfo.DEFAULT_VALUE | ValueInfo.MINIMUM_VALUE
                      | ValueInfo.MAXIMUM_VALUE)
-#: Assignment objects: 0x1C10 + sync manager number.
-PDO_ASSIGN_BASE = 0x1C10
-
 #: A data type given by code, enum member or name ("uint16", "REAL32", "0x0007").
 DTypeLike = DataType | int | str
 
@@ -119,19 +117,6 @@ def resolve_dtype(dtype: DTypeLike) -> DataType:
         except ValueError:
             raise ConfigError(f"unknown CANopen data type 0x{dtype:04X}") from None
     return parse_type_name(dtype)
-
-
-def mapping_word(index: int, subindex: int, bit_length: int) -> int:
-    """PDO mapping entry (u32): ``index << 16 | subindex << 8 | bit_length`` (facts 7.8)."""
-    if not (0 <= index <= 0xFFFF and 0 <= subindex <= 0xFF and 0 <= bit_length <= 0xFF):
-        raise ConfigError(f"PDO mapping entry 0x{index:X}:{subindex:X} {bit_length} bit "
-                          "out of range")
-    return (index << 16) | (subindex << 8) | bit_length
-
-
-def split_mapping_word(word: int) -> tuple[int, int, int]:
-    """(index, subindex, bit length) of a PDO mapping entry."""
-    return (word >> 16) & 0xFFFF, (word >> 8) & 0xFF, word & 0xFF
 
 
 # --- emergencies ----------------------------------------------------------------------
@@ -414,7 +399,7 @@ class CoeClient:
 
     def read_pdo_assignment(self, sm: int) -> list[int]:
         """PDO indices assigned to sync manager ``sm`` (object 0x1C10 + sm)."""
-        obj = PDO_ASSIGN_BASE + sm
+        obj = sm_pdo_assignment(sm)
         count = int(self.read(obj, 0, DataType.UNSIGNED8))
         return [int(self.read(obj, k, DataType.UNSIGNED16))
                 for k in range(1, count + 1)]
@@ -461,7 +446,7 @@ class CoeClient:
 
     def write_pdo_assignment(self, sm: int, pdo_indices: Sequence[int]) -> None:
         """Assign PDOs to sync manager ``sm`` (object 0x1C10 + sm), in the CiA order."""
-        obj = PDO_ASSIGN_BASE + sm
+        obj = sm_pdo_assignment(sm)
         self.write(obj, 0, 0, DataType.UNSIGNED8)
         for k, pdo in enumerate(pdo_indices, start=1):
             self.write(obj, k, pdo, DataType.UNSIGNED16)

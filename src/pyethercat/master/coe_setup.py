@@ -36,12 +36,10 @@ from typing import TYPE_CHECKING, Any
 from pyethercat.errors import ConfigError, EtherCATError, MailboxError
 from pyethercat.master import states
 from pyethercat.master.coe import (
-    PDO_ASSIGN_BASE,
     CoeClient,
     DTypeLike,
     EmergencyEvent,
     StartupCommand,
-    mapping_word,
     parse_transition,
     resolve_dtype,
 )
@@ -50,6 +48,12 @@ from pyethercat.master.mailbox import DEFAULT_MAILBOX_TIMEOUT, Mailbox, MailboxP
 from pyethercat.master.slave import Slave
 from pyethercat.wire.al import AlState
 from pyethercat.wire.mailbox.datatypes import DataType, Value, encode_value
+from pyethercat.wire.mailbox.objects import (
+    StandardObject,
+    assignment_sm,
+    mapping_word,
+    sm_pdo_assignment,
+)
 from pyethercat.wire.sii.model import CoeDetails, MailboxProtocol, SiiInfo, SyncManagerType
 
 if TYPE_CHECKING:
@@ -433,7 +437,7 @@ def set_pdo_mapping(master_hook: Callable[[Slave], None] | None, slave: Slave,
     writes: list[tuple[int, int, bytes]] = []
     result: dict[int, list[Pdo]] = {}
     for key, items in mapping.items():
-        sm = key - PDO_ASSIGN_BASE if key >= PDO_ASSIGN_BASE else key
+        sm = assignment_sm(key) if key >= StandardObject.SM_PDO_ASSIGNMENT_FIRST else key
         if sm not in sms:
             raise ConfigError(f"{slave.describe()}: SM{sm} carries no process data "
                               f"(process-data SMs: {', '.join(f'SM{n}' for n in sms)})")
@@ -457,7 +461,7 @@ def set_pdo_mapping(master_hook: Callable[[Slave], None] | None, slave: Slave,
                 made.append(PdoEntry(i, sub, bits, (dtype or _bits_type(bits)) if i else 0,
                                      name))
             pdos.append(Pdo(pdo_index, pdo_name(pdo_index), tuple(made), direction, sm))
-        obj = PDO_ASSIGN_BASE + sm
+        obj = sm_pdo_assignment(sm)
         writes.append((obj, 0, b"\x00"))
         for k, idx in enumerate(indices, start=1):
             writes.append((obj, k, idx.to_bytes(2, "little")))

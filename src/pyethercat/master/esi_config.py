@@ -53,6 +53,7 @@ from pyethercat.master.config import Direction, Pdo, PdoEntry
 from pyethercat.master.scan import ExpectedSlave
 from pyethercat.master.slave import Identity, Slave
 from pyethercat.wire.mailbox.datatypes import DataType
+from pyethercat.wire.mailbox.objects import sm_pdo_assignment
 from pyethercat.wire.sii import (
     FmmuUsage,
     GeneralFlags,
@@ -211,7 +212,7 @@ def _configure_slave(master: Master, slave: Slave, eni: EniSlave, pdo_assign: bo
     master.remove_startup_commands(slave)
     if pdo_assign and eni.mailbox is not None:
         for sm, pdos in eni.assignment().items():
-            obj = 0x1C10 + sm
+            obj = sm_pdo_assignment(sm)
             master.add_startup_command(slave, "PS", obj, 0, b"\x00", comment="ESI PDO assign")
             for k, idx in enumerate(pdos, start=1):
                 master.add_startup_command(

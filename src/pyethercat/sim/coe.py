@@ -74,7 +74,21 @@ from pyethercat.wire.mailbox.coe import (
 )
 from pyethercat.wire.mailbox.datatypes import DataType, encode_value
 from pyethercat.wire.mailbox.header import MailboxErrorCode, MailboxHeader, MailboxType
-from pyethercat.wire.sii import CoeDetails, SiiInfo
+from pyethercat.wire.mailbox.objects import (
+    IdentitySub,
+    StandardObject,
+    SyncMode,
+    SyncModeSupported,
+    SyncSub,
+    assignment_sm,
+    is_pdo_mapping,
+    is_rxpdo_mapping,
+    is_txpdo_mapping,
+    mapping_word,
+    sm_pdo_assignment,
+    split_mapping_word,
+)
+from pyethercat.wire.sii import CoeDetails, SiiInfo, SyncManagerType
 
 __all__ = [
     "CoeDevice",
@@ -93,11 +107,11 @@ __all__ = [
 _FULL_COE = (CoeDetails.SDO | CoeDetails.SDO_INFO | CoeDetails.PDO_ASSIGN | CoeDetails.PDO_CONFIG
              | CoeDetails.SDO_COMPLETE_ACCESS)
 _SDO_REQUEST_MIN = COE_HEADER_SIZE + SDO_HEADER_SIZE
-
-
-def mapping_word(index: int, subindex: int, bits: int) -> int:
-    """PDO mapping entry value: ``index << 16 | subindex << 8 | bits`` (facts 7.8)."""
-    return (index << 16) | (subindex << 8) | bits
+# Plain ints for the lookups made on every output buffer: cheaper than enum members.
+_RX_ASSIGN = int(StandardObject.RXPDO_ASSIGNMENT)
+_TX_ASSIGN = int(StandardObject.TXPDO_ASSIGNMENT)
+_SM_OUTPUT_SYNC = int(StandardObject.SM_OUTPUT_SYNC)
+_CYCLE_TIME_SUB = int(SyncSub.CYCLE_TIME)
 
 
 # --- the SDO server ------------------------------------------------------------------
@@ -340,30 +354,22 @@ class PdoMapping:
     ``on_change`` is called after a change of the layout.
     """
 
-    RX_RANGE = (0x1600, 0x17FF)
-    TX_RANGE = (0x1A00, 0x1BFF)
-
     def __init__(self, od: ObjectDictionary, *, capacity_out: int = 128,
                  capacity_in: int = 128, on_change: Callable[[], None] | None = None) -> None:
         self.od = od
-        self.capacity = {0x1C12: capacity_out, 0x1C13: capacity_in}
+        self.capacity = {_RX_ASSIGN: capacity_out, _TX_ASSIGN: capacity_in}
         self.on_change = on_change
         self.outputs: tuple[MappedEntry, ...] = ()
         self.inputs: tuple[MappedEntry, ...] = ()
         self.output_bits = 0
         self.input_bits = 0
         for obj in od:
-            if self._is_mapping(obj.index) or obj.index in (0x1C12, 0x1C13):
+            if is_pdo_mapping(obj.index) or obj.index in (_RX_ASSIGN, _TX_ASSIGN):
                 obj.check = self._check
                 obj.after = self._after
         self.rebuild()
 
     # --- layout -------------------------------------------------------------------
-
-    @staticmethod
-    def _is_mapping(index: int) -> bool:
-        return (PdoMapping.RX_RANGE[0] <= index <= PdoMapping.RX_RANGE[1]
-                or PdoMapping.TX_RANGE[0] <= index <= PdoMapping.TX_RANGE[1])
 
     def _assigned(self, assign_index: int, overlay: dict[int, bytes] | None = None) -> list[int]:
         obj = self.od.find(assign_index)
@@ -384,7 +390,7 @@ class PdoMapping:
         pos = 0
         for pdo in self._assigned(assign_index):
             for word in self._words(pdo):
-                index, sub, bits = word >> 16, (word >> 8) & 0xFF, word & 0xFF
+                index, sub, bits = split_mapping_word(word)
                 entry = None
                 if index:
                     obj = self.od.find(index)
@@ -395,8 +401,8 @@ class PdoMapping:
 
     def rebuild(self) -> None:
         """Recompute the layout from the current objects."""
-        self.outputs, self.output_bits = self._layout(0x1C12)
-        self.inputs, self.input_bits = self._layout(0x1C13)
+        self.outputs, self.output_bits = self._layout(_RX_ASSIGN)
+        self.inputs, self.input_bits = self._layout(_TX_ASSIGN)
         self.od.rx_mapped = frozenset((m.index, m.subindex) for m in self.outputs if m.entry)
         self._out_plan = _plan(self.outputs)
         self._in_plan = _plan(self.inputs)
@@ -441,14 +447,14 @@ class PdoMapping:
             if subs and obj.count() != 0:
                 raise sdo_abort(SdoAbortCode.SUBINDEX_WRITE, index, subs[0],
                                 "write subindex 0 = 0 first")
-        if index in (0x1C12, 0x1C13):
+        if index in (_RX_ASSIGN, _TX_ASSIGN):
             self._check_assignment(obj, changes)
         else:
             self._check_mapping(obj, changes)
 
     def _check_mapping(self, obj: OdObject, changes: dict[int, bytes]) -> None:
         index = obj.index
-        rx = index <= self.RX_RANGE[1]
+        rx = is_rxpdo_mapping(index)
         flag = int(ObjectAccess.RXPDO_MAPPABLE if rx else ObjectAccess.TXPDO_MAPPABLE)
         for sub, raw in changes.items():
             if sub:
@@ -458,7 +464,7 @@ class PdoMapping:
             for n, word in enumerate(words, 1):
                 self._check_word(index, n, word, flag)
             bits = sum(w & 0xFF for w in words)
-            assign = 0x1C12 if rx else 0x1C13
+            assign = _RX_ASSIGN if rx else _TX_ASSIGN
             total = bits + sum(sum(w & 0xFF for w in self._words(p))
                                for p in self._assigned(assign) if p != index)
             limit = 8 * self.capacity[assign]
@@ -467,7 +473,7 @@ class PdoMapping:
                                 f"{bits} bits, SM buffer holds {limit}")
 
     def _check_word(self, pdo: int, sub: int, word: int, flag: int) -> None:
-        index, subindex, bits = word >> 16, (word >> 8) & 0xFF, word & 0xFF
+        index, subindex, bits = split_mapping_word(word)
         if index == 0:
             return  # a gap of `bits` bits
         obj = self.od.find(index)
@@ -486,17 +492,17 @@ class PdoMapping:
 
     def _check_assignment(self, obj: OdObject, changes: dict[int, bytes]) -> None:
         index = obj.index
-        lo, hi = self.RX_RANGE if index == 0x1C12 else self.TX_RANGE
+        of_direction = is_rxpdo_mapping if index == _RX_ASSIGN else is_txpdo_mapping
         for sub, raw in changes.items():
             if sub:
                 pdo = int.from_bytes(raw, "little")
-                if not (lo <= pdo <= hi and pdo in self.od):
+                if not (of_direction(pdo) and pdo in self.od):
                     raise sdo_abort(SdoAbortCode.VALUE_RANGE, index, sub,
                                     f"0x{pdo:04X} is no PDO of this direction")
         if 0 in changes:
             pdos = self._assigned(index, changes)
             for n, pdo in enumerate(pdos, 1):
-                if not (lo <= pdo <= hi and pdo in self.od):
+                if not (of_direction(pdo) and pdo in self.od):
                     raise sdo_abort(SdoAbortCode.VALUE_RANGE, index, n,
                                     f"0x{pdo:04X} is no PDO of this direction")
             if len(set(pdos)) != len(pdos):
@@ -543,23 +549,26 @@ def _plan(layout: Sequence[MappedEntry]) -> _Plan:
 def add_device_info(od: ObjectDictionary, device_type: int, name: str, hardware: str = "",
                     software: str = "") -> None:
     """0x1000 device type, 0x1001 error register and the 0x1008/0x1009/0x100A strings."""
-    od.var(0x1000, "Device type", DataType.UNSIGNED32, RO, device_type)
-    od.var(0x1001, "Error register", DataType.UNSIGNED8, RO, 0)
-    od.var(0x1008, "Manufacturer device name", DataType.VISIBLE_STRING, RO, name)
+    std = StandardObject
+    od.var(std.DEVICE_TYPE, "Device type", DataType.UNSIGNED32, RO, device_type)
+    od.var(std.ERROR_REGISTER, "Error register", DataType.UNSIGNED8, RO, 0)
+    od.var(std.DEVICE_NAME, "Manufacturer device name", DataType.VISIBLE_STRING, RO, name)
     if hardware:
-        od.var(0x1009, "Manufacturer hardware version", DataType.VISIBLE_STRING, RO, hardware)
+        od.var(std.HARDWARE_VERSION, "Manufacturer hardware version", DataType.VISIBLE_STRING,
+               RO, hardware)
     if software:
-        od.var(0x100A, "Manufacturer software version", DataType.VISIBLE_STRING, RO, software)
+        od.var(std.SOFTWARE_VERSION, "Manufacturer software version", DataType.VISIBLE_STRING,
+               RO, software)
 
 
 def add_identity(od: ObjectDictionary, vendor: int, product: int, revision: int,
                  serial: int = 0) -> None:
     """0x1018 identity (vendor id, product code, revision, serial number)."""
-    od.record(0x1018, "Identity", [
-        OdEntry(1, "Vendor ID", DataType.UNSIGNED32, RO, vendor),
-        OdEntry(2, "Product code", DataType.UNSIGNED32, RO, product),
-        OdEntry(3, "Revision", DataType.UNSIGNED32, RO, revision),
-        OdEntry(4, "Serial number", DataType.UNSIGNED32, RO, serial),
+    od.record(StandardObject.IDENTITY, "Identity", [
+        OdEntry(IdentitySub.VENDOR_ID, "Vendor ID", DataType.UNSIGNED32, RO, vendor),
+        OdEntry(IdentitySub.PRODUCT_CODE, "Product code", DataType.UNSIGNED32, RO, product),
+        OdEntry(IdentitySub.REVISION, "Revision", DataType.UNSIGNED32, RO, revision),
+        OdEntry(IdentitySub.SERIAL_NUMBER, "Serial number", DataType.UNSIGNED32, RO, serial),
     ], data_type=int(DataType.IDENTITY))
 
 
@@ -578,8 +587,8 @@ def add_pdo_assignment(od: ObjectDictionary, index: int, pdos: Sequence[int], *,
                        max_entries: int = 4, access: int = RW_PREOP,
                        assigned: int | None = None) -> OdObject:
     """0x1C12/0x1C13: subindex n = PDO index; subindex 0 = ``assigned`` (default: all)."""
-    name = ("RxPDO assign" if index == 0x1C12 else "TxPDO assign" if index == 0x1C13
-            else f"SM{index - 0x1C10} PDO assign")
+    name = ("RxPDO assign" if index == _RX_ASSIGN else "TxPDO assign" if index == _TX_ASSIGN
+            else f"SM{assignment_sm(index)} PDO assign")
     obj = od.array(index, name, DataType.UNSIGNED16, list(pdos), access, count_access=access,
                    length=max_entries)
     if assigned is not None:
@@ -587,34 +596,51 @@ def add_pdo_assignment(od: ObjectDictionary, index: int, pdos: Sequence[int], *,
     return obj
 
 
-def add_sync_manager_objects(od: ObjectDictionary, types: Sequence[int] = (1, 2, 3, 4)) -> None:
-    """0x1C00 SM communication types and the (empty) 0x1C10/0x1C11 mailbox assignments."""
-    od.array(0x1C00, "Sync manager type", DataType.UNSIGNED8, list(types), RO)
+#: SM communication types (0x1C00) of the usual SM0-SM3 layout.
+_STANDARD_SM_TYPES = (SyncManagerType.MAILBOX_OUT, SyncManagerType.MAILBOX_IN,
+                      SyncManagerType.OUTPUTS, SyncManagerType.INPUTS)
+
+
+def add_sync_manager_objects(od: ObjectDictionary,
+                             types: Sequence[int] = _STANDARD_SM_TYPES) -> None:
+    """0x1C00 SM communication types and the (empty) 0x1C10/0x1C11 mailbox assignments.
+
+    ``types`` are SII SyncM type codes (:class:`~pyethercat.wire.sii.SyncManagerType`),
+    the numbering 0x1C00 uses too.
+    """
+    od.array(StandardObject.SM_COMM_TYPE, "Sync manager type", DataType.UNSIGNED8,
+             [int(t) for t in types], RO)
     for n, t in enumerate(types[:2]):
-        if t in (1, 2):
-            od.array(0x1C10 + n, f"SM{n} PDO assign", DataType.UNSIGNED16, [], RO)
+        if t in (SyncManagerType.MAILBOX_OUT, SyncManagerType.MAILBOX_IN):
+            od.array(sm_pdo_assignment(n), f"SM{n} PDO assign", DataType.UNSIGNED16, [], RO)
 
 
-def add_sync_parameters(od: ObjectDictionary, index: int, *, mode: int, supported: int = 0x0007,
+_DEFAULT_SYNC_SUPPORT = int(SyncModeSupported.FREE_RUN | SyncModeSupported.SYNCHRONOUS
+                            | SyncModeSupported.DC_SYNC0)
+
+
+def add_sync_parameters(od: ObjectDictionary, index: int, *, mode: int,
+                        supported: int = _DEFAULT_SYNC_SUPPORT,
                         min_cycle_ns: int = 100_000) -> None:
     """0x1C32 (outputs) or 0x1C33 (inputs) synchronisation parameters (facts 7.9)."""
-    name = "SM output parameter" if index == 0x1C32 else "SM input parameter"
+    name = "SM output parameter" if index == _SM_OUTPUT_SYNC else "SM input parameter"
     u16, u32 = DataType.UNSIGNED16, DataType.UNSIGNED32
-    modes = frozenset({0, 1, 2, 3, 0x22})
+    modes = frozenset(int(m) for m in SyncMode)
+    S = SyncSub
     od.record(index, name, [
-        OdEntry(0x01, "Sync mode", u16, RW_PREOP, mode, allowed=modes),
-        OdEntry(0x02, "Cycle time", u32, RO, 0),
-        OdEntry(0x03, "Shift time", u32, RO, 0),
-        OdEntry(0x04, "Sync modes supported", u16, RO, supported),
-        OdEntry(0x05, "Minimum cycle time", u32, RO, min_cycle_ns),
-        OdEntry(0x06, "Calc and copy time", u32, RO, 0),
-        OdEntry(0x07, "Minimum delay time", u32, RO, 0),
-        OdEntry(0x08, "Get cycle time", u16, RW, 0, maximum=3),
-        OdEntry(0x09, "Delay time", u32, RO, 0),
-        OdEntry(0x0A, "Sync0 cycle time", u32, RW_PREOP, 0),
-        OdEntry(0x0B, "SM event missed", u16, RO, 0),
-        OdEntry(0x0C, "Cycle time too small", u16, RO, 0),
-        OdEntry(0x20, "Sync error", DataType.BOOLEAN, RO, False),
+        OdEntry(S.SYNC_MODE, "Sync mode", u16, RW_PREOP, mode, allowed=modes),
+        OdEntry(S.CYCLE_TIME, "Cycle time", u32, RO, 0),
+        OdEntry(S.SHIFT_TIME, "Shift time", u32, RO, 0),
+        OdEntry(S.SYNC_MODES_SUPPORTED, "Sync modes supported", u16, RO, supported),
+        OdEntry(S.MIN_CYCLE_TIME, "Minimum cycle time", u32, RO, min_cycle_ns),
+        OdEntry(S.CALC_AND_COPY_TIME, "Calc and copy time", u32, RO, 0),
+        OdEntry(S.MIN_DELAY_TIME, "Minimum delay time", u32, RO, 0),
+        OdEntry(S.GET_CYCLE_TIME, "Get cycle time", u16, RW, 0, maximum=3),
+        OdEntry(S.DELAY_TIME, "Delay time", u32, RO, 0),
+        OdEntry(S.SYNC0_CYCLE_TIME, "Sync0 cycle time", u32, RW_PREOP, 0),
+        OdEntry(S.SM_EVENT_MISSED, "SM event missed", u16, RO, 0),
+        OdEntry(S.CYCLE_TIME_TOO_SMALL, "Cycle time too small", u16, RO, 0),
+        OdEntry(S.SYNC_ERROR, "Sync error", DataType.BOOLEAN, RO, False),
     ], data_type=int(DataType.SYNC_PAR))
 
 
@@ -682,9 +708,9 @@ class CoeDevice(MailboxDevice):
         if data:
             self.pdo.unpack_outputs(data)
         now = pdi.now_ns()
-        if self._last_outputs_ns is not None and 0x1C32 in self.od:
+        if self._last_outputs_ns is not None and _SM_OUTPUT_SYNC in self.od:
             cycle = max(0, min(now - self._last_outputs_ns, 0xFFFFFFFF))
-            self.od.entry(0x1C32, 2).raw[:] = cycle.to_bytes(4, "little")
+            self.od.entry(_SM_OUTPUT_SYNC, _CYCLE_TIME_SUB).raw[:] = cycle.to_bytes(4, "little")
         self._last_outputs_ns = now
         self.update()
         self.publish_inputs()
@@ -705,8 +731,8 @@ class CoeDevice(MailboxDevice):
     def emergency(self, code: int, register: int = 0, data: bytes = bytes(5)) -> bool:
         """Send a CoE emergency (and set 0x1001); False when the mailbox is not running."""
         msg = Emergency(code, register, bytes(data).ljust(5, b"\x00")[:5])
-        if 0x1001 in self.od:
-            self.od.set_value(0x1001, 0, register)
+        if StandardObject.ERROR_REGISTER in self.od:
+            self.od.set_value(StandardObject.ERROR_REGISTER, 0, register)
         if self._state() in (AlState.INIT, AlState.BOOT):
             return False
         self.emergencies.append(msg)

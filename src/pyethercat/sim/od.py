@@ -125,6 +125,7 @@ class OdEntry:
     raw: bytearray = field(default_factory=bytearray)
 
     def __post_init__(self) -> None:
+        self.subindex = int(self.subindex)  # a SyncSub/IdentitySub member becomes the number
         if not 0 <= self.subindex <= 0xFF:
             raise MailboxError(f"subindex {self.subindex} out of range 0..255")
         self.data_type = DataType(self.data_type)
@@ -238,6 +239,7 @@ class OdObject:
     after: ObjectHook | None = None
 
     def __post_init__(self) -> None:
+        self.index = int(self.index)  # a StandardObject member is kept as the plain number
         if not 0 <= self.index <= 0xFFFF:
             raise MailboxError(f"object index {self.index} out of range")
         if 0 not in self.entries:

@@ -34,6 +34,12 @@ from pyethercat.sim.devices.builtin import BuiltinDevice, Pdo, PdoEntry, SyncMan
 from pyethercat.sim.od import RO, RW, RW_PREOP, RXPDO, TXPDO, WO, ObjectDictionary, OdEntry
 from pyethercat.wire import registers as R
 from pyethercat.wire.mailbox.datatypes import DataType
+from pyethercat.wire.mailbox.objects import (
+    Cia402Object,
+    StandardObject,
+    SyncMode,
+    sm_pdo_assignment,
+)
 from pyethercat.wire.sii import (
     CoeDetails,
     FmmuUsage,
@@ -61,6 +67,10 @@ _SMS_STANDARD = (
     SyncManager(0x1080, 128, R.SM_CONTROL_MAILBOX_IN, SyncManagerType.MAILBOX_IN),
 )
 _PD_CAPACITY = 128  # SM2 at 0x1100 and SM3 at 0x1180: room for 128 bytes each
+_STD = StandardObject
+_402 = Cia402Object
+_SM_TYPES = (SyncManagerType.MAILBOX_OUT, SyncManagerType.MAILBOX_IN, SyncManagerType.OUTPUTS,
+             SyncManagerType.INPUTS)  # 0x1C00 of both devices: SM0-SM3 in the usual roles
 _EBUS2 = (SiiPortType.EBUS, SiiPortType.EBUS, SiiPortType.NOT_USED, SiiPortType.NOT_USED)
 _MII2 = (SiiPortType.MII, SiiPortType.MII, SiiPortType.NOT_USED, SiiPortType.NOT_USED)
 
@@ -79,7 +89,7 @@ def coe_io_dictionary(vendor: int, product: int, revision: int, serial: int = 0)
     u8, u16, u32 = DataType.UNSIGNED8, DataType.UNSIGNED16, DataType.UNSIGNED32
     add_device_info(od, 0x00000191, "PEC-COEIO CoE test IO", "1.0", "pyethercat sim 1.0")
     add_identity(od, vendor, product, revision, serial)
-    od.record(0x10F1, "Error settings", [
+    od.record(_STD.ERROR_SETTINGS, "Error settings", [
         OdEntry(1, "Local error reaction", u32, RW, 1, maximum=2),
         OdEntry(2, "Sync error counter limit", u16, RW, 4),
     ])
@@ -91,11 +101,12 @@ def coe_io_dictionary(vendor: int, product: int, revision: int, serial: int = 0)
     add_pdo_mapping(od, 0x1A01, "Value inputs", [(0x6000, 2, 16), (0x6000, 3, 32)])
     add_pdo_mapping(od, 0x1A02, "Status", [(0x6000, 4, 16)])
     add_pdo_mapping(od, 0x1A03, "Spare TxPDO", [])
-    add_sync_manager_objects(od, (1, 2, 3, 4))
-    add_pdo_assignment(od, 0x1C12, [0x1600, 0x1601])
-    add_pdo_assignment(od, 0x1C13, [0x1A00, 0x1A01])
-    add_sync_parameters(od, 0x1C32, mode=1)
-    add_sync_parameters(od, 0x1C33, mode=0x22)
+    add_sync_manager_objects(od, _SM_TYPES)
+    add_pdo_assignment(od, _STD.RXPDO_ASSIGNMENT, [0x1600, 0x1601])
+    add_pdo_assignment(od, _STD.TXPDO_ASSIGNMENT, [0x1A00, 0x1A01])
+    add_sync_parameters(od, _STD.SM_OUTPUT_SYNC, mode=SyncMode.SM_EVENT)
+    # Inputs are latched when the outputs arrive.
+    add_sync_parameters(od, _STD.SM_INPUT_SYNC, mode=SyncMode.SM2_EVENT)
     od.var(0x2000, "Data block", DataType.OCTET_STRING, RW,
            bytes(i & 0xFF for i in range(DATA_BLOCK_SIZE)), max_length=DATA_BLOCK_SIZE)
     od.var(0x2001, "Command", u32, WO, 0)
@@ -221,46 +232,49 @@ def add_seed002_objects(od: ObjectDictionary, *, serial: int = 0,
     ``profile_objects`` adds 0x6040/0x6041/0x6060/0x6061 when missing, so
     the default mapping validates.
     """
-    od.var(0x1000, "Device type", DataType.UNSIGNED32, RO, 0x00020192)
-    od.var(0x1001, "Error register", DataType.UNSIGNED8, RO, 0)
+    od.var(_STD.DEVICE_TYPE, "Device type", DataType.UNSIGNED32, RO, 0x00020192)  # profile 402
+    od.var(_STD.ERROR_REGISTER, "Error register", DataType.UNSIGNED8, RO, 0)
     add_identity(od, SEED002_VENDOR, SEED002_PRODUCT, SEED002_REVISION, serial)
     hook = None
     if station_address is not None:
         def hook() -> bytes:
             return (station_address() & 0xFFFF).to_bytes(2, "little")
-    od.var(0x1100, "EtherCAT fixed station address", DataType.UNSIGNED16, RO, 0, on_read=hook)
+    od.var(_STD.STATION_ADDRESS, "EtherCAT fixed station address", DataType.UNSIGNED16, RO, 0,
+           on_read=hook)
     if profile_objects:
         for index, name, dtype, access in (
-                (0x6040, "Controlword", DataType.UNSIGNED16, RW | RXPDO),
-                (0x6041, "Statusword", DataType.UNSIGNED16, RO | TXPDO),
-                (0x6060, "Modes of operation", DataType.INTEGER8, RW | RXPDO),
-                (0x6061, "Modes of operation display", DataType.INTEGER8, RO | TXPDO)):
+                (_402.CONTROLWORD, "Controlword", DataType.UNSIGNED16, RW | RXPDO),
+                (_402.STATUSWORD, "Statusword", DataType.UNSIGNED16, RO | TXPDO),
+                (_402.MODES_OF_OPERATION, "Modes of operation", DataType.INTEGER8, RW | RXPDO),
+                (_402.MODES_OF_OPERATION_DISPLAY, "Modes of operation display",
+                 DataType.INTEGER8, RO | TXPDO)):
             if index not in od:
                 od.var(index, name, dtype, access, 0)
-    add_pdo_mapping(od, 0x1600, "1. RxPDO mapping", [(0x6040, 0, 16), (0x6060, 0, 8)])
+    rx_pdos = [_STD.RXPDO_MAPPING_FIRST + n for n in range(4)]  # 0x1600-0x1603
+    tx_pdos = [_STD.TXPDO_MAPPING_FIRST + n for n in range(4)]  # 0x1A00-0x1A03
+    add_pdo_mapping(od, rx_pdos[0], "1. RxPDO mapping",
+                    [(_402.CONTROLWORD, 0, 16), (_402.MODES_OF_OPERATION, 0, 8)])
     for n in range(1, 4):
-        add_pdo_mapping(od, 0x1600 + n, f"{n + 1}. RxPDO mapping", [])
-    add_pdo_mapping(od, 0x1A00, "1. TxPDO mapping", [(0x6041, 0, 16), (0x6061, 0, 8)])
+        add_pdo_mapping(od, rx_pdos[n], f"{n + 1}. RxPDO mapping", [])
+    add_pdo_mapping(od, tx_pdos[0], "1. TxPDO mapping",
+                    [(_402.STATUSWORD, 0, 16), (_402.MODES_OF_OPERATION_DISPLAY, 0, 8)])
     for n in range(1, 4):
-        add_pdo_mapping(od, 0x1A00 + n, f"{n + 1}. TxPDO mapping", [])
-    add_sync_manager_objects(od, (1, 2, 3, 4))
-    od.find(0x1C00).name = "Sync manager communication type"  # type: ignore[union-attr]
-    od.find(0x1C10).name = "Sync manager channel 0 (mailbox receive)"  # type: ignore[union-attr]
-    od.find(0x1C11).name = "Sync manager channel 1 (mailbox send)"  # type: ignore[union-attr]
-    rx = add_pdo_assignment(od, 0x1C12, [0x1600, 0x1601, 0x1602, 0x1603], assigned=assigned_rx)
+        add_pdo_mapping(od, tx_pdos[n], f"{n + 1}. TxPDO mapping", [])
+    add_sync_manager_objects(od, _SM_TYPES)
+    od.get(_STD.SM_COMM_TYPE).name = "Sync manager communication type"
+    od.get(sm_pdo_assignment(0)).name = "Sync manager channel 0 (mailbox receive)"
+    od.get(sm_pdo_assignment(1)).name = "Sync manager channel 1 (mailbox send)"
+    rx = add_pdo_assignment(od, _STD.RXPDO_ASSIGNMENT, rx_pdos, assigned=assigned_rx)
     rx.name = "Sync manager channel 2 (process data output)"
-    tx = add_pdo_assignment(od, 0x1C13, [0x1A00, 0x1A01, 0x1A02, 0x1A03], assigned=assigned_tx)
+    tx = add_pdo_assignment(od, _STD.TXPDO_ASSIGNMENT, tx_pdos, assigned=assigned_tx)
     tx.name = "Sync manager channel 3 (process data input)"
     # Entry names as the seed's tables give them (entry descriptions, `sdos`).
-    types = od.find(0x1C00)
-    assert types is not None
+    types = od.get(_STD.SM_COMM_TYPE)
     types.entries[0].name = "Number of used Sync Manager Channels"
     for n in range(1, 5):
         types.entries[n].name = f"Communication Type Sync Channel {n - 1}"
-    for index in (0x1C10, 0x1C11, 0x1C12, 0x1C13):
-        obj = od.find(index)
-        assert obj is not None
-        obj.entries[0].name = "Number of assigned PDOs"
+    for sm in range(4):
+        od.get(sm_pdo_assignment(sm)).entries[0].name = "Number of assigned PDOs"
     for n in range(1, 5):
         rx.entries[n].name = "PDO Mapping object Number of assigned RxPDO"
         tx.entries[n].name = "PDO Mapping object number of assigned TxPDO"
@@ -285,10 +299,11 @@ class Seed002DriveApp(CoeDevice):
         return int.from_bytes(self.pdi.read(R.STATION_ADDRESS, 2), "little")
 
     def on_attach(self, pdi: Pdi) -> None:
-        self.od.set_value(0x6041, 0, 0x0250)  # switch on disabled
+        self.od.set_value(_402.STATUSWORD, 0, 0x0250)  # switch on disabled
 
     def update(self) -> None:
-        self.od.entry(0x6061, 0).raw[:] = self.od.entry(0x6060, 0).raw
+        self.od.entry(_402.MODES_OF_OPERATION_DISPLAY, 0).raw[:] = (
+            self.od.entry(_402.MODES_OF_OPERATION, 0).raw)
 
 
 SEED002_DRIVE = BuiltinDevice(
@@ -304,11 +319,13 @@ SEED002_DRIVE = BuiltinDevice(
         SyncManager(0x1180, 3, R.SM_CONTROL_INPUTS, SyncManagerType.INPUTS),
     ),
     fmmus=(FmmuUsage.OUTPUTS, FmmuUsage.INPUTS, FmmuUsage.MAILBOX_STATE),
-    rx_pdos=(Pdo(0x1600, 2, "Outputs", (PdoEntry(0x6040, 0, 16, "Controlword", 0x0006),
-                                         PdoEntry(0x6060, 0, 8, "Mode_Of_Operation", 0x0002))),),
-    tx_pdos=(Pdo(0x1A00, 3, "Inputs", (PdoEntry(0x6041, 0, 16, "Statusword", 0x0006),
-                                        PdoEntry(0x6061, 0, 8, "Mode_Of_Operation_Display",
-                                                 0x0002))),),
+    rx_pdos=(Pdo(0x1600, 2, "Outputs", (
+        PdoEntry(_402.CONTROLWORD, 0, 16, "Controlword", 0x0006),
+        PdoEntry(_402.MODES_OF_OPERATION, 0, 8, "Mode_Of_Operation", 0x0002))),),
+    tx_pdos=(Pdo(0x1A00, 3, "Inputs", (
+        PdoEntry(_402.STATUSWORD, 0, 16, "Statusword", 0x0006),
+        PdoEntry(_402.MODES_OF_OPERATION_DISPLAY, 0, 8, "Mode_Of_Operation_Display",
+                 0x0002))),),
     mailbox=_MBX,
     pdi_control=0x0C05,
     description="seed 002 servo controller: CoE communication objects 0x1000-0x1C13 "

@@ -46,7 +46,8 @@ from pyethercat.sim.od import (
 )
 from pyethercat.wire.mailbox.coe import ObjectCode
 from pyethercat.wire.mailbox.datatypes import DataType
-from pyethercat.wire.sii import CoeDetails, SiiInfo
+from pyethercat.wire.mailbox.objects import IdentitySub, StandardObject
+from pyethercat.wire.sii import CoeDetails, SiiInfo, SyncManagerType
 
 __all__ = ["EsiSlave", "esi_app", "esi_dictionary", "load_esi_device"]
 
@@ -154,12 +155,14 @@ def esi_dictionary(device: EsiDevice, *, vendor_id: int, serial: int = 0) -> Obj
             first = entries.get(1, entries[0])
             od.add(OdObject(obj.index, str(obj.name), ocode, int(first.data_type), entries))
     # Identity as the SII says.
-    if 0x1018 not in od:
+    if StandardObject.IDENTITY not in od:
         add_identity(od, vendor_id, device.product_code, device.revision, serial)
     else:
-        ident = od.get(0x1018)
-        for sub, value in ((1, vendor_id), (2, device.product_code), (3, device.revision),
-                           (4, serial)):  # fmt: skip
+        ident = od.get(StandardObject.IDENTITY)
+        for sub, value in ((IdentitySub.VENDOR_ID, vendor_id),
+                           (IdentitySub.PRODUCT_CODE, device.product_code),
+                           (IdentitySub.REVISION, device.revision),
+                           (IdentitySub.SERIAL_NUMBER, serial)):  # fmt: skip
             slot = ident.entries.get(sub)
             if slot is not None and slot.data_type.byte_size == 4:
                 slot.raw[:] = value.to_bytes(4, "little")
@@ -187,12 +190,13 @@ def esi_dictionary(device: EsiDevice, *, vendor_id: int, serial: int = 0) -> Obj
         add_pdo_mapping(od, pdo.index, pdo.name.pick() or f"PDO 0x{pdo.index:04X}", words,
                         max_entries=size)  # fmt: skip
     # SM communication types (0x1C00): SOEM reads them before the assignment.
-    kinds = {"MBoxOut": 1, "MBoxIn": 2, "Outputs": 3, "Inputs": 4}
-    types = [kinds.get(s.kind or "", 0) for s in device.sms]
-    if 0x1C00 not in od and device.sms:
+    kinds = {"MBoxOut": SyncManagerType.MAILBOX_OUT, "MBoxIn": SyncManagerType.MAILBOX_IN,
+             "Outputs": SyncManagerType.OUTPUTS, "Inputs": SyncManagerType.INPUTS}
+    types = [int(kinds.get(s.kind or "", SyncManagerType.UNUSED)) for s in device.sms]
+    if StandardObject.SM_COMM_TYPE not in od and device.sms:
         add_sync_manager_objects(od, types)
     elif device.sms:
-        sm_types = od.get(0x1C00)
+        sm_types = od.get(StandardObject.SM_COMM_TYPE)
         if not any(any(e.raw) for n, e in sm_types.entries.items() if n):
             # The ESI lists 0x1C00 without values: take them from the SMs.
             for n, t in enumerate(types, start=1):
@@ -200,7 +204,8 @@ def esi_dictionary(device: EsiDevice, *, vendor_id: int, serial: int = 0) -> Obj
                     sm_types.entries[n].raw[:] = t.to_bytes(len(sm_types.entries[n].raw) or 1,
                                                             "little")  # fmt: skip
     layout = device.pdo_layout()
-    for assign, direction in ((0x1C12, "Outputs"), (0x1C13, "Inputs")):
+    for assign, direction in ((StandardObject.RXPDO_ASSIGNMENT, "Outputs"),
+                              (StandardObject.TXPDO_ASSIGNMENT, "Inputs")):
         pdos = [p.index for s in layout.sms if s.sm.kind == direction for p in s.pdos]
         existing = od.find(assign)
         if not pdos and existing is None:
