@@ -223,6 +223,40 @@ def test_udp_edge_conversion_helpers() -> None:
         parse_hostport("host:nope")
 
 
+def test_udp_drops_and_counts_payloads_no_ethernet_frame_can_carry(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    # The Link API promises frames of at most 1514 bytes (no FCS): a UDP payload
+    # longer than 1500 bytes (1514 - Ethernet header) or shorter than the 2-byte
+    # EtherCAT header is not a frame. recv drops it, counts it, logs it, and goes on.
+    sender = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sender.bind(("127.0.0.1", 0))
+    good = frame_to_udp_payload(_frame(5))
+    largest = good + bytes(1500 - len(good))
+    with UdpLink(peer=sender.getsockname()) as link, caplog.at_level(
+        "DEBUG", logger="pyethercat.link"
+    ):
+        assert link.dropped_too_long == 0 and link.dropped_too_short == 0
+        sender.sendto(largest + b"\x00", link.address)
+        sender.sendto(b"\x0e", link.address)
+        sender.sendto(largest, link.address)
+        frame = link.recv(2)
+        assert frame is not None and len(frame) == 1514
+        assert frame[14:] == largest
+        sender.sendto(bytes(4000), link.address)
+        sender.sendto(b"", link.address)
+        sender.sendto(good, link.address)
+        assert link.recv(2) == udp_payload_to_frame(good, returned_source_mac(MASTER_MAC))
+        assert link.recv(0.05) is None
+        assert link.dropped_too_long == 2
+        assert link.dropped_too_short == 2
+    text = caplog.text
+    assert "dropped a 1501-byte UDP payload" in text and "longer than" in text
+    assert "dropped a 1-byte UDP payload" in text and "shorter than" in text
+    assert link.name in text
+    sender.close()
+
+
 def test_udp_bind_failure_is_a_link_error() -> None:
     with UdpLink() as first, pytest.raises(LinkError, match="cannot bind"):
         UdpLink(bind=first.address)

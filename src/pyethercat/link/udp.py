@@ -10,7 +10,12 @@ Ethernet frames, so this link converts at the edge:
   and sends the rest to the peer;
 * ``recv()`` puts a synthetic Ethernet header in front of a received payload
   (destination ``rx_dst``, default broadcast; source ``rx_src``; EtherType
-  0x88A4) and zero-pads it to 60 bytes.
+  0x88A4) and zero-pads it to 60 bytes. A payload that no Ethernet frame
+  could carry (longer than 1500 bytes, which would make a frame over 1514
+  bytes, or shorter than the 2-byte EtherCAT header) is dropped, counted in
+  ``dropped_too_long``/``dropped_too_short`` and logged on the
+  ``pyethercat.link`` logger: a stray or hostile datagram must not stop a
+  master's receive loop, and nothing above the link expects such a frame.
 
 The MAC addresses of sent frames are therefore not transported. The default
 ``rx_src`` depends on the role, so that received frames look as they would on
@@ -28,6 +33,7 @@ sent the last datagram.
 
 from __future__ import annotations
 
+import logging
 import select
 import socket
 import struct
@@ -43,14 +49,19 @@ from pyethercat.wire.frame import (
     ETHERTYPE_ETHERCAT,
     ETHERTYPE_VLAN,
     MASTER_MAC,
+    MAX_FRAME_SIZE,
     MIN_FRAME_SIZE,
     UDP_PORT,
     returned_source_mac,
 )
 
-__all__ = ["UdpLink", "parse_hostport", "frame_to_udp_payload", "udp_payload_to_frame"]
+__all__ = ["MAX_UDP_PAYLOAD", "UdpLink", "parse_hostport", "frame_to_udp_payload", "udp_payload_to_frame"]
 
 _MAX_UDP = 65535
+#: Longest payload that still fits a frame of MAX_FRAME_SIZE (1514) bytes.
+MAX_UDP_PAYLOAD = MAX_FRAME_SIZE - ETH_HEADER_SIZE
+
+_log = logging.getLogger("pyethercat.link")
 
 
 def parse_hostport(text: str, default_port: int = UDP_PORT) -> tuple[str, int]:
@@ -139,6 +150,10 @@ class UdpLink(Link):
             raise LinkError(f"cannot bind UDP {bind_addr[0]}:{bind_addr[1]}: {exc}") from exc
         sock.setblocking(False)
         self._sock = sock
+        #: Received payloads dropped as longer than MAX_UDP_PAYLOAD bytes.
+        self.dropped_too_long = 0
+        #: Received payloads dropped as shorter than the EtherCAT header.
+        self.dropped_too_short = 0
         here = sock.getsockname()
         super().__init__(name or f"udp:{here[0]}:{here[1]}")
 
@@ -183,8 +198,9 @@ class UdpLink(Link):
                 source = (str(addr[0]), int(addr[1]))
                 if self._fixed_peer and source != self._peer:
                     continue  # not from our peer: ignore
-                if len(payload) < ECAT_HEADER_SIZE:
-                    continue  # cannot be EtherCAT
+                if not ECAT_HEADER_SIZE <= len(payload) <= MAX_UDP_PAYLOAD:
+                    self._drop(payload, source)
+                    continue
                 if not self._fixed_peer:
                     self._peer = source
                 return udp_payload_to_frame(payload, self.rx_src, self.rx_dst)
@@ -195,6 +211,24 @@ class UdpLink(Link):
                 if left <= 0:
                     return None
                 select.select([self._sock], [], [], left)
+
+    def _drop(self, payload: bytes, source: tuple[str, int]) -> None:
+        """Count and log a payload that cannot become an Ethernet frame."""
+        if len(payload) < ECAT_HEADER_SIZE:
+            self.dropped_too_short += 1
+            count = self.dropped_too_short
+            why = f"shorter than the {ECAT_HEADER_SIZE}-byte EtherCAT header"
+        else:
+            self.dropped_too_long += 1
+            count = self.dropped_too_long
+            why = f"longer than {MAX_UDP_PAYLOAD} bytes (a frame over {MAX_FRAME_SIZE} bytes)"
+        # The first of a kind is a warning; repeats go to debug so that a flood of
+        # junk cannot flood the log too.
+        _log.log(
+            logging.WARNING if count == 1 else logging.DEBUG,
+            "link %s: dropped a %d-byte UDP payload from %s:%d: %s (%d so far)",
+            self.name, len(payload), source[0], source[1], why, count,
+        )
 
     def close(self) -> None:
         if not self._closed:
