@@ -346,6 +346,52 @@ def test_raw_interface_going_down_during_recv(veth_pair: tuple[str, str]) -> Non
             pytest.fail("no frame received after the interface came back up")
 
 
+def test_raw_interface_deleted_is_reported_by_recv(veth_pair: tuple[str, str]) -> None:
+    # The kernel reports a deleted interface once (ENETDOWN, as if it went down) and
+    # then recv would wait for nothing forever: the link must say the interface has
+    # gone, on every later call, naming it.
+    a_name, _ = veth_pair
+    with RawLink(a_name) as a:
+        subprocess.run(["ip", "link", "del", a_name], check=True)
+        for _ in range(3):
+            with pytest.raises(LinkError, match=f"network interface {a_name} has gone"):
+                a.recv(0.2)
+        with pytest.raises(LinkError, match=f"{a_name} has gone"):
+            a.recv(0)
+        with pytest.raises(LinkError, match=f"{a_name} has gone"):
+            a.send(_frame(1))
+
+
+def test_raw_interface_deleted_while_down_or_waiting(veth_pair: tuple[str, str]) -> None:
+    # Deleted while down: the kernel says nothing at all. A blocking recv notices
+    # within its wait slices; the check is rate-limited, not per call.
+    a_name, b_name = veth_pair
+    with RawLink(a_name) as a, RawLink(b_name) as b:
+        subprocess.run(["ip", "link", "set", a_name, "down"], check=True)
+        with pytest.raises(LinkError, match="down"):
+            a.recv(0.1)
+        outcome: list[object] = []
+
+        def wait() -> None:
+            try:
+                outcome.append(a.recv(None))
+            except LinkError as exc:
+                outcome.append(exc)
+
+        waiter = threading.Thread(target=wait)
+        waiter.start()
+        threading.Event().wait(0.1)
+        subprocess.run(["ip", "link", "del", a_name], check=True)
+        waiter.join(5)
+        assert not waiter.is_alive(), "recv(None) did not notice the interface was deleted"
+        assert len(outcome) == 1 and isinstance(outcome[0], LinkError)
+        assert f"network interface {a_name} has gone" in str(outcome[0])
+        # The peer of the veth went with it.
+        with pytest.raises(LinkError, match=f"{b_name} has gone"):
+            for _ in range(10):
+                b.recv(0.3)
+
+
 # --- capture ---------------------------------------------------------------------------
 
 

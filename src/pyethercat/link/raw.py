@@ -17,6 +17,14 @@ the moment a frame arrives. The kernel counts that timeout in scheduler
 ticks, so the last ``_TICK_MARGIN`` seconds of a wait are done with
 ``select``, which keeps to the timeout given. Sends never block
 (``MSG_DONTWAIT``).
+
+A deleted interface is reported as :class:`~pyethercat.errors.LinkError`
+("has gone"), for good: the kernel signals the deletion at most once (as
+``ENETDOWN``, and not at all when the interface was already down) and then
+leaves the socket bound to nothing, so a ``recv`` that finds nothing checks,
+at most once every ``_PRESENCE_PERIOD`` seconds, that the interface index it
+bound to still exists. Going down is not final: the link works again once
+the interface is up.
 """
 
 from __future__ import annotations
@@ -47,6 +55,8 @@ _TIMEVAL = struct.Struct("@ll")
 _TICK_MARGIN = 0.011
 # Blocking waits are cut into slices this long so that close() is noticed.
 _MAX_BLOCK = 1.0
+# How often an idle recv checks that the interface still exists (one ioctl).
+_PRESENCE_PERIOD = 1.0
 
 
 def _permission_message(iface: str) -> str:
@@ -101,6 +111,10 @@ class RawLink(Link):
                 raise LinkError(f"network interface {iface} is down") from exc
             raise LinkError(f"cannot bind a raw socket to {iface}: {exc}") from exc
         self._sock = sock
+        self._ifindex = ifindex
+        #: Set once the interface is found deleted: the error every later call raises.
+        self._gone: str | None = None
+        self._presence_checked = time.monotonic()
         #: SO_RCVTIMEO now set, in milliseconds (0: none set yet).
         self._rcvtimeo_ms = 0
         #: Frames of ours the kernel looped back and recv dropped.
@@ -109,8 +123,32 @@ class RawLink(Link):
     def fileno(self) -> int | None:
         return None if self._closed else self._sock.fileno()
 
+    def _check_present(self, now: float | None = None) -> None:
+        """Raise LinkError if the bound interface was deleted.
+
+        With ``now``, only when the last check is ``_PRESENCE_PERIOD`` old; the
+        verdict "gone" is kept, as an interface index never comes back.
+        """
+        if self._gone is None:
+            if now is not None:
+                if now - self._presence_checked < _PRESENCE_PERIOD:
+                    return
+                self._presence_checked = now
+            try:
+                socket.if_indextoname(self._ifindex)
+            except OSError:
+                # ENXIO: no interface has this index any more (deleted, or moved to
+                # another network namespace); a new one of the same name would get
+                # another index and never reach this socket.
+                self._gone = f"network interface {self.iface} has gone"
+            else:
+                return
+        raise LinkError(self._gone)
+
     def send(self, frame: bytes) -> None:
         self._check_open()
+        if self._gone is not None:
+            self._check_present()
         try:
             self._sock.send(frame, socket.MSG_DONTWAIT)
         except BlockingIOError:
@@ -123,11 +161,14 @@ class RawLink(Link):
                     f"frame of {len(frame)} bytes is too large for {self.iface}"
                 ) from exc
             if exc.errno == errno.ENXIO or exc.errno == errno.ENODEV:
-                raise LinkError(f"network interface {self.iface} has gone") from exc
+                self._gone = f"network interface {self.iface} has gone"
+                raise LinkError(self._gone) from exc
             raise LinkError(f"send on {self.iface} failed: {exc}") from exc
 
     def recv(self, timeout: float | None = None) -> bytes | None:
         self._check_open()
+        if self._gone is not None:
+            self._check_present()
         sock = self._sock
         deadline = None if timeout is None else time.monotonic() + timeout
         left = _MAX_BLOCK if timeout is None else timeout
@@ -149,7 +190,10 @@ class RawLink(Link):
             except BlockingIOError:
                 if self._closed:
                     self._check_open()
-                left = _MAX_BLOCK if deadline is None else deadline - time.monotonic()
+                now = time.monotonic()
+                if now - self._presence_checked >= _PRESENCE_PERIOD:
+                    self._check_present(now)
+                left = _MAX_BLOCK if deadline is None else deadline - now
                 if flags and left > 0:
                     with contextlib.suppress(InterruptedError, ValueError):
                         select.select([sock], [], [], left)
@@ -160,7 +204,12 @@ class RawLink(Link):
             except OSError as exc:
                 if self._closed:
                     self._check_open()
+                if exc.errno in (errno.ENODEV, errno.ENXIO):
+                    self._gone = f"network interface {self.iface} has gone"
+                    raise LinkError(self._gone) from exc
                 if exc.errno == errno.ENETDOWN:
+                    # The kernel says ENETDOWN for a deleted interface too.
+                    self._check_present()
                     raise LinkError(f"network interface {self.iface} is down") from exc
                 raise LinkError(f"receive on {self.iface} failed: {exc}") from exc
             if addr[2] == _PACKET_OUTGOING:
