@@ -133,3 +133,22 @@ def test_op_with_coe_mapping_and_dynamic_remap(sim: tuple[object, Master]) -> No
     assert io.inputs["Value 32"] == 77
     assert io.inputs["Cycle counter"] != first
     assert all(s.al_state == AlState.OP for s in m.slaves)
+
+
+def test_remap_one_sm_before_configure_keeps_the_other(sim: tuple[object, Master]) -> None:
+    """set_pdo_mapping of SM3 alone on a master that never configured: SM2 keeps
+    the slave's current outputs (was: left out, so the slave refused SAFE-OP
+    with 0x001D "Invalid output configuration")."""
+    _seg, m = sim
+    io = m.slaves[0]
+    assert io.pdo_mapping is None
+    io.set_pdo_mapping({0x1C13: [(0x1A03, [(0x6000, 4, 16), (0x6000, 3, 32)]), 0x1A00]})
+    assert io.pdo_mapping is not None
+    assert [p.index for p in io.pdo_mapping[2]] == [0x1600, 0x1601]
+    assert [p.index for p in io.pdo_mapping[3]] == [0x1A03, 0x1A00]
+    r = _run_to_op(m)
+    assert io.al_state == AlState.OP
+    io.outputs["Value 32"] = 0x01020304
+    r.run(cycles=3)
+    assert io.inputs["Value 32"] == 0x01020304
+    assert io.inputs["Cycle counter"] > 0

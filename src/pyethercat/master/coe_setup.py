@@ -474,7 +474,19 @@ def set_pdo_mapping(master_hook: Callable[[Slave], None] | None, slave: Slave,
                                                 and c.comment == "PDO mapping")]
         startup += [StartupCommand(slave.position, "PS", i, sub, d, comment="PDO mapping")
                     for i, sub, d in writes]
-    merged = dict(slave.pdo_mapping or {})
+    if slave.pdo_mapping is None:
+        # Not configured yet: the sync managers this call leaves alone keep what the
+        # slave has assigned now (the layout would otherwise lose them, and the
+        # slave refuses SAFE-OP for an SM length that does not match).
+        rest = {sm: d for sm, d in sms.items() if sm not in result}
+        try:
+            merged = client.read_pdos(rest, entry_name, pdo_name) if rest else {}
+        except EtherCATError as exc:
+            _log.info("%s: PDO mapping of %s not read over CoE (%s)", slave.describe(),
+                      ", ".join(f"SM{n}" for n in rest), exc)
+            merged = {}
+    else:
+        merged = dict(slave.pdo_mapping)
     merged.update(result)
     slave.pdo_mapping = merged
     if master_hook is not None:
