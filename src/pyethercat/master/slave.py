@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 from pyethercat.errors import ConfigError
 from pyethercat.wire.al import AlState, al_status_code_name, state_name
 from pyethercat.wire.registers import (
+    EscConfig,
     EscFeaturesMixin,
     PortType,
     dl_status_com,
@@ -255,6 +256,19 @@ class Slave:
         """``end``, ``line``, ``fork`` or ``cross`` from the number of active ports."""
         n = len(self.active_ports)
         return {0: "alone", 1: "end", 2: "line", 3: "fork"}.get(n, "cross")
+
+    @property
+    def device_emulation(self) -> bool:
+        """The ESC runs without firmware (ESC configuration 0x0141 bit 0, SII word 0 bit 8).
+
+        Such a chip (EK1100, simple EL terminals) copies AL control bits 4:0
+        into AL status, so an error acknowledge reads back as the error flag
+        until the state is written again without it. ``False`` when the SII
+        was not read (treated as a firmware slave).
+        """
+        if self.sii is None:
+            return False
+        return bool((self.sii.pdi_control >> 8) & EscConfig.DEVICE_EMULATION)
 
     @property
     def al_state_name(self) -> str:

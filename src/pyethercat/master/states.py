@@ -127,15 +127,31 @@ def acknowledge_errors(scheduler: Scheduler, slaves: Sequence[Slave]) -> list[Sl
 
     The acknowledge writes the state the slave is in with the error bit
     (what IgH does), so the slave stays where it is and clears the flag.
+    A slave in device emulation (no firmware, :attr:`Slave.device_emulation`)
+    copies the acknowledge bit into AL status and shows the flag until the
+    state is written again without it: those slaves, and only those, get that
+    second, plain write (a firmware slave could read AL control after it and
+    see a request without acknowledge while still in error).
     """
     readings = read_al_status(scheduler, slaves)
     flagged = [(s, r) for s, r in zip(slaves, readings, strict=True) if r.answered and r.error]
     if not flagged:
         return []
-    stations = [s.station_address for s, _ in flagged]
-    values = [struct.pack("<H", (r.state or int(AlState.INIT)) | AL_ERROR_FLAG) for _, r in flagged]
-    multiple_write(scheduler, stations, AL_CONTROL, values)
+    _write_acks(scheduler, flagged)
+    echo = [(s, r) for s, r in flagged if s.device_emulation]
+    if echo:
+        # A transaction of its own: the plain write must not overtake the acknowledge
+        # (a lost frame is sent again, so two writes in one transaction may swap).
+        multiple_write(scheduler, [s.station_address for s, _ in echo], AL_CONTROL,
+                       [struct.pack("<H", r.state or int(AlState.INIT)) for _, r in echo])
     return [s for s, _ in flagged]
+
+
+def _write_acks(scheduler: Scheduler, flagged: Sequence[tuple[Slave, AlStatusReading]]) -> None:
+    """Write each flagged slave's current state with the acknowledge bit."""
+    multiple_write(scheduler, [s.station_address for s, _ in flagged], AL_CONTROL,
+                   [struct.pack("<H", (r.state or int(AlState.INIT)) | AL_ERROR_FLAG)
+                    for _, r in flagged])
 
 
 def _stuck_message(target: AlState | int, stuck: list[tuple[Slave, AlStatusReading | None]],
@@ -324,12 +340,12 @@ def set_state(scheduler: Scheduler, slaves: Sequence[Slave], state: AlState | in
         return
     readings = read_al_status(scheduler, slaves)
     if ack_errors:
-        # What acknowledge_errors does, without reading the states a second time.
+        # What acknowledge_errors does, without reading the states a second time. A
+        # slave in device emulation needs no plain write after it here: every flagged
+        # slave gets a plain request below (flagged ones do not count as there).
         flagged = [(s, r) for s, r in zip(slaves, readings, strict=True) if r.answered and r.error]
         if flagged:
-            multiple_write(scheduler, [s.station_address for s, _ in flagged], AL_CONTROL,
-                           [struct.pack("<H", (r.state or int(AlState.INIT)) | AL_ERROR_FLAG)
-                            for _, r in flagged])
+            _write_acks(scheduler, flagged)
     # Group slaves by the path they need; run the steps in lockstep.
     paths = {s.position: state_path(r.state if r.answered else AlState.INIT, target)
              for s, r in zip(slaves, readings, strict=True)}
