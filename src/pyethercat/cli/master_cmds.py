@@ -130,12 +130,22 @@ def slaves_command(ctx: click.Context, verbose: bool, position: str | None) -> N
 @click.option("-p", "--position", metavar="POS", help="Only this slave.")
 @click.option("-t", "--timeout", type=float, default=5.0, show_default=True,
               help="Seconds each transition may take.")
+@click.option("--ack", is_flag=True,
+              help="Acknowledge error flags, leaving every slave in its state.")
 @click.pass_context
 def states_command(ctx: click.Context, state: str | None, position: str | None,
-                   timeout: float) -> None:
-    """Show the AL state of every slave, or request STATE (INIT, PREOP, BOOT, SAFEOP, OP)."""
+                   timeout: float, ack: bool) -> None:
+    """Show the AL state of every slave, or request STATE (INIT, PREOP, BOOT, SAFEOP, OP).
+
+    A slave showing an error flag is acknowledged before the request (it
+    ignores requests while flagged); ``--ack`` acknowledges without a request.
+    A slave in error is shown as ``STATE+ERR`` with its AL status code.
+    """
     target = None
     if state is not None:
+        if ack:
+            raise ConfigError("states: give STATE or --ack, not both (a request "
+                              "acknowledges errors first)")
         try:
             target = AlState.parse(state)
         except ValueError as exc:
@@ -146,6 +156,9 @@ def states_command(ctx: click.Context, state: str | None, position: str | None,
         chosen = m.slaves if position is None else [m.slave(_number(position, "position"))]
         if target is not None:
             m.set_state(target, chosen, timeout=timeout)
+        elif ack:
+            done = m.acknowledge_errors(chosen)
+            click.echo(f"# acknowledged {len(done)} slave{'s' if len(done) != 1 else ''}")
         m.read_states(chosen)
         for s in chosen:
             line = f"{s.position:<5} 0x{s.station_address:04X}  {s.al_state_name}"
