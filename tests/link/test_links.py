@@ -444,3 +444,12 @@ def test_capture_wall_clock_stamps_and_interface_name(tmp_path: Path) -> None:
     assert before <= stamps[0] and stamps[-1] <= after
     assert [r.direction for r in recs] == [Direction.OUTBOUND, Direction.INBOUND] * 3
     assert b"master-end" in raw  # the interface is named after the inner link
+
+
+def test_udp_link_named_by_the_address_given() -> None:
+    """A master's link is named by its peer (errors say where nothing answered), a
+    server's by the address it is bound to."""
+    with UdpLink(bind=("127.0.0.1", 0)) as server, UdpLink(peer=("127.0.0.1", 9)) as master:
+        host, port = server.address
+        assert server.name == f"udp:{host}:{port}"
+        assert master.name == "udp:127.0.0.1:9"

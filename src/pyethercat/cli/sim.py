@@ -60,7 +60,7 @@ def sim_command(
     iface = sim_iface or obj.get("iface")
     udp = sim_udp or obj.get("udp")
     if sum(x is not None for x in (iface, udp, sim_fd)) != 1:
-        raise ConfigError("pyethercat sim: give exactly one of --iface IF or --udp HOST:PORT")
+        raise ConfigError("sim: give exactly one of --iface IF or --udp HOST:PORT (or --check)")
     log = None if quiet else (lambda msg: click.echo(f"pyethercat sim: {msg}", err=True))
     # Load the topology before opening the link: a bad file fails fast.
     load_topology(topology)

@@ -154,8 +154,10 @@ class UdpLink(Link):
         self.dropped_too_long = 0
         #: Received payloads dropped as shorter than the EtherCAT header.
         self.dropped_too_short = 0
-        here = sock.getsockname()
-        super().__init__(name or f"udp:{here[0]}:{here[1]}")
+        # Named by the address the user gave: the peer of a master's link (error
+        # messages then say where nothing answered), the bound address of a server's.
+        where = self._peer if self._peer is not None else sock.getsockname()
+        super().__init__(name or f"udp:{where[0]}:{where[1]}")
 
     @property
     def address(self) -> tuple[str, int]:
