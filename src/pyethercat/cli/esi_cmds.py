@@ -178,8 +178,8 @@ def register(cli: click.Group) -> None:
                 click.echo(f"  {d}")
 
     @cli.command("xml")
-    @click.option("-p", "--position", required=True, help="Slave position.")
-    @click.option("-o", "--output", help="Write to this file (default: standard output).")
+    @click.option("-p", "--position", required=True, metavar="POS", help="Ring position of the slave.")
+    @click.option("-o", "--output", metavar="FILE", help="Write to this file (default: standard output).")
     @click.pass_context
     def xml_cmd(ctx: click.Context, position: str, output: str | None) -> None:
         """Write an ESI file for a live slave (SII, plus its dictionary over CoE)."""

@@ -238,7 +238,7 @@ def reg_read_command(ctx: click.Context, position: str, address: str, size: str)
 @click.command("reg_write")
 @click.option("-p", "--position", metavar="POS", required=True, help="Ring position of the slave.")
 @click.argument("address")
-@click.argument("data")
+@click.argument("data", metavar="HEXDATA")
 @click.pass_context
 def reg_write_command(ctx: click.Context, position: str, address: str, data: str) -> None:
     """Write HEXDATA (bytes in memory order, e.g. "02 00") at ADDRESS of one slave."""

@@ -37,7 +37,7 @@ def sim_command(
     """Serve the simulated segment of TOPOLOGY.toml on an interface or UDP address.
 
     Runs until interrupted (Ctrl-C / SIGTERM). Frames that are not EtherCAT are
-    ignored. Example: pyethercat sim examples/demo.toml --iface veth1
+    ignored. Example: pyethercat sim examples/demo.toml --iface pyecat-0a
     """
     from pyethercat.sim.server import open_link, serve
     from pyethercat.sim.topology import load_topology
