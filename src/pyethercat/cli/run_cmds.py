@@ -30,6 +30,7 @@ from pyethercat.master.cyclic import CyclicRunner
 from pyethercat.master.master import Master
 from pyethercat.wire.al import state_name
 from pyethercat.wire.mailbox.datatypes import DataType
+from pyethercat.wire.registers import AL_ERROR_FLAG
 from pyethercat.wire.sii.model import SyncManagerType
 
 __all__ = ["register", "format_pdos", "live_view", "format_summary"]
@@ -108,7 +109,7 @@ def live_view(master: Master, runner: CyclicRunner, extra: Callable[[], list[str
         slaves.add_column(col, no_wrap=True)
     for s in master.slaves:
         h = runner.health.get(s.position)
-        state = state_name(h.state | (0x10 if h.error else 0)) if h and h.state else \
+        state = state_name(h.state | (AL_ERROR_FLAG if h.error else 0)) if h and h.state else \
             s.al_state_name
         status = h.status if h else "-"
         style = "green" if status == "ok" else "red"

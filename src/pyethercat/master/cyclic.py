@@ -752,7 +752,7 @@ class CyclicRunner:
                 bad.append(h.position)
                 continue
             status, _res, code = struct.unpack("<HHH", rep.data)
-            h.state, h.error, h.code = status & 0x0F, bool(status & 0x10), code
+            h.state, h.error, h.code = status & reg.AL_STATE_MASK, bool(status & reg.AL_ERROR_FLAG), code
             h.present = True
             if h.state == int(self.target) and not h.error:
                 if h.status != "ok":

@@ -63,6 +63,7 @@ from pyethercat.wire.sii import (
     SyncManagerType,
     parse_sii,
 )
+from pyethercat.wire.sii.model import WORD_VENDOR_ID
 
 if TYPE_CHECKING:
     from pyethercat.master.master import Master
@@ -442,7 +443,7 @@ def start_from_eni(master: Master, eni: EniConfig) -> EniStart:
     for s, e, head in zip(slaves, eni.slaves, heads, strict=True):
         if isinstance(head, Exception) or len(head) < 0x1C:
             raise TopologyMismatchError(f"position {s.position}: identity not readable ({head!r})")
-        vendor, product, revision = struct.unpack_from("<III", head, 0x10)
+        vendor, product, revision = struct.unpack_from("<III", head, 2 * WORD_VENDOR_ID)
         found = Identity(vendor, product, revision)
         want = Identity(e.vendor_id, e.product_code, e.revision)
         if not want.matches(found):

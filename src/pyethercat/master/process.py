@@ -38,6 +38,7 @@ from pyethercat.master.slave import Slave
 from pyethercat.wire import registers as reg
 from pyethercat.wire.al import AlState
 from pyethercat.wire.datagram import Command, Datagram
+from pyethercat.wire.sii.model import WORD_VENDOR_ID
 
 if TYPE_CHECKING:
     import threading
@@ -270,7 +271,7 @@ class ProcessDataMixin:
             return
         if isinstance(image, Exception) or len(image) < 0x18:
             return
-        vendor, product = struct.unpack_from("<II", image, 0x10)
+        vendor, product = struct.unpack_from("<II", image, 2 * WORD_VENDOR_ID)
         ident = slave.identity
         if (vendor, product) != (ident.vendor_id, ident.product_code):
             raise ConfigError(f"{slave.describe()} came back as vendor 0x{vendor:08X} product "

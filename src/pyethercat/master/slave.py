@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 from pyethercat.errors import ConfigError
 from pyethercat.wire.al import AlState, al_status_code_name, state_name
 from pyethercat.wire.registers import (
+    AL_ERROR_FLAG,
     EscConfig,
     EscFeaturesMixin,
     PortType,
@@ -273,7 +274,7 @@ class Slave:
     @property
     def al_state_name(self) -> str:
         """State as IgH prints it, with ``+ERR`` when the error flag is set."""
-        return state_name(int(self.al_state) | (0x10 if self.al_error else 0))
+        return state_name(int(self.al_state) | (AL_ERROR_FLAG if self.al_error else 0))
 
     @property
     def al_status_text(self) -> str:
