@@ -18,14 +18,42 @@ __all__ = ["cli", "main", "parse_int"]
 
 
 class _Group(click.Group):
-    """Click group that turns library errors into one-line messages."""
+    """Click group whose every failure is one line on stderr and a non-zero exit.
+
+    Library errors exit with 1; usage errors (a missing option, an unknown
+    command, a bad value) with click's 2, as one line that points to
+    ``--help`` instead of click's usage block.
+    """
 
     def invoke(self, ctx: click.Context) -> Any:
         try:
-            return super().invoke(ctx)
+            super().invoke(ctx)
         except EtherCATError as exc:
             click.echo(f"pyethercat: error: {exc}", err=True)
             sys.exit(1)
+        # Commands report through output and exit status, never a return value;
+        # main() relies on None here to tell a normal end from ctx.exit(code).
+        return None
+
+    def main(self, args: Any = None, prog_name: str | None = None,
+             complete_var: str | None = None, standalone_mode: bool = True,
+             **extra: Any) -> Any:
+        if not standalone_mode:
+            return super().main(args, prog_name, complete_var, standalone_mode, **extra)
+        try:
+            code = super().main(args, prog_name, complete_var, False, **extra)
+        except click.UsageError as exc:
+            where = exc.ctx.command_path if exc.ctx is not None else (prog_name or "pyethercat")
+            click.echo(f"pyethercat: error: {exc.format_message()} (see '{where} --help')",
+                       err=True)
+            sys.exit(exc.exit_code)
+        except click.ClickException as exc:
+            click.echo(f"pyethercat: error: {exc.format_message()}", err=True)
+            sys.exit(exc.exit_code)
+        except click.Abort:
+            click.echo("pyethercat: aborted", err=True)
+            sys.exit(1)
+        sys.exit(code if isinstance(code, int) else 0)
 
 
 def parse_int(value: str) -> int:
