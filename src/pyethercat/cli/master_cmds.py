@@ -15,13 +15,15 @@ from contextlib import contextmanager
 import click
 
 from pyethercat.cli._connect import connect
-from pyethercat.errors import ConfigError, SiiError
+from pyethercat.errors import ConfigError, SiiError, StateTimeoutError
 from pyethercat.master.listing import slave_record, slave_table, topology_tree
 from pyethercat.master.master import Master
 from pyethercat.master.scan import Progress
 from pyethercat.wire.al import AlState, al_status_code_name, state_name
 from pyethercat.wire.registers import (
     AL_CONTROL,
+    AL_ERROR_FLAG,
+    AL_STATE_MASK,
     AL_STATUS,
     AL_STATUS_CODE,
     REGISTERS,
@@ -155,7 +157,15 @@ def states_command(ctx: click.Context, state: str | None, position: str | None,
         _scan(m)
         chosen = m.slaves if position is None else [m.slave(_number(position, "position"))]
         if target is not None:
-            m.set_state(target, chosen, timeout=timeout)
+            try:
+                m.set_state(target, chosen, timeout=timeout, configure=True)
+            except StateTimeoutError as exc:
+                if target != AlState.OP:
+                    raise
+                # The usual surprise: SAFEOP -> OP waits for valid outputs.
+                raise StateTimeoutError(
+                    f"{exc}; a slave with outputs enters OP only once it receives process "
+                    f"data: use 'pyethercat run'") from None
         elif ack:
             done = m.acknowledge_errors(chosen)
             click.echo(f"# acknowledged {len(done)} slave{'s' if len(done) != 1 else ''}")
@@ -172,7 +182,7 @@ def states_command(ctx: click.Context, state: str | None, position: str | None,
 
 def _decoded(address: int, value: int) -> str:
     if address in (AL_STATUS, AL_CONTROL):
-        return f" ({state_name(value & 0x1F)})"
+        return f" ({state_name(value & (AL_STATE_MASK | AL_ERROR_FLAG))})"
     if address == AL_STATUS_CODE:
         return f" ({al_status_code_name(value)})"
     return ""

@@ -294,7 +294,8 @@ class Master(CoeMasterMixin, ProcessDataMixin):
     def set_state(self, state: AlState | int | str, slaves: Sequence[SlaveRef] | None = None,
                   timeout: float = states.DEFAULT_STATE_TIMEOUT, *,
                   ack_errors: bool = True,
-                  prepare: states.PrepareStep | None = states.setup_mailboxes) -> None:
+                  prepare: states.PrepareStep | None = states.setup_mailboxes,
+                  configure: bool = False) -> None:
         """Bring slaves to ``state`` through the standard path and wait for it.
 
         ``timeout`` applies to each step. Refusals raise
@@ -302,16 +303,34 @@ class Master(CoeMasterMixin, ProcessDataMixin):
         slaves that take too long raise
         :class:`~pyethercat.errors.StateTimeoutError` naming them. ``prepare``
         runs before each step (default: mailbox sync managers from the SII
-        before INIT -> PREOP/BOOT).
+        before INIT -> PREOP/BOOT). With ``configure`` the process-data sync
+        managers and FMMUs are written before PREOP -> SAFEOP (configuring
+        from SII or CoE first if :meth:`configure` has not run), as a slave
+        refuses SAFEOP without them; OP still needs cyclic process data.
         """
         with self._lock:
             finish = None
             if prepare is states.setup_mailboxes:
                 # mailbox SMs plus the CoE start-up commands of each transition
                 prepare, finish = self._prepare_step, self._finish_step
+            if configure:
+                prepare = self._with_process_data_config(prepare)
             states.set_state(self.scheduler, self._select(slaves), _state(state), timeout,
                              ack_errors=ack_errors, sleep=self._sleep, prepare=prepare,
                              finish=finish)
+
+    def _with_process_data_config(self, inner: states.PrepareStep | None) -> states.PrepareStep:
+        """``inner``, then the process-data SMs/FMMUs before the SAFEOP step."""
+
+        def prepare(scheduler: Scheduler, step: AlState, group: Sequence[Slave]) -> None:
+            if inner is not None:
+                inner(scheduler, step, group)
+            if step == AlState.SAFEOP:
+                # Configured here, not earlier: CoE mappings are read in PREOP.
+                self._need_config()
+                self.write_process_data_config(group)
+
+        return prepare
 
     def acknowledge_errors(self, slaves: Sequence[SlaveRef] | None = None) -> list[Slave]:
         """Acknowledge error flags; returns the slaves that had one."""
