@@ -256,3 +256,6 @@ def test_non_strict_decode_tolerates_trailing_byte_inside_length() -> None:
     with pytest.raises(FrameError, match="after the last datagram"):
         decode_frame(raw)
     assert len(decode_frame(raw, strict=False).datagrams) == 1
+    assert decode_frame(raw, strict=False).trailing == 1
+    assert decode_frame(encode_frame([Datagram.device(Command.BRD, 0, 0, 2)]),
+                        strict=False).trailing == 0

@@ -46,19 +46,9 @@ from typing import Any
 import click
 
 from pyethercat.errors import CaptureError, FrameError
-from pyethercat.wire.datagram import (
-    LEN_MASK,
-    MORE_BIT,
-    Command,
-    Datagram,
-    command_name,
-    decode_datagrams,
-)
-from pyethercat.wire.datagram import OVERHEAD as DATAGRAM_OVERHEAD
+from pyethercat.wire.datagram import Command, Datagram, command_name
 from pyethercat.wire.frame import (
     ECAT_HEADER_SIZE,
-    ECAT_LENGTH_MASK,
-    ECAT_RESERVED_BIT,
     ECAT_TYPE_SHIFT,
     ETHERTYPE_ETHERCAT,
     ETHERTYPE_VLAN,
@@ -135,42 +125,6 @@ def _frame_type(ecat: bytes) -> int:
     return (ecat[1] << 8 | ecat[0]) >> ECAT_TYPE_SHIFT if len(ecat) >= ECAT_HEADER_SIZE else -1
 
 
-def _chain_end(body: bytes) -> int | None:
-    """Where the datagram chain of ``body`` ends (after the datagram with M = 0), if it fits."""
-    pos = 0
-    while pos + DATAGRAM_OVERHEAD <= len(body):
-        (word,) = struct.unpack_from("<H", body, pos + 6)
-        pos += DATAGRAM_OVERHEAD + (word & LEN_MASK)
-        if not word & MORE_BIT:
-            return pos if pos <= len(body) else None
-    return None
-
-
-def _decode_datagram_frame(ecat: bytes, base: int, stats: DecodeStats) -> list[Datagram]:
-    """Datagrams of a type-1 EtherCAT payload (header + body).
-
-    Some masters (TwinCAT) send an EtherCAT length a byte longer than their
-    datagrams. Wireshark shows such frames without complaint, so we do too:
-    the strict codec is tried first, and when it fails only because bytes are
-    left after the last datagram, the datagrams before them are taken and the
-    frame is counted in ``stats.trailing``.
-    """
-    try:
-        return decode_ecat_payload(ecat, base_offset=base).datagrams
-    except FrameError:
-        if len(ecat) < ECAT_HEADER_SIZE:
-            raise  # not even a header: nothing to tolerate
-        (word,) = struct.unpack_from("<H", ecat)
-        length = word & ECAT_LENGTH_MASK
-        body = ecat[ECAT_HEADER_SIZE : ECAT_HEADER_SIZE + length]
-        end = _chain_end(body)
-        if word & ECAT_RESERVED_BIT or len(body) < length or end is None or end >= length:
-            raise
-        datagrams = decode_datagrams(body[:end], base + ECAT_HEADER_SIZE)
-        stats.trailing += 1
-        return datagrams
-
-
 def decode_records(records: Iterable[CaptureRecord], stats: DecodeStats) -> Iterator[DatagramRow]:
     """Yield every datagram of every EtherCAT frame in ``records``, counting into ``stats``.
 
@@ -208,10 +162,16 @@ def decode_records(records: Iterable[CaptureRecord], stats: DecodeStats) -> Iter
             stats.other_types += 1
             continue
         try:
-            datagrams = _decode_datagram_frame(ecat, start if not over_udp else 0, stats)
+            # Not strict: some masters (TwinCAT) send an EtherCAT length a byte
+            # longer than their datagrams; Wireshark shows such frames without
+            # complaint, so we decode them too and count them.
+            frame = decode_ecat_payload(ecat, base_offset=start if not over_udp else 0,
+                                        strict=False)
         except FrameError as exc:
             stats.malformed.append((number, str(exc)))
             continue
+        datagrams = frame.datagrams
+        stats.trailing += frame.trailing > 0
         stats.datagrams += len(datagrams)
         for dgram in datagrams:
             yield DatagramRow(number, when, over_udp, dgram)

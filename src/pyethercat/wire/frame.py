@@ -107,6 +107,9 @@ class EtherCATFrame:
     src: bytes = MASTER_MAC
     #: Bytes after the EtherCAT length (padding) in the received frame.
     padding: int = 0
+    #: Bytes inside the EtherCAT length after the last datagram (only a
+    #: ``strict=False`` decode accepts them; TwinCAT sends one).
+    trailing: int = 0
 
 
 def ecat_header(length: int, frame_type: int = FrameType.DATAGRAMS) -> int:
@@ -214,6 +217,8 @@ def decode_ecat_payload(payload: bytes | bytearray | memoryview, base_offset: in
     frame = EtherCATFrame(frame_type, padding=len(view) - body_end)
     if frame_type == FrameType.DATAGRAMS:
         frame.datagrams = decode_datagrams(body, base_offset + ECAT_HEADER_SIZE, strict=strict)
+        if not strict:
+            frame.trailing = length - datagrams_size(frame.datagrams)
     elif frame_type == FrameType.MAILBOX:
         frame.mailbox = bytes(body)
     else:
