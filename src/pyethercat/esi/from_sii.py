@@ -16,19 +16,16 @@ from dataclasses import dataclass, field
 
 from lxml import etree
 
+from pyethercat.esi.sii_from_esi import FMMU_USAGES, MAILBOX_PROTOCOLS, PORT_LETTERS, SM_TYPES
 from pyethercat.wire.mailbox.coe import ObjectAccess
 from pyethercat.wire.mailbox.datatypes import DataType
 from pyethercat.wire.sii import (
     SM_NOT_ASSIGNED,
     CoeDetails,
-    FmmuUsage,
     GeneralFlags,
-    MailboxProtocol,
     SiiInfo,
     SiiPdo,
     SiiPdoFlags,
-    SiiPortType,
-    SyncManagerType,
 )
 
 __all__ = ["DictEntry", "DictObject", "esi_from_sii"]
@@ -40,16 +37,8 @@ _TYPE_NAMES: dict[int, str] = {
     DataType.UNSIGNED64: "ULINT", DataType.REAL64: "LREAL", DataType.VISIBLE_STRING: "STRING",
     DataType.OCTET_STRING: "OCTET_STRING",
 }  # fmt: skip
-_SM_NAMES = {
-    SyncManagerType.MAILBOX_OUT: "MBoxOut", SyncManagerType.MAILBOX_IN: "MBoxIn",
-    SyncManagerType.OUTPUTS: "Outputs", SyncManagerType.INPUTS: "Inputs",
-}  # fmt: skip
-_FMMU_NAMES = {FmmuUsage.OUTPUTS: "Outputs", FmmuUsage.INPUTS: "Inputs",
-               FmmuUsage.MAILBOX_STATE: "MBoxState"}  # fmt: skip
-_PROTOCOLS = (("AoE", MailboxProtocol.AOE), ("EoE", MailboxProtocol.EOE),
-              ("CoE", MailboxProtocol.COE), ("FoE", MailboxProtocol.FOE),
-              ("SoE", MailboxProtocol.SOE), ("VoE", MailboxProtocol.VOE))  # fmt: skip
-
+_SM_NAMES = {v: k for k, v in SM_TYPES.items()}
+_FMMU_NAMES = {v: k for k, v in FMMU_USAGES.items()}
 
 @dataclass
 class DictEntry:
@@ -193,7 +182,7 @@ def esi_from_sii(
     _sub(g, "Type", group)
     _sub(g, "Name", group, LcId="1033")
     ports = info.general.ports if info.general is not None else (0, 0, 0, 0)
-    physics = "".join({SiiPortType.MII: "Y", SiiPortType.EBUS: "K"}.get(p, " ") for p in ports)  # type: ignore[call-overload]
+    physics = "".join(PORT_LETTERS.get(p, " ") for p in ports)  # type: ignore[call-overload]
     dev = _sub(_sub(desc, "Devices"), "Device", Physics=physics.rstrip() or "YY")
     type_name = info.order_number or info.device_name or f"0x{info.product_code:08X}"
     _sub(dev, "Type", type_name, ProductCode=f"#x{info.product_code:08X}",
@@ -222,7 +211,7 @@ def esi_from_sii(
     if info.mailbox_protocols:
         gen = info.general
         mb = _sub(dev, "Mailbox", DataLinkLayer="true" if gen and gen.flags & GeneralFlags.MBOX_DATA_LINK_LAYER else "false")
-        for name, bit in _PROTOCOLS:
+        for name, bit in MAILBOX_PROTOCOLS.items():
             if not info.mailbox_protocols & bit:
                 continue
             if name == "CoE":

@@ -66,6 +66,10 @@ from pyethercat.wire.sii import (
 
 __all__ = [
     "DEFAULT_EEPROM_BYTES",
+    "FMMU_USAGES",
+    "MAILBOX_PROTOCOLS",
+    "PORT_LETTERS",
+    "SM_TYPES",
     "SiiDifference",
     "SiiFromEsi",
     "esi_to_sii",
@@ -78,33 +82,42 @@ __all__ = [
 DEFAULT_EEPROM_BYTES = 2048
 
 
-# ESI mailbox element name -> protocol bit of SII word 0x1C.
-_PROTOCOL_BITS: dict[str, MailboxProtocol] = {
-    "aoe": MailboxProtocol.AOE,
-    "eoe": MailboxProtocol.EOE,
-    "coe": MailboxProtocol.COE,
-    "foe": MailboxProtocol.FOE,
-    "soe": MailboxProtocol.SOE,
-    "voe": MailboxProtocol.VOE,
+# The ESI names <-> SII codes correspondences, one table each; esi/from_sii.py
+# (SII -> ESI) and the simulator's ESI dictionary read them too.
+
+#: ESI ``<Mailbox>`` element names and their protocol bit of SII word 0x1C.
+MAILBOX_PROTOCOLS: dict[str, MailboxProtocol] = {
+    "AoE": MailboxProtocol.AOE,
+    "EoE": MailboxProtocol.EOE,
+    "CoE": MailboxProtocol.COE,
+    "FoE": MailboxProtocol.FOE,
+    "SoE": MailboxProtocol.SOE,
+    "VoE": MailboxProtocol.VOE,
 }
 
-# ESI Fmmu text -> FMMU category byte.
-_FMMU_USAGE: dict[str, FmmuUsage] = {
-    "outputs": FmmuUsage.OUTPUTS,
-    "inputs": FmmuUsage.INPUTS,
-    "mboxstate": FmmuUsage.MAILBOX_STATE,
+#: ESI ``<Fmmu>`` text -> FMMU category byte.
+FMMU_USAGES: dict[str, FmmuUsage] = {
+    "Outputs": FmmuUsage.OUTPUTS,
+    "Inputs": FmmuUsage.INPUTS,
+    "MBoxState": FmmuUsage.MAILBOX_STATE,
 }
 
-_SM_TYPE: dict[str, SyncManagerType] = {
+#: ESI ``<Sm>`` role -> SII sync manager type.
+SM_TYPES: dict[str, SyncManagerType] = {
     "MBoxOut": SyncManagerType.MAILBOX_OUT,
     "MBoxIn": SyncManagerType.MAILBOX_IN,
     "Outputs": SyncManagerType.OUTPUTS,
     "Inputs": SyncManagerType.INPUTS,
 }
 
-# Device@Physics letters, one per port: Y/H = MII (100BASE-TX, H with fast
-# hot connect), K = E-Bus (LVDS); anything else (space, empty) is not used.
-_PHYSICS_PORT: dict[str, SiiPortType] = {"Y": SiiPortType.MII, "H": SiiPortType.MII, "K": SiiPortType.EBUS}
+#: SII port type -> the Device@Physics letter written for it: Y = MII
+#: (100BASE-TX), K = E-Bus (LVDS); an unused port is a space.
+PORT_LETTERS: dict[SiiPortType, str] = {SiiPortType.MII: "Y", SiiPortType.EBUS: "K"}
+
+# Reading ESI names: any case; H is MII with fast hot connect.
+_PROTOCOL_BITS = {k.lower(): v for k, v in MAILBOX_PROTOCOLS.items()}
+_FMMU_USAGE = {k.lower(): v for k, v in FMMU_USAGES.items()}
+_PHYSICS_PORT = {**{v: k for k, v in PORT_LETTERS.items()}, "H": SiiPortType.MII}
 
 
 @dataclass
@@ -143,7 +156,7 @@ class _Strings:
 
 def _sm_type(sm: EsiSm) -> int:
     kind = sm.kind
-    return _SM_TYPE[kind] if kind is not None else SyncManagerType.UNUSED
+    return SM_TYPES[kind] if kind is not None else SyncManagerType.UNUSED
 
 
 def _sm_enable(sm: EsiSm) -> int:

@@ -24,7 +24,7 @@ from pathlib import Path
 from pyethercat.errors import ConfigError, EtherCATError
 from pyethercat.esi.model import EsiDevice, EsiDictionary, EsiFile, EsiFlags, EsiOdEntry
 from pyethercat.esi.parse import load_esi
-from pyethercat.esi.sii_from_esi import esi_to_sii, pick_device
+from pyethercat.esi.sii_from_esi import SM_TYPES, esi_to_sii, pick_device
 from pyethercat.sim.coe import (
     CoeDevice,
     add_identity,
@@ -190,9 +190,7 @@ def esi_dictionary(device: EsiDevice, *, vendor_id: int, serial: int = 0) -> Obj
         add_pdo_mapping(od, pdo.index, pdo.name.pick() or f"PDO 0x{pdo.index:04X}", words,
                         max_entries=size)  # fmt: skip
     # SM communication types (0x1C00): SOEM reads them before the assignment.
-    kinds = {"MBoxOut": SyncManagerType.MAILBOX_OUT, "MBoxIn": SyncManagerType.MAILBOX_IN,
-             "Outputs": SyncManagerType.OUTPUTS, "Inputs": SyncManagerType.INPUTS}
-    types = [int(kinds.get(s.kind or "", SyncManagerType.UNUSED)) for s in device.sms]
+    types = [int(SM_TYPES.get(s.kind or "", SyncManagerType.UNUSED)) for s in device.sms]
     if StandardObject.SM_COMM_TYPE not in od and device.sms:
         add_sync_manager_objects(od, types)
     elif device.sms:
