@@ -50,8 +50,8 @@ from pyethercat.wire.frame import (
     ETHERTYPE_VLAN,
     MASTER_MAC,
     MAX_FRAME_SIZE,
-    MIN_FRAME_SIZE,
     UDP_PORT,
+    ethernet_frame,
     returned_source_mac,
 )
 
@@ -99,10 +99,7 @@ def udp_payload_to_frame(
     payload: bytes, src: bytes = MASTER_MAC, dst: bytes = BROADCAST_MAC
 ) -> bytes:
     """An Ethernet frame around an EtherCAT-over-UDP payload, zero-padded to 60 bytes."""
-    frame = dst + src + struct.pack(">H", ETHERTYPE_ETHERCAT) + payload
-    if len(frame) < MIN_FRAME_SIZE:
-        frame += bytes(MIN_FRAME_SIZE - len(frame))
-    return frame
+    return ethernet_frame(payload, src, dst)
 
 
 def _resolve(host: str, port: int) -> tuple[str, int]:

@@ -48,6 +48,7 @@ __all__ = [
     "encode_frame",
     "encode_mailbox_frame",
     "encode_udp_payload",
+    "ethernet_frame",
     "is_ethercat",
     "returned_source_mac",
 ]
@@ -140,7 +141,7 @@ def encode_frame(datagrams: Sequence[Datagram], src: bytes = MASTER_MAC,
                  dst: bytes = BROADCAST_MAC) -> bytes:
     """A complete Ethernet frame (without FCS), zero-padded to 60 bytes."""
     payload = encode_ecat_payload(datagrams)
-    return _ethernet(payload, src, dst)
+    return ethernet_frame(payload, src, dst)
 
 
 def encode_mailbox_frame(mailbox: bytes, src: bytes = MASTER_MAC,
@@ -149,10 +150,12 @@ def encode_mailbox_frame(mailbox: bytes, src: bytes = MASTER_MAC,
     if len(mailbox) > MAX_PAYLOAD:
         raise FrameTooLargeError(f"mailbox of {len(mailbox)} bytes does not fit a frame")
     payload = struct.pack("<H", ecat_header(len(mailbox), FrameType.MAILBOX)) + mailbox
-    return _ethernet(payload, src, dst)
+    return ethernet_frame(payload, src, dst)
 
 
-def _ethernet(payload: bytes, src: bytes, dst: bytes) -> bytes:
+def ethernet_frame(payload: bytes, src: bytes = MASTER_MAC,
+                   dst: bytes = BROADCAST_MAC) -> bytes:
+    """An Ethernet frame (EtherType 0x88A4) around an EtherCAT payload, zero-padded to 60 bytes."""
     if len(src) != 6 or len(dst) != 6:
         raise FrameError("MAC addresses are 6 bytes")
     frame = dst + src + struct.pack(">H", ETHERTYPE_ETHERCAT) + payload
