@@ -133,6 +133,9 @@ def test_load_eni_file(tmp_path: Path) -> None:
     assert load_eni(p) == _full_config()
     with pytest.raises(EsiError, match="cannot read"):
         load_eni(tmp_path / "missing.xml")
+    # Like load_esi: the size is checked before the file is read.
+    with pytest.raises(EsiError, match=r"net\.xml: file is \d+ bytes, more than the limit of 100"):
+        load_eni(p, max_bytes=100)
 
 
 @pytest.mark.parametrize(

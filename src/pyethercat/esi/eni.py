@@ -60,6 +60,8 @@ from pyethercat.esi.parse import (
     DEFAULT_MAX_BYTES,
     _kids,
     _line,
+    _local,
+    _read_bounded,
     _safe_xml_root,
     _text,
     parse_bool,
@@ -822,8 +824,8 @@ class _Reader:
         )
 
     def config(self, root: etree._Element) -> EniConfig:
-        if _local_name(root) != "EtherCATConfig":
-            raise self.err(root, f"root element is <{_local_name(root)}>, not <EtherCATConfig>")
+        if _local(root.tag) != "EtherCATConfig":
+            raise self.err(root, f"root element is <{_local(root.tag)}>, not <EtherCATConfig>")
         config = self.one(root, "Config", "EtherCATConfig")
         master = self.opt(config, "Master")
         name, dest, src = "", b"\xff" * 6, b"\x00" * 6
@@ -898,11 +900,6 @@ class _Reader:
         )
 
 
-def _local_name(el: etree._Element) -> str:
-    tag = el.tag
-    return tag.rpartition("}")[2] if isinstance(tag, str) else ""
-
-
 def parse_eni(
     data: bytes, source: str = "<bytes>", *, max_bytes: int = DEFAULT_MAX_BYTES
 ) -> EniConfig:
@@ -911,11 +908,6 @@ def parse_eni(
 
 
 def load_eni(path: str | os.PathLike[str], *, max_bytes: int = DEFAULT_MAX_BYTES) -> EniConfig:
-    """Read and parse an ENI file."""
-    name = os.fspath(path)
-    try:
-        with open(name, "rb") as f:
-            data = f.read(max_bytes + 1)
-    except OSError as exc:
-        raise EsiError(f"cannot read: {exc.strerror or exc}", name) from None
+    """Read and parse an ENI file (the size is checked before reading)."""
+    name, data = _read_bounded(path, max_bytes)
     return parse_eni(data, name, max_bytes=max_bytes)

@@ -932,8 +932,8 @@ def _safe_xml_root(
     return root
 
 
-def load_esi(path: str | os.PathLike[str], *, max_bytes: int = DEFAULT_MAX_BYTES) -> EsiFile:
-    """Read and parse an ESI file (the size is checked before reading)."""
+def _read_bounded(path: str | os.PathLike[str], max_bytes: int) -> tuple[str, bytes]:
+    """(file name, contents) of an ESI or ENI file; the size is checked before reading."""
     name = os.fspath(path)
     try:
         with open(name, "rb") as f:
@@ -943,4 +943,10 @@ def load_esi(path: str | os.PathLike[str], *, max_bytes: int = DEFAULT_MAX_BYTES
             data = f.read(max_bytes + 1)
     except OSError as exc:
         raise EsiError(f"cannot read: {exc.strerror or exc}", name) from None
+    return name, data
+
+
+def load_esi(path: str | os.PathLike[str], *, max_bytes: int = DEFAULT_MAX_BYTES) -> EsiFile:
+    """Read and parse an ESI file (the size is checked before reading)."""
+    name, data = _read_bounded(path, max_bytes)
     return parse_esi(data, name, max_bytes=max_bytes)
