@@ -36,7 +36,8 @@ import os
 from dataclasses import dataclass, field
 
 from pyethercat.errors import EsiError, SiiError
-from pyethercat.esi.model import LCID_ENGLISH, EsiDevice, EsiPdo, EsiSm
+from pyethercat.esi.model import LCID_ENGLISH, EsiDevice, EsiFile, EsiPdo, EsiSm
+from pyethercat.esi.parse import load_esi
 from pyethercat.wire.sii import (
     SM_NOT_ASSIGNED,
     CategoryType,
@@ -62,6 +63,7 @@ from pyethercat.wire.sii import (
     SyncManagerEnable,
     SyncManagerType,
     build_sii,
+    parse_sii,
 )
 
 __all__ = [
@@ -229,9 +231,8 @@ def _default_sms(device: EsiDevice) -> dict[int, int]:
 
 
 def _pdo_category(
-    device: EsiDevice, pdos: tuple[EsiPdo, ...], ctype: int, strings: _Strings, lcid: int
+    pdos: tuple[EsiPdo, ...], assigned: dict[int, int], ctype: int, strings: _Strings, lcid: int
 ) -> SiiPdos:
-    assigned = _default_sms(device)
     out: list[SiiPdo] = []
     for p in pdos:
         flags = SiiPdoFlags.NONE
@@ -304,8 +305,6 @@ def esi_to_sii_info(
     )
     if eeprom is not None and eeprom.data:
         note.append("ESI gives the whole image (Eeprom/Data); used as is")
-        from pyethercat.wire.sii import parse_sii
-
         return parse_sii(eeprom.data)
     config = (eeprom.config_data if eeprom is not None else None) or b""
     head = bytearray(14)
@@ -338,11 +337,10 @@ def esi_to_sii_info(
             protocols |= _PROTOCOL_BITS.get(name.lower(), MailboxProtocol.NONE)
     info.mailbox_protocols = protocols
 
-    lcid_ = lcid
     strings = _Strings()
     order_idx = strings.add(device.type_name.strip())
     group_idx = strings.add(device.group_type.strip() if device.group_type else None)
-    name_idx = strings.add(device.name.pick(lcid_).strip() or device.type_name.strip())
+    name_idx = strings.add(device.name.pick(lcid).strip() or device.type_name.strip())
     mbx = device.mailbox
     general = SiiGeneral(
         group_index=group_idx,
@@ -381,17 +379,16 @@ def esi_to_sii_info(
     )
     # Strings used by the DC modes are added after the PDO names, so build the
     # PDO categories first (on a copy of the table when they may be dropped).
-    pdo_strings = _Strings()
-    pdo_strings.items = list(strings.items)
-    pdo_strings._index = dict(strings._index)
+    pdo_strings = _copy(strings)
     pdo_cats: list[SiiCategory] = []
+    assigned = _default_sms(device)
     if device.tx_pdos:
         pdo_cats.append(
-            _pdo_category(device, device.tx_pdos, CategoryType.TXPDO, pdo_strings, lcid_)
+            _pdo_category(device.tx_pdos, assigned, CategoryType.TXPDO, pdo_strings, lcid)
         )
     if device.rx_pdos:
         pdo_cats.append(
-            _pdo_category(device, device.rx_pdos, CategoryType.RXPDO, pdo_strings, lcid_)
+            _pdo_category(device.rx_pdos, assigned, CategoryType.RXPDO, pdo_strings, lcid)
         )
 
     def assemble(with_pdos: bool) -> SiiInfo:
@@ -531,21 +528,16 @@ def sii_image_from_file(
 
     Without ``product`` the file must describe exactly one product.
     """
-    from pyethercat.esi.parse import load_esi
-
     esi = load_esi(path)
     device = pick_device(esi, product, revision)
     return esi_to_sii(device, vendor_id=esi.vendor.id, serial=serial).image
 
 
-def pick_device(esi: object, product: int | None, revision: int | None) -> EsiDevice:
+def pick_device(esi: EsiFile, product: int | None, revision: int | None) -> EsiDevice:
     """The device of an :class:`EsiFile` chosen by product code / revision.
 
     With no product code the file must hold one product (any number of revisions).
     """
-    from pyethercat.esi.model import EsiFile
-
-    assert isinstance(esi, EsiFile)
     if product is None:
         products = sorted({d.product_code for d in esi.devices})
         if len(products) != 1:
