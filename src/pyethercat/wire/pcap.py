@@ -426,6 +426,7 @@ def read_pcapng(stream: BinaryIO) -> Iterator[CaptureRecord]:
             if major != 1:
                 raise CaptureError(f"unsupported pcapng version {major} (at byte {where + 12})")
             interfaces = []
+            btype = PCAPNG_SHB_TYPE
         else:
             if first:
                 raise CaptureError(
@@ -438,12 +439,10 @@ def read_pcapng(stream: BinaryIO) -> Iterator[CaptureRecord]:
         first = False
         trailer = src.need(4, "pcapng block trailer")
         (total2,) = struct.unpack(order + "I", trailer)
-        (total,) = struct.unpack_from(order + "I", head, 4)
         if total2 != total:
             raise CaptureError(
                 f"pcapng block length {total} and trailing length {total2} differ (at byte {where})"
             )
-        btype = struct.unpack_from(order + "I", head)[0]
         base = where + 8
         if btype == PCAPNG_SHB_TYPE:
             continue
