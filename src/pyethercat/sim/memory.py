@@ -37,8 +37,6 @@ class EscMemory:
         self.shadow: U8Array = shadow
         self.flat: U8Array = mem.reshape(-1)
         self.shadow_flat: U8Array = shadow.reshape(-1)
-        #: Bumped whenever the arrays are reallocated (cached views must be rebuilt).
-        self.generation = getattr(self, "generation", 0) + 1
 
     @property
     def capacity(self) -> int:

@@ -699,7 +699,6 @@ class Segment:
     def _refresh_sm_state(self) -> None:
         """Recompile what depends on the SM registers (buffer completion, SM areas)."""
         n = len(self.slaves)
-        mem = self.memory.mem
         idx_parts, owner_parts = [], []
         pair_slave, pair_n, pair_status, pair_al, pair_wd = [], [], [], [], []
         lo, hi = R.ADDRESS_SPACE, 0
@@ -763,7 +762,6 @@ class Segment:
         self.watchdog_dirty = True
         self._wire_idx = None
         self._bplan.clear()
-        del mem
 
     def _refresh_fmmus(self) -> None:
         route = self.route
