@@ -53,8 +53,6 @@ _AL_EMULATION_COPY = R.AL_STATE_MASK | R.AL_ERROR_FLAG
 _SM_MODE_MAILBOX = int(R.SmMode.MAILBOX)
 _SM_MODE_BUFFERED = int(R.SmMode.BUFFERED)
 _SM_STATUS_BUFFER_NONE = 3 << R.SM_STATUS_BUFFER_SHIFT
-_ECAT_EVENT_SM_SHIFT = 4
-_AL_EVENT_SM_SHIFT = 8
 
 # Register ranges whose ECAT writes have side effects beyond storing the bytes.
 _SIDE_EFFECT_RANGES: tuple[tuple[int, int], ...] = (
@@ -478,9 +476,9 @@ class Esc:
         status |= R.SM_STATUS_READ_EVENT
         self._set_sm_status(s.n, status)
         if s.control & R.SM_CONTROL_AL_EVENT:
-            self.set_al_event(1 << (_AL_EVENT_SM_SHIFT + s.n))
-        if self.u16(R.ECAT_EVENT_REQUEST) & (1 << (_ECAT_EVENT_SM_SHIFT + s.n)):
-            self.clear_ecat_event(1 << (_ECAT_EVENT_SM_SHIFT + s.n))
+            self.set_al_event(R.al_event_sm(s.n))
+        if self.u16(R.ECAT_EVENT_REQUEST) & (R.ecat_event_sm(s.n)):
+            self.clear_ecat_event(R.ecat_event_sm(s.n))
         if s.mode == _SM_MODE_MAILBOX and self.mailbox_again:
             # The mailbox a repeat request withdrew goes out before anything newer.
             again, self.mailbox_again = self.mailbox_again, b""
@@ -496,7 +494,7 @@ class Esc:
             self._set_sm_status(s.n, (s.status | R.SM_STATUS_MAILBOX_FULL | R.SM_STATUS_WRITE_EVENT)
                                 & ~R.SM_STATUS_READ_EVENT)
             if s.control & R.SM_CONTROL_AL_EVENT:
-                self.set_al_event(1 << (_AL_EVENT_SM_SHIFT + s.n))
+                self.set_al_event(R.al_event_sm(s.n))
             data = self.row[s.start: s.end].tobytes()
             app = self.app
             if app is not None:
@@ -512,7 +510,7 @@ class Esc:
         self._set_sm_status(n, (s.status & ~(R.SM_STATUS_MAILBOX_FULL | R.SM_STATUS_WRITE_EVENT))
                             | R.SM_STATUS_READ_EVENT)
         if s.control & R.SM_CONTROL_ECAT_EVENT:
-            self.set_ecat_event(1 << (_ECAT_EVENT_SM_SHIFT + n))
+            self.set_ecat_event(R.ecat_event_sm(n))
 
     # --- write side effects ------------------------------------------------------------
 
@@ -1003,7 +1001,7 @@ class Esc:
         self._set_sm_status(s.n, (s.status | R.SM_STATUS_MAILBOX_FULL | R.SM_STATUS_WRITE_EVENT)
                             & ~R.SM_STATUS_READ_EVENT)
         if s.control & R.SM_CONTROL_ECAT_EVENT:
-            self.set_ecat_event(1 << (_ECAT_EVENT_SM_SHIFT + s.n))
+            self.set_ecat_event(R.ecat_event_sm(s.n))
 
     def _inputs_written(self, s: SmView) -> None:
         old = (s.status & R.SM_STATUS_BUFFER_MASK) >> R.SM_STATUS_BUFFER_SHIFT

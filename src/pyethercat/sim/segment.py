@@ -155,6 +155,12 @@ def _status_after_write_table() -> npt.NDArray[np.uint8]:
 _STATUS_AFTER_WRITE = _status_after_write_table()
 
 
+def _byte_and_mask(bit: int) -> tuple[int, int]:
+    """Byte offset and in-byte mask of a one-bit register value (e.g. ``R.al_event_sm(n)``)."""
+    pos = bit.bit_length() - 1
+    return pos >> 3, 1 << (pos & 7)
+
+
 @dataclass
 class SlaveSpec:
     """What a slave is: its EEPROM image, its ESC and its application.
@@ -723,15 +729,14 @@ class Segment:
                         # (the mailbox's read completion stays on the ESC's own path)
                         last.setdefault(s, {})[sm.end - 1] = len(rd)
                         base = s * SLAVE_STRIDE
-                        al_bit = 8 + k  # AL event bit of SM k (facts 3.8)
-                        ev_bit = 4 + k  # ECAT event bit of SM k
+                        al_off, al_mask = _byte_and_mask(R.al_event_sm(k))
+                        ev_off, ev_mask = _byte_and_mask(R.ecat_event_sm(k))
                         rd.append((
                             base + R.sm_address(k) + R.SM_STATUS,
-                            base + R.AL_EVENT_REQUEST + (al_bit >> 3),
-                            (1 << (al_bit & 7)) if sm.control & R.SM_CONTROL_AL_EVENT else 0,
-                            base + R.ECAT_EVENT_REQUEST + (ev_bit >> 3),
-                            (1 << (ev_bit & 7)) if sm.control & R.SM_CONTROL_ECAT_EVENT and ev_bit < 16
-                            else 0))
+                            base + R.AL_EVENT_REQUEST + al_off,
+                            al_mask if sm.control & R.SM_CONTROL_AL_EVENT else 0,
+                            base + R.ECAT_EVENT_REQUEST + ev_off,
+                            ev_mask if sm.control & R.SM_CONTROL_ECAT_EVENT and ev_off < 2 else 0))
                 if sm.mode == R.SmMode.BUFFERED and sm.ecat_writes:
                     idx_parts.append(np.arange(sm.start, min(sm.end, R.ADDRESS_SPACE)) + s * SLAVE_STRIDE)
                     owner_parts.append(np.full(len(idx_parts[-1]), s, np.int64))
