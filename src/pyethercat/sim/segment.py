@@ -878,11 +878,11 @@ class Segment:
             for s in sorted(self.pending_op & set(slaves.tolist())):
                 self.slaves[s].esc.outputs_arrived()
         if self._any_output_apps:
-            for s in slaves.tolist():
-                if self.wants_outputs[s]:
-                    app = self.slaves[s].spec.app
-                    if app is not None:
-                        app.on_outputs()
+            # Only the applications that asked are called (one mask, no scan of the rest).
+            for s in slaves[self.wants_outputs[slaves]].tolist():
+                app = self.slaves[s].spec.app
+                if app is not None:
+                    app.on_outputs()
         if self._wires:
             self.apply_wires()
 
