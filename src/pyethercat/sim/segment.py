@@ -155,6 +155,24 @@ def _status_after_write_table() -> npt.NDArray[np.uint8]:
 _STATUS_AFTER_WRITE = _status_after_write_table()
 
 
+def _per_slave_write_mask() -> npt.NDArray[np.bool_]:
+    """Register bytes whose ECAT writes need the per-slave path.
+
+    Those with side effects, less the ranges ``Segment._multi_write`` handles
+    as array operations (addressing, event mask, FMMUs, DC latch and system
+    time, watchdog divider and time)."""
+    mask = SIDE_EFFECT_MASK.copy()
+    for a, b in ((R.STATION_ADDRESS, R.STATION_ALIAS + 2), (R.ECAT_EVENT_MASK, R.ECAT_EVENT_MASK + 2),
+                 (R.FMMU_BASE, R.SM_BASE), (R.DC_RECEIVE_TIME_PORT0, R.DC_SYSTEM_TIME + 8),
+                 (R.WATCHDOG_DIVIDER, R.WATCHDOG_STATUS_PROCESS_DATA)):
+        mask[a:b] = False
+    mask.setflags(write=False)
+    return mask
+
+
+_PER_SLAVE_WRITE = _per_slave_write_mask()
+
+
 def _byte_and_mask(bit: int) -> tuple[int, int]:
     """Byte offset and in-byte mask of a one-bit register value (e.g. ``R.al_event_sm(n)``)."""
     pos = bit.bit_length() - 1
@@ -1379,19 +1397,7 @@ class Segment:
         if ok is not None:
             return ok
         sm_lo, sm_hi = self._sm_span
-        if lo < sm_hi and hi > sm_lo:
-            ok = False
-        elif not SIDE_EFFECT_MASK[lo:hi].any():
-            ok = True
-        else:
-            # Side effects that are handled as array operations.
-            side = SIDE_EFFECT_MASK[lo:hi]
-            vec = np.zeros(hi - lo, bool)
-            for a, b in ((R.STATION_ADDRESS, R.STATION_ALIAS + 2), (R.ECAT_EVENT_MASK, R.ECAT_EVENT_MASK + 2),
-                         (R.FMMU_BASE, R.SM_BASE), (R.DC_RECEIVE_TIME_PORT0, R.DC_SYSTEM_TIME + 8),
-                         (R.WATCHDOG_DIVIDER, R.WATCHDOG_STATUS_PROCESS_DATA)):
-                vec[max(a, lo) - lo: max(min(b, hi) - lo, 0)] = True
-            ok = bool(np.all(vec | ~side))
+        ok = not (lo < sm_hi and hi > sm_lo) and not _PER_SLAVE_WRITE[lo:hi].any()
         self._fast_ok[(lo, hi)] = ok
         return ok
 
