@@ -34,6 +34,8 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from pyethercat.errors import ConfigError
+from pyethercat.wire import registers as R
+from pyethercat.wire.mailbox.datatypes import DataType
 from pyethercat.wire.sii import (
     CoeDetails,
     FmmuUsage,
@@ -74,18 +76,14 @@ VENDOR_ID = 0x00504543
 REVISION = 0x00010000
 
 # CoE basic data type codes (facts 7.10) used by the built-in PDO entries.
-_BOOL = 0x0001
-_INT16 = 0x0003
+_BOOL = int(DataType.BOOLEAN)
+_INT16 = int(DataType.INTEGER16)
 
-# Sync manager control bytes (facts 3.13): mode bits 1:0 (0 = buffered,
-# 2 = mailbox), direction bits 3:2 (0 = ECAT reads, 1 = ECAT writes), bit 5 AL
-# event (PDI interrupt), bit 6 watchdog.
-_SM_CTRL_INPUTS_IO = 0x00  # EL1xxx: buffered, ECAT reads, no PDI event
-_SM_CTRL_OUTPUTS_IO = 0x44  # EL2xxx: buffered, ECAT writes, watchdog
-_SM_CTRL_MBX_OUT = 0x26
-_SM_CTRL_MBX_IN = 0x22
-_SM_CTRL_OUTPUTS = 0x64
-_SM_CTRL_INPUTS = 0x20
+# Sync manager control bytes of the plain IO terminals (facts 3.13); the
+# mailbox device uses the register map's typical SM0-SM3 bytes.
+_SM_CTRL_INPUTS_IO = R.sm_control(R.SmMode.BUFFERED, R.SmDirection.READ, al_event=False)  # EL1xxx: 0x00
+_SM_CTRL_OUTPUTS_IO = R.sm_control(R.SmMode.BUFFERED, R.SmDirection.WRITE, al_event=False,
+                                   watchdog=True)  # EL2xxx: 0x44
 
 # SII fixed-area word 0: low byte PDI type, high byte ESC configuration
 # (0x0141). Built-ins run a state machine of their own (no device emulation);
@@ -364,10 +362,10 @@ AI2 = BuiltinDevice(
     profile="ET1200",
     ports=_EBUS2,
     sync_managers=(
-        SyncManager(0x1000, 128, _SM_CTRL_MBX_OUT, SyncManagerType.MAILBOX_OUT),
-        SyncManager(0x1080, 128, _SM_CTRL_MBX_IN, SyncManagerType.MAILBOX_IN),
-        SyncManager(0x1100, 0, _SM_CTRL_OUTPUTS, SyncManagerType.OUTPUTS, enable=0x00),
-        SyncManager(0x1180, 4, _SM_CTRL_INPUTS, SyncManagerType.INPUTS),
+        SyncManager(0x1000, 128, R.SM_CONTROL_MAILBOX_OUT, SyncManagerType.MAILBOX_OUT),
+        SyncManager(0x1080, 128, R.SM_CONTROL_MAILBOX_IN, SyncManagerType.MAILBOX_IN),
+        SyncManager(0x1100, 0, R.SM_CONTROL_OUTPUTS, SyncManagerType.OUTPUTS, enable=0x00),
+        SyncManager(0x1180, 4, R.SM_CONTROL_INPUTS, SyncManagerType.INPUTS),
     ),
     fmmus=(FmmuUsage.OUTPUTS, FmmuUsage.INPUTS, FmmuUsage.MAILBOX_STATE),
     tx_pdos=(
