@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 from lxml import etree
 
+from pyethercat.esi.model import ESI_TYPE_NAMES
 from pyethercat.esi.sii_from_esi import FMMU_USAGES, MAILBOX_PROTOCOLS, PORT_LETTERS, SM_TYPES
 from pyethercat.wire.mailbox.coe import ObjectAccess
 from pyethercat.wire.mailbox.datatypes import DataType
@@ -30,13 +31,10 @@ from pyethercat.wire.sii import (
 
 __all__ = ["DictEntry", "DictObject", "esi_from_sii"]
 
+# Strings take their length in the name: STRING(n).
 _TYPE_NAMES: dict[int, str] = {
-    DataType.BOOLEAN: "BOOL", DataType.INTEGER8: "SINT", DataType.INTEGER16: "INT",
-    DataType.INTEGER32: "DINT", DataType.UNSIGNED8: "USINT", DataType.UNSIGNED16: "UINT",
-    DataType.UNSIGNED32: "UDINT", DataType.REAL32: "REAL", DataType.INTEGER64: "LINT",
-    DataType.UNSIGNED64: "ULINT", DataType.REAL64: "LREAL", DataType.VISIBLE_STRING: "STRING",
-    DataType.OCTET_STRING: "OCTET_STRING",
-}  # fmt: skip
+    **ESI_TYPE_NAMES, DataType.VISIBLE_STRING: "STRING", DataType.OCTET_STRING: "OCTET_STRING"
+}
 _SM_NAMES = {v: k for k, v in SM_TYPES.items()}
 _FMMU_NAMES = {v: k for k, v in FMMU_USAGES.items()}
 
@@ -182,7 +180,7 @@ def esi_from_sii(
     _sub(g, "Type", group)
     _sub(g, "Name", group, LcId="1033")
     ports = info.general.ports if info.general is not None else (0, 0, 0, 0)
-    physics = "".join(PORT_LETTERS.get(p, " ") for p in ports)  # type: ignore[call-overload]
+    physics = "".join(PORT_LETTERS.get(p, " ") for p in ports)
     dev = _sub(_sub(desc, "Devices"), "Device", Physics=physics.rstrip() or "YY")
     type_name = info.order_number or info.device_name or f"0x{info.product_code:08X}"
     _sub(dev, "Type", type_name, ProductCode=f"#x{info.product_code:08X}",

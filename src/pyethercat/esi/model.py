@@ -30,6 +30,7 @@ from pyethercat.wire.registers import (
 
 __all__ = [
     "BASE_TYPES",
+    "ESI_TYPE_NAMES",
     "LCID_ENGLISH",
     "LCID_GERMAN",
     "EsiCoe",
@@ -184,6 +185,11 @@ BASE_TYPES: Mapping[str, DataType] = {
     "BITARR16": _DT.BITARR16,
     "BITARR32": _DT.BITARR32,
     **{f"BIT{n}": DataType(_DT.BIT1 + n - 1) for n in range(1, 9)},
+}
+#: CANopen data type -> the name an ESI/ENI file written by pyethercat uses for
+#: it: the first spelling of the code in :data:`BASE_TYPES` (IEC 61131: UINT).
+ESI_TYPE_NAMES: Mapping[int, str] = {
+    code: name for name, code in reversed(list(BASE_TYPES.items()))
 }
 # Variable-length types: the size comes with the name (STRING(n)) or the object.
 _STRING_CODES: Mapping[str, tuple[DataType, int]] = {

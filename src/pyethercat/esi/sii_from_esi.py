@@ -114,7 +114,7 @@ SM_TYPES: dict[str, SyncManagerType] = {
 
 #: SII port type -> the Device@Physics letter written for it: Y = MII
 #: (100BASE-TX), K = E-Bus (LVDS); an unused port is a space.
-PORT_LETTERS: dict[SiiPortType, str] = {SiiPortType.MII: "Y", SiiPortType.EBUS: "K"}
+PORT_LETTERS: dict[int, str] = {SiiPortType.MII: "Y", SiiPortType.EBUS: "K"}
 
 # Reading ESI names: any case; H is MII with fast hot connect.
 _PROTOCOL_BITS = {k.lower(): v for k, v in MAILBOX_PROTOCOLS.items()}

@@ -45,9 +45,16 @@ from pyethercat.esi.eni import (
     eni_slave_device,
     eni_slave_from_esi,
 )
-from pyethercat.esi.model import EsiDcOpMode, EsiDevice
+from pyethercat.esi.model import ESI_TYPE_NAMES, EsiDcOpMode, EsiDevice, type_info
 from pyethercat.esi.parse import load_esi
-from pyethercat.esi.sii_from_esi import esi_to_sii, pick_device
+from pyethercat.esi.sii_from_esi import (
+    FMMU_USAGES,
+    MAILBOX_PROTOCOLS,
+    PORT_LETTERS,
+    SM_TYPES,
+    esi_to_sii,
+    pick_device,
+)
 from pyethercat.master import scan as scanning
 from pyethercat.master.config import Direction, Pdo, PdoEntry
 from pyethercat.master.scan import ExpectedSlave
@@ -55,12 +62,9 @@ from pyethercat.master.slave import Identity, Slave
 from pyethercat.wire.mailbox.datatypes import DataType
 from pyethercat.wire.mailbox.objects import sm_pdo_assignment
 from pyethercat.wire.sii import (
-    FmmuUsage,
     GeneralFlags,
-    MailboxProtocol,
     SiiInfo,
     SiiPdoFlags,
-    SyncManagerType,
     parse_sii,
 )
 from pyethercat.wire.sii.model import WORD_VENDOR_ID
@@ -171,8 +175,6 @@ def expected_from_topology(path: str | Path) -> list[EsiSlaveSpec]:
 
 
 def _entry_type(data_type: str | None, bits: int) -> int:
-    from pyethercat.esi.model import type_info
-
     info = type_info(data_type) if data_type else None
     if info is not None:
         return int(info.code)
@@ -268,12 +270,8 @@ def _op_mode(device: EsiDevice, name: str | None) -> EsiDcOpMode | None:
 # --- ENI export -------------------------------------------------------------------------
 
 
-_SM_KIND: dict[int, str] = {
-    SyncManagerType.MAILBOX_OUT: "MBoxOut",
-    SyncManagerType.MAILBOX_IN: "MBoxIn",
-    SyncManagerType.OUTPUTS: "Outputs",
-    SyncManagerType.INPUTS: "Inputs",
-}
+_SM_KIND: dict[int, str] = {v: k for k, v in SM_TYPES.items()}
+_FMMU_NAMES: dict[int, str] = {v: k for k, v in FMMU_USAGES.items()}
 
 
 def _kind(sm_type: int) -> str:
@@ -281,21 +279,11 @@ def _kind(sm_type: int) -> str:
 
 
 def _protocols(mask: int) -> tuple[str, ...]:
-    names = [("AoE", MailboxProtocol.AOE), ("EoE", MailboxProtocol.EOE),
-             ("CoE", MailboxProtocol.COE), ("FoE", MailboxProtocol.FOE),
-             ("SoE", MailboxProtocol.SOE), ("VoE", MailboxProtocol.VOE)]  # fmt: skip
-    return tuple(n for n, bit in names if mask & bit)
+    return tuple(n for n, bit in MAILBOX_PROTOCOLS.items() if mask & bit)
 
 
 def _dtype_name(code: int) -> str | None:
-    try:
-        return {DataType.BOOLEAN: "BOOL", DataType.INTEGER8: "SINT", DataType.INTEGER16: "INT",
-                DataType.INTEGER32: "DINT", DataType.UNSIGNED8: "USINT",
-                DataType.UNSIGNED16: "UINT", DataType.UNSIGNED32: "UDINT",
-                DataType.REAL32: "REAL", DataType.INTEGER64: "LINT",
-                DataType.UNSIGNED64: "ULINT", DataType.REAL64: "LREAL"}.get(DataType(code))  # fmt: skip
-    except ValueError:
-        return None
+    return ESI_TYPE_NAMES.get(code)
 
 
 def _eni_slave_of(master: Master, slave: Slave) -> EniSlave:
@@ -358,15 +346,13 @@ def _eni_slave_of(master: Master, slave: Slave) -> EniSlave:
                    cycle_time0=mode.cycle_time_sync0, shift_time0=mode.shift_time_sync0,
                    shift_time1=mode.shift_time_sync1)  # fmt: skip
     ports = sii.general.ports if sii.general is not None else (0, 0, 0, 0)
-    physics = "".join({1: "Y", 3: "K"}.get(int(p), " ") for p in ports).rstrip() or None
+    physics = "".join(PORT_LETTERS.get(p, " ") for p in ports).rstrip() or None
     return EniSlave(
         name=slave.name, position=slave.position, station_address=slave.station_address,
         vendor_id=slave.identity.vendor_id, product_code=slave.identity.product_code,
         revision=slave.identity.revision or 0, serial=slave.identity.serial,
         alias=slave.alias or None, physics=physics, sms=tuple(sms),
-        fmmus=tuple({FmmuUsage.OUTPUTS: "Outputs", FmmuUsage.INPUTS: "Inputs",
-                     FmmuUsage.MAILBOX_STATE: "MBoxState"}.get(u, "Unused")  # type: ignore[call-overload]
-                    for u in sii.fmmus),
+        fmmus=tuple(_FMMU_NAMES.get(u, "Unused") for u in sii.fmmus),
         rx_pdos=tuple(p for p in pdos_seen.values() if p.direction == "rx"),
         tx_pdos=tuple(p for p in pdos_seen.values() if p.direction == "tx"),
         mailbox=mbx, dc=dc,
