@@ -1326,7 +1326,7 @@ class Segment:
         if cmd in _WRITES:
             return 1 if esc.ecat_write(ado, data.tobytes()) else 0
         # APRW / FPRW: read the old content into the frame, store the data as received.
-        if esc.profile.features & R.Feature.RW_NOT_SUPPORTED:
+        if not esc.profile.rw_supported:
             return 0
         incoming = data.tobytes()
         wkc = 0
@@ -1464,7 +1464,7 @@ class Segment:
             wkc = 0
             for s in passes.tolist():
                 esc = self.slaves[s].esc
-                if esc.profile.features & R.Feature.RW_NOT_SUPPORTED:
+                if not esc.profile.rw_supported:
                     continue
                 incoming = data.tobytes()  # the data as it arrives at this slave
                 r = esc.ecat_read(ado, n)
