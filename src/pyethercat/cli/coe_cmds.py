@@ -20,6 +20,7 @@ from typing import Any
 import click
 
 from pyethercat.cli._connect import connect
+from pyethercat.cli._util import number
 from pyethercat.errors import ConfigError, SdoAbort
 from pyethercat.master.coe import CoeClient, resolve_dtype
 from pyethercat.master.master import Master
@@ -55,18 +56,8 @@ def type_name(code: int) -> str:
         return f"type 0x{code:04x}"
 
 
-def _number(text: str, what: str, maximum: int) -> int:
-    try:
-        value = int(text, 0)
-    except ValueError:
-        raise ConfigError(f"{what}: not a number: {text!r}") from None
-    if not 0 <= value <= maximum:
-        raise ConfigError(f"{what} {text} out of range 0..0x{maximum:X}")
-    return value
-
-
 def _slave(m: Master, position: str) -> tuple[Slave, CoeClient]:
-    pos = _number(position, "position", 0xFFFF)
+    pos = number(position, "position", 0xFFFF)
     m.scan(reset=False)
     s = m.slave(pos)
     if s.coe is None:
@@ -204,8 +195,8 @@ def register(cli: click.Group) -> None:
     def upload_cmd(obj: dict[str, Any], position: str, dtype: str | None,
                    complete_access: bool, index: str, subindex: str) -> None:
         """Read an object with an SDO upload and print its value."""
-        idx = _number(index, "index", 0xFFFF)
-        sub = _number(subindex, "subindex", 0xFF)
+        idx = number(index, "index", 0xFFFF)
+        sub = number(subindex, "subindex", 0xFF)
         ct = upload_type(dtype) if dtype is not None else None
         with connect(obj) as conn:
             _s, client = _slave(conn.master, position)
@@ -227,8 +218,8 @@ def register(cli: click.Group) -> None:
     def download_cmd(obj: dict[str, Any], position: str, dtype: str | None,
                      complete_access: bool, index: str, subindex: str, value: str) -> None:
         """Write VALUE to an object with an SDO download."""
-        idx = _number(index, "index", 0xFFFF)
-        sub = _number(subindex, "subindex", 0xFF)
+        idx = number(index, "index", 0xFFFF)
+        sub = number(subindex, "subindex", 0xFF)
         ct = upload_type(dtype) if dtype is not None else None
         with connect(obj) as conn:
             _s, client = _slave(conn.master, position)
@@ -252,7 +243,7 @@ def register(cli: click.Group) -> None:
         with connect(obj) as conn:
             m = conn.master
             m.scan(reset=False)
-            chosen = ([m.slave(_number(position, "position", 0xFFFF))] if position is not None
+            chosen = ([m.slave(number(position, "position", 0xFFFF))] if position is not None
                       else [s for s in m.slaves if s.coe is not None and s.has_coe])
             if position is None and not chosen:
                 raise ConfigError("no slave speaks CoE")

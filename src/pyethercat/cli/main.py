@@ -12,6 +12,7 @@ from typing import Any
 
 import click
 
+from pyethercat.cli._util import parse_int
 from pyethercat.errors import EtherCATError
 
 __all__ = ["cli", "main", "parse_int"]
@@ -54,14 +55,6 @@ class _Group(click.Group):
             click.echo("pyethercat: aborted", err=True)
             sys.exit(1)
         sys.exit(code if isinstance(code, int) else 0)
-
-
-def parse_int(value: str) -> int:
-    """Parse a number given on the command line; ``0x`` hex is accepted."""
-    try:
-        return int(value, 0)
-    except ValueError:
-        raise click.BadParameter(f"not a number: {value!r}") from None
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})

@@ -15,6 +15,7 @@ from contextlib import contextmanager
 import click
 
 from pyethercat.cli._connect import connect
+from pyethercat.cli._util import number
 from pyethercat.errors import ConfigError, SiiError, StateTimeoutError
 from pyethercat.master.listing import slave_record, slave_table, topology_tree
 from pyethercat.master.master import Master
@@ -34,15 +35,6 @@ __all__ = ["register"]
 
 
 # --- helpers ----------------------------------------------------------------------------
-
-
-def _number(text: str, what: str) -> int:
-    """A number as typed on the command line (``0x`` hex accepted)."""
-    # Not cli.main.parse_int: importing cli.main from here would be circular.
-    try:
-        return int(text, 0)
-    except ValueError:
-        raise ConfigError(f"{what}: not a number: {text!r}") from None
 
 
 def _hex_data(text: str) -> bytes:
@@ -107,7 +99,7 @@ def slaves_command(ctx: click.Context, verbose: bool, position: str | None) -> N
         _scan(m)
         chosen = m.slaves
         if position is not None:
-            chosen = [m.slave(_number(position, "position"))]
+            chosen = [m.slave(number(position, "position"))]
         if not m.slaves:
             click.echo("# no slaves found")
             return
@@ -155,7 +147,7 @@ def states_command(ctx: click.Context, state: str | None, position: str | None,
     with connect(ctx.obj) as conn:
         m = conn.master
         _scan(m)
-        chosen = m.slaves if position is None else [m.slave(_number(position, "position"))]
+        chosen = m.slaves if position is None else [m.slave(number(position, "position"))]
         if target is not None:
             try:
                 m.set_state(target, chosen, timeout=timeout, configure=True)
@@ -232,9 +224,9 @@ def format_registers(address: int, data: bytes) -> list[str]:
 @click.pass_context
 def reg_read_command(ctx: click.Context, position: str, address: str, size: str) -> None:
     """Read SIZE bytes at ADDRESS of one slave: hex dump with register names."""
-    pos = _number(position, "position")
-    addr = _number(address, "address")
-    count = _number(size, "size")
+    pos = number(position, "position")
+    addr = number(address, "address")
+    count = number(size, "size")
     if not 0 <= addr <= 0xFFFF or not 1 <= count <= 0x10000 - addr or count > 1486:
         raise ConfigError(f"cannot read {count} bytes at 0x{addr:04X} "
                           "(addresses 0x0000-0xFFFF, at most 1486 bytes)")
@@ -252,8 +244,8 @@ def reg_read_command(ctx: click.Context, position: str, address: str, size: str)
 @click.pass_context
 def reg_write_command(ctx: click.Context, position: str, address: str, data: str) -> None:
     """Write HEXDATA (bytes in memory order, e.g. "02 00") at ADDRESS of one slave."""
-    pos = _number(position, "position")
-    addr = _number(address, "address")
+    pos = number(position, "position")
+    addr = number(address, "address")
     payload = _hex_data(data)
     if not 0 <= addr <= 0xFFFF or len(payload) > min(1486, 0x10000 - addr):
         raise ConfigError(f"cannot write {len(payload)} bytes at 0x{addr:04X}")
@@ -286,7 +278,7 @@ def sii_read_command(ctx: click.Context, position: str, verbose: bool,
     """Read a slave's SII (EEPROM) up to its end marker: hex dump, decoded (-v) or to a file."""
     from pyethercat.wire.sii import format_sii, parse_sii
 
-    pos = _number(position, "position")
+    pos = number(position, "position")
     with connect(ctx.obj) as conn:
         _check_position(conn.master, pos)
         image = conn.master.sii_read(pos)
@@ -316,7 +308,7 @@ def sii_write_command(ctx: click.Context, position: str, force: bool, all_words:
     """Write FILE (a binary SII image) into a slave's EEPROM, then reload it."""
     from pyethercat.wire.sii import parse_sii
 
-    pos = _number(position, "position")
+    pos = number(position, "position")
     try:
         with open(file, "rb") as fh:
             image = fh.read()

@@ -24,6 +24,7 @@ from rich.table import Table
 from rich.text import Text
 
 from pyethercat.cli._connect import connect
+from pyethercat.cli._util import parse_int
 from pyethercat.errors import ConfigError
 from pyethercat.master.config import Direction, ProcessDataConfig
 from pyethercat.master.cyclic import CyclicRunner
@@ -37,14 +38,6 @@ __all__ = ["register", "format_pdos", "live_view", "format_summary"]
 
 _SM_KIND: dict[int, str] = {SyncManagerType.MAILBOX_OUT: "mailbox out", SyncManagerType.MAILBOX_IN: "mailbox in",
             SyncManagerType.OUTPUTS: "outputs", SyncManagerType.INPUTS: "inputs"}
-
-
-def parse_int(value: str) -> int:
-    """A number from the command line (``0x`` hex accepted)."""
-    try:
-        return int(value, 0)
-    except ValueError:
-        raise click.BadParameter(f"not a number: {value!r}") from None
 
 
 def _type_name(code: int) -> str:
