@@ -53,7 +53,7 @@ from pyethercat.master.image import ProcessImage
 from pyethercat.master.scheduler import CyclicFrame, CyclicTemplate, Request, Scheduler
 from pyethercat.wire import registers as reg
 from pyethercat.wire.al import AlState, state_name
-from pyethercat.wire.datagram import MAX_PAYLOAD, Command, Datagram
+from pyethercat.wire.datagram import MAX_PAYLOAD, OVERHEAD, Command, Datagram
 
 __all__ = [
     "Clock",
@@ -257,24 +257,6 @@ class GroupRuntime:
     @property
     def total_wkc(self) -> int:
         return sum(self.last_wkc)
-
-    def datagrams(self) -> list[Datagram]:
-        buf = self.image.buffer
-        return [Datagram(d.command, 0, d.logical_address, bytes(buf[d.offset:d.offset + d.length]))
-                for d in self.plan]
-
-    def take_replies(self, replies: Sequence[Datagram]) -> bool:
-        """Copy input bytes back; return whether every working counter matched."""
-        buf = self.image.buffer
-        ok = True
-        for n, (d, r) in enumerate(zip(self.plan, replies, strict=True)):
-            self.last_wkc[n] = r.wkc
-            if r.wkc != d.expected_wkc:
-                ok = False
-            if d.copy_end > d.copy_start:
-                lo = d.copy_start - d.offset
-                buf[d.copy_start:d.copy_end] = r.data[lo:lo + d.copy_end - d.copy_start]
-        return ok
 
 
 class _FramePlan:
@@ -596,14 +578,12 @@ class CyclicRunner:
         now_ns = self.clock.now_ns
         timeout = self.frame_timeout
         t0 = now_ns()
-        if len(plans) == 1:
-            p = plans[0]
+        tickets: list[CyclicFrame] = []
+        for p in plans:
             frame = p.template.frame
             for view, to in p.fills:
                 frame[to:to + len(view)] = view
-            tickets: tuple[CyclicFrame, ...] = (sched.send_prepared(p.template, timeout=timeout),)
-        else:
-            tickets = tuple(self._send_plan(p, timeout) for p in plans)
+            tickets.append(sched.send_prepared(p.template, timeout=timeout))
         stats = self.stats
         lost = False
         bad: set[GroupRuntime] | None = None
@@ -640,12 +620,6 @@ class CyclicRunner:
             ok = ok and good
         return ok and not lost, lost, now_ns() - t0, names
 
-    def _send_plan(self, p: _FramePlan, timeout: float | None) -> CyclicFrame:
-        frame = p.template.frame
-        for view, to in p.fills:
-            frame[to:to + len(view)] = view
-        return self.scheduler.send_prepared(p.template, timeout=timeout)
-
     def _plan(self, due: list[GroupRuntime]
               ) -> tuple[list[_FramePlan], tuple[str, ...], tuple[GroupRuntime, ...]]:
         """Pack the due groups' datagrams into prepared frames (once per set of groups)."""
@@ -654,7 +628,7 @@ class CyclicRunner:
         used = 0
         for g in due:
             items = [(g, n) for n in range(len(g.plan))]
-            size = sum(d.length + 12 for d in g.plan)
+            size = sum(d.length + OVERHEAD for d in g.plan)
             if cur and used + size > MAX_PAYLOAD:
                 frames.append(cur)
                 cur, used = [], 0
