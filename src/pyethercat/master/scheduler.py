@@ -20,14 +20,15 @@ a synchronous responder runs without threads and without timing
 (``deterministic=True``: a frame whose reply is not already queued counts as
 lost at once instead of after a real timeout).
 
-The cyclic path (``send_cyclic``) sends its own frame, lets queued acyclic
-datagrams ride in the spare room and is never retried: the next cycle is the
-retry. ``acyclic_hold`` makes acyclic requests wait that long for a cyclic
-frame before they get frames of their own. The lean form of it is a
+The cyclic path sends its own frame, lets queued acyclic datagrams ride in
+the spare room and is never retried: the next cycle is the retry.
+``acyclic_hold`` makes acyclic requests wait that long for a cyclic frame
+before they get frames of their own. A cyclic frame is a
 :class:`CyclicTemplate` (``prepare_cyclic``): the frame is encoded once, the
 caller writes the data bytes in place, ``send_prepared`` only patches the
 index, and the reply is checked and handed back as raw bytes at known
 offsets (no datagram objects, no decoding of the cyclic part).
+``send_cyclic`` is the one-off form: a template made for one frame.
 """
 
 from __future__ import annotations
@@ -277,8 +278,8 @@ class _InFlight:
     def __init__(self, index: int, datagrams: list[Datagram], requests: list[Request],
                  cyclic: CyclicFrame | None, deadline: float, sent_at: float) -> None:
         self.index = index
-        #: Exactly what was sent (cyclic part first, then the requests' datagrams);
-        #: for a prepared frame only the requests' datagrams (the rest is the template).
+        #: The requests' datagrams as sent (for a cyclic frame the template's come
+        #: first in the frame, decoded into here only to explain a bad reply).
         self.datagrams = datagrams
         self.requests = requests
         self.cyclic = cyclic
@@ -469,27 +470,8 @@ class Scheduler:
         not fit one frame. The frame is never retried; ``timeout`` (default:
         the scheduler's) is how long it may take to come back.
         """
-        size = sum(d.size for d in datagrams)
-        if not datagrams or size > self.capacity:
-            raise FrameTooLargeError(
-                f"cyclic frame of {len(datagrams)} datagrams needs {size} bytes, "
-                f"a frame holds {self.capacity}")
-        ticket = CyclicFrame(self, len(datagrams))
-        with self._lock:
-            self._check_open()
-            now = self.clock()
-            carried: list[Request] = []
-            if carry_acyclic:
-                free = self.capacity - size
-                while self._queue and self._queue[0].datagram.size <= free:
-                    r = self._queue.popleft()
-                    free -= r.datagram.size
-                    carried.append(r)
-            ticket.carried = len(carried)
-            self.stats.carried += len(carried)
-            self._send_frame_locked(list(datagrams), carried, ticket, now,
-                                    self.timeout if timeout is None else timeout)
-        return ticket
+        return self.send_prepared(self.prepare_cyclic(datagrams), carry_acyclic=carry_acyclic,
+                                  timeout=timeout)
 
     def exchange_cyclic(self, datagrams: Sequence[Datagram], *, carry_acyclic: bool = True,
                         timeout: float | None = None) -> list[Datagram] | None:
@@ -521,14 +503,8 @@ class Scheduler:
             frame = template.frame
             for at in template._index_offsets:
                 frame[at] = idx
-            carried: list[Request] = []
-            if carry_acyclic and self._queue:
-                free = self.capacity - template.size
-                queue = self._queue
-                while queue and queue[0].datagram.size <= free:
-                    r = queue.popleft()
-                    free -= r.datagram.size
-                    carried.append(r)
+            carried = (self._take_queued_locked(self.capacity - template.size)
+                       if carry_acyclic and self._queue else [])
             sent: list[Datagram] = []
             if carried:
                 raw = self._extend_locked(template, carried, idx, sent)
@@ -608,28 +584,25 @@ class Scheduler:
         while self._queue and len(self._in_flight) < self.max_in_flight:
             if hold and self._queue[0].queued_at + hold > now:
                 return  # waiting for a cyclic frame to carry them
-            batch: list[Request] = []
-            free = self.capacity
-            while self._queue and self._queue[0].datagram.size <= free:
-                r = self._queue.popleft()
-                free -= r.datagram.size
-                batch.append(r)
-            self._send_frame_locked([], batch, None, now, self.timeout)
+            self._send_frame_locked(self._take_queued_locked(self.capacity), now)
 
-    def _send_frame_locked(self, cyclic_part: list[Datagram], requests: list[Request],
-                           cyclic: CyclicFrame | None, now: float, timeout: float) -> None:
+    def _take_queued_locked(self, free: int) -> list[Request]:
+        """Take queued requests from the front, in order, while they fit ``free`` bytes."""
+        taken: list[Request] = []
+        queue = self._queue
+        while queue and queue[0].datagram.size <= free:
+            r = queue.popleft()
+            free -= r.datagram.size
+            taken.append(r)
+        return taken
+
+    def _send_frame_locked(self, requests: list[Request], now: float) -> None:
+        """Send the requests' datagrams as one acyclic frame."""
         idx = self._alloc_index()
-        sent: list[Datagram] = []
-        for d in cyclic_part:
-            sent.append(Datagram(d.command, idx, d.address, d.data, d.irq))
-        for r in requests:
-            d = r.datagram
-            sent.append(Datagram(d.command, idx, d.address, d.data, d.irq))
-        raw = encode_frame(sent, src=self.src)
-        entry = _InFlight(idx, sent, requests, cyclic, now + timeout, now)
-        if cyclic is not None:
-            cyclic.sent_at = now
-        self._transmit_locked(entry, raw, len(sent))
+        sent = [Datagram(d.command, idx, d.address, d.data, d.irq)
+                for d in (r.datagram for r in requests)]
+        entry = _InFlight(idx, sent, requests, None, now + self.timeout, now)
+        self._transmit_locked(entry, encode_frame(sent, src=self.src), len(sent))
 
     def _extend_locked(self, template: CyclicTemplate, carried: list[Request], idx: int,
                        sent: list[Datagram]) -> bytes:
@@ -768,8 +741,7 @@ class Scheduler:
         if entry.cyclic is not None:
             entry.cyclic.replies = got[:ncyc]
             entry.cyclic.received_at = now
-            if entry.template is not None:
-                entry.cyclic.raw = _untagged(raw)
+            entry.cyclic.raw = _untagged(raw)
         self._notify()
 
     def _take_prepared_locked(self, entry: _InFlight, raw: bytes, now: float) -> bool:
