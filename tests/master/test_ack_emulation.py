@@ -62,6 +62,16 @@ def test_device_emulation_is_known_from_the_sii(sim: tuple[object, Master, Recor
         assert bool(esc_config & reg.EscConfig.DEVICE_EMULATION) == slave.device_emulation
 
 
+def test_device_emulation_is_known_without_the_sii(sim: tuple[object, Master, Recorder]) -> None:
+    """The scan reads 0x0141 itself, so a scan without SII (ENI start) knows it too."""
+    seg, _, _ = sim
+    m = Master(PairLink.responder_link(seg.process), deterministic=True)  # type: ignore[attr-defined]
+    m.scan(read_sii=False)
+    assert [s.sii for s in m.slaves] == [None, None]
+    assert [s.esc_config is not None for s in m.slaves] == [True, True]
+    assert [s.device_emulation for s in m.slaves] == [True, False]
+
+
 def test_acknowledge_clears_the_flag_on_emulation_and_firmware_slaves(
     sim: tuple[object, Master, Recorder],
 ) -> None:

@@ -199,10 +199,9 @@ class Master(CoeMasterMixin, ProcessDataMixin):
             if reset and slaves:
                 # A chip in device emulation (no firmware: EK1100, EL1004) copies AL
                 # control into AL status, so the reset's INIT + acknowledge reads back
-                # as INIT + error flag with code 0 until INIT is written without the
-                # acknowledge bit; the wait below would sit out its whole timeout.
-                echo = [s for s in slaves if s.al_state == AlState.INIT and s.al_error
-                        and not s.al_status_code]  # fmt: skip
+                # as INIT + error flag until INIT is written without the acknowledge
+                # bit; the wait below would sit out its whole timeout.
+                echo = [s for s in slaves if s.device_emulation and s.al_error]
                 if echo:
                     states.request_state(self.scheduler, echo, AlState.INIT)
                 # Slaves that take longer show up in the listing; set_state() reports them.

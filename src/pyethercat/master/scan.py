@@ -35,10 +35,12 @@ from pyethercat.wire.datagram import Command, Datagram
 from pyethercat.wire.registers import (
     AL_CONTROL,
     AL_ERROR_FLAG,
+    AL_STATE_MASK,
     AL_STATUS,
     DL_CONTROL_ALIAS,
     DL_STATUS,
     ECAT_EVENT_MASK,
+    ESC_CONFIG,
     SII_CONFIG,
     SII_CONFIG_FORCE_ECAT,
     SII_CONTROL,
@@ -165,7 +167,7 @@ def assign_addresses(scheduler: Scheduler, count: int, base: int = DEFAULT_STATI
 
 
 def read_esc_info(scheduler: Scheduler, slaves: Sequence[Slave]) -> None:
-    """Read ESC identification, alias, DL status, AL status and SII control of every slave."""
+    """Read ESC identification, alias, DL status, AL status, SII control and ESC configuration."""
     reads = []
     for s in slaves:
         st = s.station_address
@@ -173,23 +175,25 @@ def read_esc_info(scheduler: Scheduler, slaves: Sequence[Slave]) -> None:
                   Datagram.device(Command.FPRD, st, STATION_ALIAS, 2),
                   Datagram.device(Command.FPRD, st, DL_STATUS, 2),
                   Datagram.device(Command.FPRD, st, AL_STATUS, 6),
-                  Datagram.device(Command.FPRD, st, SII_CONTROL, 2)]
+                  Datagram.device(Command.FPRD, st, SII_CONTROL, 2),
+                  Datagram.device(Command.FPRD, st, ESC_CONFIG, 1)]
     replies = scheduler.transact(reads)
     for n, s in enumerate(slaves):
-        esc, alias, dl, al, sii = replies[5 * n:5 * n + 5]
-        _check_wkc(f"reading the registers of {s.describe()}", [esc, alias, dl, al, sii])
+        esc, alias, dl, al, sii, config = replies[6 * n:6 * n + 6]
+        _check_wkc(f"reading the registers of {s.describe()}", [esc, alias, dl, al, sii, config])
         s.esc = EscInfo(*_ESC_INFO.unpack(esc.data))
         (s.alias,) = struct.unpack("<H", alias.data)
         (s.dl_status,) = struct.unpack("<H", dl.data)
         status, _, code = struct.unpack("<HHH", al.data)
         try:
-            s.al_state = AlState(status & 0x0F)
+            s.al_state = AlState(status & AL_STATE_MASK)
         except ValueError:
             s.al_state = AlState.NONE
         s.al_error = bool(status & AL_ERROR_FLAG)
         s.al_status_code = code if s.al_error else 0
         (ctrl,) = struct.unpack("<H", sii.data)
         s.sii_read_8 = bool(ctrl & SiiControl.READ_8_BYTES)
+        s.esc_config = config.data[0]
         s.ports = [Port.from_registers(p, s.esc.port_descriptor, s.dl_status) for p in range(4)]
 
 

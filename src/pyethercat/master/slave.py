@@ -171,6 +171,8 @@ class Slave:
         #: The SII interface delivers 8 bytes per read (0x0502 bit 6).
         self.sii_read_8 = False
         self.esc = EscInfo()
+        #: ESC configuration register 0x0141 as the scan read it (loaded from SII word 0).
+        self.esc_config: int | None = None
         self.ports: list[Port] = [Port(n) for n in range(4)]
         self.dl_status = 0
         self.parent: Slave | None = None
@@ -264,9 +266,12 @@ class Slave:
 
         Such a chip (EK1100, simple EL terminals) copies AL control bits 4:0
         into AL status, so an error acknowledge reads back as the error flag
-        until the state is written again without it. ``False`` when the SII
-        was not read (treated as a firmware slave).
+        until the state is written again without it. Taken from the register
+        the scan read, else from the SII; ``False`` when neither is known
+        (treated as a firmware slave).
         """
+        if self.esc_config is not None:
+            return bool(self.esc_config & EscConfig.DEVICE_EMULATION)
         if self.sii is None:
             return False
         return bool((self.sii.pdi_control >> 8) & EscConfig.DEVICE_EMULATION)
