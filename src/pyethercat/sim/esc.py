@@ -42,7 +42,7 @@ from pyethercat.wire.sii import SM_NOT_ASSIGNED, SiiInfo, parse_sii, sii_crc
 if TYPE_CHECKING:
     from pyethercat.sim.segment import Segment
 
-__all__ = ["PROFILES", "Esc", "EscProfile", "profile", "register_masks"]
+__all__ = ["PROFILES", "Esc", "EscProfile", "buffer_written", "profile", "register_masks"]
 
 BoolArray = npt.NDArray[np.bool_]
 
@@ -132,6 +132,15 @@ def _write_trigger_mask() -> BoolArray:
 
 
 _WRITE_TRIGGER = _write_trigger_mask()
+
+
+def buffer_written(status: int) -> int:
+    """SM status after a 3-buffer write completed: next buffer index, write event set.
+
+    Buffer 3 ("none written yet") is followed by 0, then 0 -> 1 -> 2 -> 0."""
+    cur = (status & R.SM_STATUS_BUFFER_MASK) >> R.SM_STATUS_BUFFER_SHIFT
+    nxt = 0 if cur == 3 else (cur + 1) % 3
+    return (status & ~R.SM_STATUS_BUFFER_MASK) | (nxt << R.SM_STATUS_BUFFER_SHIFT) | R.SM_STATUS_WRITE_EVENT
 
 
 class SmView:
@@ -1004,10 +1013,7 @@ class Esc:
             self.set_ecat_event(R.ecat_event_sm(s.n))
 
     def _inputs_written(self, s: SmView) -> None:
-        old = (s.status & R.SM_STATUS_BUFFER_MASK) >> R.SM_STATUS_BUFFER_SHIFT
-        new = 0 if old == 3 else (old + 1) % 3
-        self._set_sm_status(s.n, (s.status & ~R.SM_STATUS_BUFFER_MASK) | R.SM_STATUS_WRITE_EVENT
-                            | (new << R.SM_STATUS_BUFFER_SHIFT))
+        self._set_sm_status(s.n, buffer_written(s.status))
 
     def pdi_outputs(self) -> bytes:
         if self.output_sm >= self.profile.sm_count:

@@ -43,7 +43,7 @@ import numpy.typing as npt
 from pyethercat.errors import ConfigError
 from pyethercat.sim.clock import Clock, VirtualClock
 from pyethercat.sim.device import DeviceApp
-from pyethercat.sim.esc import _WRITE_TRIGGER, SIDE_EFFECT_MASK, Esc
+from pyethercat.sim.esc import _WRITE_TRIGGER, SIDE_EFFECT_MASK, Esc, buffer_written
 from pyethercat.sim.fmmu import SLAVE_STRIDE, LogicalMap, SmReads, parse_fmmus
 from pyethercat.sim.memory import EscMemory
 from pyethercat.sim.profiles import EscProfile
@@ -142,14 +142,8 @@ class _BrdPlan:
 
 
 def _status_after_write_table() -> npt.NDArray[np.uint8]:
-    """SM status byte after a buffered write completed: next buffer, write event."""
-    table = np.zeros(256, np.uint8)
-    for old in range(256):
-        cur = (old & R.SM_STATUS_BUFFER_MASK) >> R.SM_STATUS_BUFFER_SHIFT
-        nxt = 0 if cur == 3 else (cur + 1) % 3
-        table[old] = ((old & ~(R.SM_STATUS_BUFFER_MASK | R.SM_STATUS_READ_EVENT))
-                      | (nxt << R.SM_STATUS_BUFFER_SHIFT) | R.SM_STATUS_WRITE_EVENT)
-    return table
+    """SM status byte after an ECAT buffered write completed (read event cleared), by old status."""
+    return np.array([buffer_written(old) & ~R.SM_STATUS_READ_EVENT & 0xFF for old in range(256)], np.uint8)
 
 
 _STATUS_AFTER_WRITE = _status_after_write_table()
