@@ -18,6 +18,7 @@ from typing import Any
 import click
 
 from pyethercat.cli._connect import connect
+from pyethercat.cli._util import parse_int
 from pyethercat.errors import ConfigError, EtherCATError
 from pyethercat.esi.model import EsiDevice, EsiFile
 
@@ -25,20 +26,15 @@ __all__ = ["register"]
 
 
 def _int(value: str | None) -> int | None:
-    if value is None:
-        return None
-    try:
-        return int(value, 0)
-    except ValueError:
-        raise click.BadParameter(f"not a number: {value!r}") from None
+    return None if value is None else parse_int(value)
 
 
 def _esi_path(name: str) -> Path:
     """A file path, or ``builtin:NAME`` for an ESI shipped with pyethercat."""
     if name.startswith("builtin:"):
-        from pyethercat.esi.bundled import bundled_esi
+        from pyethercat.esi.bundled import SEED002_DRIVE, bundled_esi
 
-        return bundled_esi(name.removeprefix("builtin:") or "seed002_drive.xml")
+        return bundled_esi(name.removeprefix("builtin:") or SEED002_DRIVE)
     return Path(name)
 
 
@@ -184,6 +180,8 @@ def register(cli: click.Group) -> None:
     def xml_cmd(ctx: click.Context, position: str, output: str | None) -> None:
         """Write an ESI file for a live slave (SII, plus its dictionary over CoE)."""
         from pyethercat.esi.from_sii import DictEntry, DictObject, esi_from_sii
+        from pyethercat.wire.mailbox.coe import ObjectCode
+        from pyethercat.wire.sii import CoeDetails
 
         pos = _int(position)
         assert pos is not None
@@ -198,13 +196,13 @@ def register(cli: click.Group) -> None:
             objects: list[DictObject] = []
             client: Any = getattr(s, "coe", None)
             gen = s.sii.general
-            if client is not None and gen is not None and gen.coe_details & 0x02:
+            if client is not None and gen is not None and gen.coe_details & CoeDetails.SDO_INFO:
                 try:
                     m.set_state("PREOP", [s])
                     for index in client.od_list():
                         desc = client.object_description(index)
                         obj = DictObject(index, desc.name, desc.object_code)
-                        subs = [0] if desc.object_code == 7 else range(desc.max_subindex + 1)
+                        subs = [0] if desc.object_code == ObjectCode.VAR else range(desc.max_subindex + 1)
                         for sub in subs:
                             try:
                                 e = client.entry_description(index, sub)
