@@ -18,7 +18,7 @@ from lxml import etree
 
 from pyethercat.esi.model import ESI_TYPE_NAMES
 from pyethercat.esi.sii_from_esi import FMMU_USAGES, MAILBOX_PROTOCOLS, PORT_LETTERS, SM_TYPES
-from pyethercat.wire.mailbox.coe import ObjectAccess
+from pyethercat.wire.mailbox.coe import ObjectAccess, ObjectCode
 from pyethercat.wire.mailbox.datatypes import DataType
 from pyethercat.wire.sii import (
     SM_NOT_ASSIGNED,
@@ -27,6 +27,7 @@ from pyethercat.wire.sii import (
     SiiInfo,
     SiiPdo,
     SiiPdoFlags,
+    SyncManagerEnable,
 )
 
 __all__ = ["DictEntry", "DictObject", "esi_from_sii"]
@@ -56,7 +57,7 @@ class DictObject:
 
     index: int
     name: str
-    object_code: int  # 7 VAR, 8 ARRAY, 9 RECORD
+    object_code: int  # ObjectCode: VAR, ARRAY or RECORD
     entries: list[DictEntry] = field(default_factory=list)
 
 
@@ -99,7 +100,7 @@ def _dictionary(parent: etree._Element, objects: Sequence[DictObject]) -> None:
         ob = _sub(objs, "Object")
         _sub(ob, "Index", f"#x{o.index:04X}")
         _sub(ob, "Name", o.name)
-        if o.object_code == 7 or len(o.entries) == 1:
+        if o.object_code == ObjectCode.VAR or len(o.entries) == 1:
             e = o.entries[0]
             _sub(ob, "Type", _type_name(e.data_type, e.bit_length))
             _sub(ob, "BitSize", e.bit_length)
@@ -197,9 +198,9 @@ def esi_from_sii(
                  "Enable": "1" if s.enabled else "0"}  # fmt: skip
         if s.length:
             attrs["DefaultSize"] = str(s.length)
-        if s.enable & 0x04:
+        if s.enable & SyncManagerEnable.VIRTUAL:
             attrs["Virtual"] = "1"
-        if s.enable & 0x08:
+        if s.enable & SyncManagerEnable.OP_ONLY:
             attrs["OpOnly"] = "1"
         _sub(dev, "Sm", _SM_NAMES.get(s.sm_type, ""), **attrs)  # type: ignore[call-overload]
     for p in info.rx_pdos:
