@@ -26,7 +26,7 @@ from pathlib import Path
 
 from lxml import etree
 
-from pyethercat.esi import load_esi, parse_esi
+from pyethercat.esi import parse_esi
 from pyethercat.esi.bundled import bundled_esi
 from pyethercat.esi.eni import build_eni, parse_eni
 from pyethercat.esi.parse import _make_parser
@@ -90,7 +90,6 @@ def main() -> None:
         f"libxml2 {lxml_ms:.1f} ms; pdo_layout {layout_us:.1f} us per device"
     )
 
-    load_esi(CATALOGUE)  # warm caches of the file system
     with tempfile.TemporaryDirectory() as tmp:
         topo = _topology(args.slaves, Path(tmp))
         sii_s, eni_s, bare_s = [], [], []

@@ -109,7 +109,10 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3, help="alternating runs of each master")
     args = ap.parse_args()
     if os.geteuid() != 0:
-        sys.exit("benchmarks/mailbox.py needs root (it creates a veth pair)")
+        # The last line is JSON on every path, as in benchmarks/master_cycle.py.
+        print("benchmarks/mailbox.py needs root (it creates a veth pair)", file=sys.stderr)
+        print(json.dumps({"error": "needs root"}))
+        sys.exit(1)
     rounds, uploads = (300, 2) if args.quick else (2000, 5)
     repeat = 1 if args.quick else args.repeat
     a, b = veth()
