@@ -282,3 +282,42 @@ def test_sync0_events_reach_the_application() -> None:
     seg.tick()
     assert app.syncs[:3] == [start, start + 1_000_000, start + 2_000_000]
     assert fprd(seg, ST, R.DC_SYNC0_STATUS, 1).data == b"\x01"
+
+
+def test_sync0_of_several_slaves_fires_per_slave_and_stops_when_deactivated() -> None:
+    """Each slave's pulses follow its own start time; deactivating one stops only its pulses."""
+    from pyethercat.sim.device import DeviceApp
+
+    class App(DeviceApp):
+        def __init__(self) -> None:
+            super().__init__()
+            self.syncs: list[int] = []
+
+        def on_sync0(self, time_ns: int) -> None:
+            self.syncs.append(time_ns)
+
+    apps = [App() for _ in range(3)]
+    seg = Segment(VirtualClock(0))
+    for i, app in enumerate(apps):
+        seg.add_slave(spec(f"s{i}", "ET1100", app=app))
+    address_all(seg)
+    starts = []
+    for i in range(3):
+        st = ST + i
+        now = struct.unpack("<q", fprd(seg, st, R.DC_SYSTEM_TIME, 8).data)[0]
+        starts.append(now + (i + 1) * 1_000_000)
+        fpwr(seg, st, R.DC_SYNC0_CYCLE, struct.pack("<I", 1_000_000))
+        fpwr(seg, st, R.DC_START_TIME, struct.pack("<Q", starts[-1]))
+        fpwr(seg, st, R.DC_ACTIVATION, bytes([R.DcActivation.CYCLIC | R.DcActivation.SYNC0]))
+    assert isinstance(seg.clock, VirtualClock)
+    seg.clock.advance(2_600_000)
+    seg.tick()
+    assert apps[0].syncs == [starts[0], starts[0] + 1_000_000]
+    assert apps[1].syncs == [starts[1]]
+    assert apps[2].syncs == []
+    fpwr(seg, ST + 1, R.DC_ACTIVATION, b"\x00")
+    seg.clock.advance(2_000_000)
+    seg.tick()
+    assert apps[0].syncs == [starts[0] + k * 1_000_000 for k in range(4)]
+    assert apps[1].syncs == [starts[1]]
+    assert apps[2].syncs == [starts[2], starts[2] + 1_000_000]

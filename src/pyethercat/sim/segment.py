@@ -116,6 +116,7 @@ _WORD_FORMAT: dict[int, Literal["B", "H", "I", "Q"]] = {1: "B", 2: "H", 4: "I", 
 _DATA_WKC: dict[int, struct.Struct] = {n: struct.Struct("<" + f + "H") for n, f in _WORD_FORMAT.items()}
 _EMPTY = np.zeros(0, np.int64)
 _NEVER = 1 << 62
+_U64_MAX = (1 << 64) - 1
 _WIDE: dict[int, str] = {1: "u1", 2: "<u2", 4: "<u4", 8: "<u8"}
 _EV_DL_STATUS = int(R.EcatEvent.DL_STATUS)
 _EV_AL_STATUS = int(R.EcatEvent.AL_STATUS)
@@ -283,6 +284,9 @@ class Segment:
         self.profile_id = np.zeros(0, np.int64)
         self._profiles: list[EscProfile] = []
         self.sync_next: dict[int, list[int]] = {}
+        #: sync_next's slaves and their next pulse times as arrays (None: rebuild).
+        self._sync_keys: I64 | None = None
+        self._sync_due: npt.NDArray[np.uint64] = np.zeros(0, np.uint64)
         # dirty flags
         self.topology_dirty = True
         self.addressing_dirty = True
@@ -618,7 +622,7 @@ class Segment:
         self.memory.clear(slave)
         self.outputs_received[slave] = False
         self.wd_last[slave] = -1
-        self.sync_next.pop(slave, None)
+        self._sync_drop(slave)
         self._invalidate_all()
 
     def power_on(self, slave: int) -> None:
@@ -633,7 +637,7 @@ class Segment:
         self.wd_last[slave] = -1
         self.wd_expired[slave] = False
         self.dc_t0[slave] = self.clock.now_ns()
-        self.sync_next.pop(slave, None)
+        self._sync_drop(slave)
         esc.power_on()
         for p in range(4):
             self._autoclose_latched.discard((slave, p))
@@ -990,23 +994,33 @@ class Segment:
         if act & R.DcActivation.CYCLIC and act & (R.DcActivation.SYNC0 | R.DcActivation.SYNC1):
             start = esc.u64(R.DC_START_TIME)
             self.sync_next[index] = [start, cycle0, esc.u32(R.DC_SYNC1_CYCLE), act]
+            self._sync_keys = None
         else:
-            self.sync_next.pop(index, None)
-
-    def _system_time_now(self, index: int, now: int) -> int:
-        s = np.array([index], np.int64)
-        local = int(self.local_time(s, now)[0])
-        offset = int.from_bytes(self.slaves[index].esc.row[R.DC_SYSTEM_TIME_OFFSET:
-                                                           R.DC_SYSTEM_TIME_OFFSET + 8].tobytes(),
-                                "little", signed=True)
-        return (local + offset) & 0xFFFFFFFFFFFFFFFF
+            self._sync_drop(index)
 
     def _run_sync(self, now: int) -> None:
-        for index, plan in list(self.sync_next.items()):
-            start, cycle0, cycle1, act = plan
-            systime = self._system_time_now(index, now)
-            if systime < start:
-                continue
+        """Fire the SYNC0/SYNC1 pulses that are due.
+
+        The system times of all slaves with planned pulses are one array
+        operation (keys and next pulse times cached until ``sync_next``
+        changes); Python runs only for the slaves whose pulse is due."""
+        sync = self.sync_next
+        keys, due = self._sync_keys, self._sync_due
+        if keys is None:
+            keys = np.fromiter(sync, np.int64, len(sync))
+            due = np.array([p[0] for p in sync.values()], np.uint64)
+            self._sync_keys, self._sync_due = keys, due
+        local = self.local_time(keys, now)
+        offset = self.memory.mem[keys, R.DC_SYSTEM_TIME_OFFSET: R.DC_SYSTEM_TIME_OFFSET + 8].copy().view("<i8")[:, 0]
+        systimes = (local + offset).view(np.uint64)  # (wraps like the 64-bit register)
+        hits = np.nonzero(systimes >= due)[0]
+        for j in hits.tolist():
+            index = int(keys[j])
+            plan = sync.get(index)
+            if plan is None:
+                continue  # dropped by an earlier pulse's application in this tick
+            _, cycle0, cycle1, act = plan
+            systime = int(systimes[j])
             esc = self.slaves[index].esc
             app = esc.app
             fired = 0
@@ -1024,13 +1038,19 @@ class Segment:
                         app.on_sync1(t + cycle1)
                 fired += 1
                 if cycle0 == 0:
-                    self.sync_next.pop(index, None)  # single shot
+                    self._sync_drop(index)  # single shot
                     break
                 plan[0] = t + cycle0
             if cycle0 and systime >= plan[0]:
                 # Far behind (no ticks for a long time): skip the missed pulses.
                 missed = (systime - plan[0]) // cycle0 + 1
                 plan[0] += missed * cycle0
+            due[j] = min(plan[0], _U64_MAX)  # (a stale copy if the plans changed meanwhile: rebuilt then)
+
+    def _sync_drop(self, index: int) -> None:
+        """No SYNC pulses planned for ``index`` any more."""
+        if self.sync_next.pop(index, None) is not None:
+            self._sync_keys = None
 
     # --- time ---------------------------------------------------------------------------------
 
