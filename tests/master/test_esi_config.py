@@ -156,3 +156,28 @@ def test_scan_does_not_wait_out_the_ack_echo_of_device_emulation_slaves(
     m.scan(read_sii=False)
     assert [m.read_u16(s.position, AL_STATUS) for s in m.slaves] == [int(AlState.INIT)] * 3
     assert frames < 40, frames
+
+
+def test_expected_network_parses_a_shared_esi_once(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import pyethercat.master.esi_config as esi_config
+
+    calls: list[object] = []
+    real = esi_config.load_esi
+
+    def counting(path: object) -> object:
+        calls.append(path)
+        return real(path)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(esi_config, "load_esi", counting)
+    path = tmp_path / "net.toml"
+    path.write_text("".join(f'[[slave]]\nname = "d{i}"\nesi = "{bundled_esi()}"\n\n'
+                            for i in range(5)))  # fmt: skip
+    specs = expected_from_topology(path)
+    assert [s.name for s in specs] == [f"d{i}" for i in range(5)]
+    assert {s.identity.product_code for s in specs} == {0x264860D2}
+    assert len(calls) == 1
+    calls.clear()
+    esi_specs([(bundled_esi(), None, None)] * 3)
+    assert len(calls) == 1

@@ -45,7 +45,7 @@ from pyethercat.esi.eni import (
     eni_slave_device,
     eni_slave_from_esi,
 )
-from pyethercat.esi.model import ESI_TYPE_NAMES, EsiDcOpMode, EsiDevice, type_info
+from pyethercat.esi.model import ESI_TYPE_NAMES, EsiDcOpMode, EsiDevice, EsiFile, type_info
 from pyethercat.esi.parse import load_esi
 from pyethercat.esi.sii_from_esi import (
     FMMU_USAGES,
@@ -108,17 +108,27 @@ class EsiSlaveSpec:
 def esi_specs(
     devices: Sequence[tuple[str | Path, int | None, int | None]],
 ) -> list[EsiSlaveSpec]:
-    """Specs from ``(ESI file, product code, revision)`` triples, one per position."""
-    out = []
-    for path, product, revision in devices:
-        esi = load_esi(path)
-        dev = pick_device(esi, product, revision)
-        out.append(
-            EsiSlaveSpec(
-                Identity(esi.vendor.id, dev.product_code, dev.revision), dev, dev.type_name
-            )
-        )
-    return out
+    """Specs from ``(ESI file, product code, revision)`` triples, one per position.
+
+    Each file is parsed once, however many positions name it.
+    """
+    loaded: dict[Path, EsiFile] = {}
+    return [_spec(_load_once(path, loaded), product, revision)
+            for path, product, revision in devices]  # fmt: skip
+
+
+def _load_once(path: str | Path, loaded: dict[Path, EsiFile]) -> EsiFile:
+    """``load_esi(path)``, parsed once per resolved path for the ``loaded`` cache."""
+    key = Path(path).resolve()
+    esi = loaded.get(key)
+    if esi is None:
+        esi = loaded[key] = load_esi(path)
+    return esi
+
+
+def _spec(esi: EsiFile, product: int | None, revision: int | None) -> EsiSlaveSpec:
+    dev = pick_device(esi, product, revision)
+    return EsiSlaveSpec(Identity(esi.vendor.id, dev.product_code, dev.revision), dev, dev.type_name)
 
 
 def expected_from_topology(path: str | Path) -> list[EsiSlaveSpec]:
@@ -142,6 +152,7 @@ def expected_from_topology(path: str | Path) -> list[EsiSlaveSpec]:
         raise ConfigError(f"{p}: tree topologies (parent/port) are not supported as an "
                           "expected network; list the slaves in ring order")  # fmt: skip
     out: list[EsiSlaveSpec] = []
+    loaded: dict[Path, EsiFile] = {}  # a catalogue named by many slaves is parsed once
     for n, s in enumerate(slaves):
         where = f"{p}: slave #{n + 1}"
         if not isinstance(s, dict):
@@ -151,7 +162,7 @@ def expected_from_topology(path: str | Path) -> list[EsiSlaveSpec]:
         if "esi" in s:
             esi_path = p.parent / str(s["esi"])
             try:
-                (spec,) = esi_specs([(esi_path, s.get("product"), s.get("revision"))])
+                spec = _spec(_load_once(esi_path, loaded), s.get("product"), s.get("revision"))
             except EsiError as exc:
                 raise ConfigError(f"{where}: {exc}") from exc
         elif "sii" in s:
