@@ -93,6 +93,8 @@ __all__ = [
     "parse_transition",
     "resolve_dtype",
     "mapping_word",
+    "pdo_mapping_writes",
+    "pdo_assignment_writes",
     "split_mapping_word",
 ]
 
@@ -439,21 +441,39 @@ class CoeClient:
 
     def write_pdo_mapping(self, pdo_index: int, entries: Sequence[tuple[int, int, int]]) -> None:
         """Write a PDO mapping object: sub 0 = 0, the entries, then sub 0 = count (CiA order)."""
-        self.write(pdo_index, 0, 0, DataType.UNSIGNED8)
-        for k, (index, sub, bits) in enumerate(entries, start=1):
-            self.write(pdo_index, k, mapping_word(index, sub, bits), DataType.UNSIGNED32)
-        self.write(pdo_index, 0, len(entries), DataType.UNSIGNED8)
+        for index, sub, data in pdo_mapping_writes(pdo_index, entries):
+            self.download(index, sub, data)
 
     def write_pdo_assignment(self, sm: int, pdo_indices: Sequence[int]) -> None:
         """Assign PDOs to sync manager ``sm`` (object 0x1C10 + sm), in the CiA order."""
-        obj = sm_pdo_assignment(sm)
-        self.write(obj, 0, 0, DataType.UNSIGNED8)
-        for k, pdo in enumerate(pdo_indices, start=1):
-            self.write(obj, k, pdo, DataType.UNSIGNED16)
-        self.write(obj, 0, len(pdo_indices), DataType.UNSIGNED8)
+        for index, sub, data in pdo_assignment_writes(sm, pdo_indices):
+            self.download(index, sub, data)
 
     def __repr__(self) -> str:
         return f"<CoeClient {self.label}>"
+
+
+def pdo_mapping_writes(pdo_index: int, entries: Sequence[tuple[int, int, int]]
+                       ) -> list[tuple[int, int, bytes]]:
+    """(index, subindex, bytes) downloads that rewrite a PDO mapping object, in CiA order.
+
+    Sub 0 = 0 first (the slave then accepts entries), the mapping words
+    ``(index, subindex, bits)``, then sub 0 = the number of entries.
+    """
+    writes = [(pdo_index, 0, b"\x00")]
+    writes += [(pdo_index, k, mapping_word(i, sub, bits).to_bytes(4, "little"))
+               for k, (i, sub, bits) in enumerate(entries, start=1)]
+    writes.append((pdo_index, 0, bytes([len(entries)])))
+    return writes
+
+
+def pdo_assignment_writes(sm: int, pdo_indices: Sequence[int]) -> list[tuple[int, int, bytes]]:
+    """(index, subindex, bytes) downloads that assign PDOs to sync manager ``sm`` (0x1C10 + sm)."""
+    obj = sm_pdo_assignment(sm)
+    writes = [(obj, 0, b"\x00")]
+    writes += [(obj, k, pdo.to_bytes(2, "little")) for k, pdo in enumerate(pdo_indices, start=1)]
+    writes.append((obj, 0, bytes([len(pdo_indices)])))
+    return writes
 
 
 def _type_for_bits(bits: int) -> int:

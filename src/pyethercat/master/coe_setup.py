@@ -41,6 +41,8 @@ from pyethercat.master.coe import (
     EmergencyEvent,
     StartupCommand,
     parse_transition,
+    pdo_assignment_writes,
+    pdo_mapping_writes,
     resolve_dtype,
 )
 from pyethercat.master.config import Direction, Pdo, PdoEntry
@@ -51,8 +53,6 @@ from pyethercat.wire.mailbox.datatypes import DataType, Value, encode_value
 from pyethercat.wire.mailbox.objects import (
     StandardObject,
     assignment_sm,
-    mapping_word,
-    sm_pdo_assignment,
 )
 from pyethercat.wire.sii.model import CoeDetails, MailboxProtocol, SiiInfo, SyncManagerType
 
@@ -450,10 +450,7 @@ def set_pdo_mapping(master_hook: Callable[[Slave], None] | None, slave: Slave,
                 entries = client.read_pdo_mapping(pdo_index)
             else:
                 pdo_index, entries = item[0], list(item[1])
-                writes.append((pdo_index, 0, b"\x00"))
-                for k, (i, sub, bits) in enumerate(entries, start=1):
-                    writes.append((pdo_index, k, mapping_word(i, sub, bits).to_bytes(4, "little")))
-                writes.append((pdo_index, 0, bytes([len(entries)])))
+                writes += pdo_mapping_writes(pdo_index, entries)
             indices.append(pdo_index)
             made: list[PdoEntry] = []
             for i, sub, bits in entries:
@@ -461,11 +458,7 @@ def set_pdo_mapping(master_hook: Callable[[Slave], None] | None, slave: Slave,
                 made.append(PdoEntry(i, sub, bits, (dtype or _bits_type(bits)) if i else 0,
                                      name))
             pdos.append(Pdo(pdo_index, pdo_name(pdo_index), tuple(made), direction, sm))
-        obj = sm_pdo_assignment(sm)
-        writes.append((obj, 0, b"\x00"))
-        for k, idx in enumerate(indices, start=1):
-            writes.append((obj, k, idx.to_bytes(2, "little")))
-        writes.append((obj, 0, bytes([len(indices)])))
+        writes += pdo_assignment_writes(sm, indices)
         result[sm] = pdos
     for index, sub, data in writes:
         client.download(index, sub, data)
