@@ -696,7 +696,7 @@ class _Parser:
                 kw["desc"] = _text(c) or None
             elif tag == "AssignActivate":
                 kw["assign_activate"] = self.int_text(c, "Dc/OpMode/AssignActivate", 16)
-            elif tag in ("CycleTimeSync0", "ShiftTimeSync0", "CycleTimeSync1", "ShiftTimeSync1"):
+            elif tag in _DC_TIMES:
                 base = _DC_TIMES[tag]
                 kw[base] = self.int_text(c, f"Dc/OpMode/{tag}") if _text(c) else 0
                 factor = self.int_attr(c, "Factor")
