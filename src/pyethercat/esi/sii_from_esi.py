@@ -26,8 +26,10 @@ the object dictionary only), and a note says so.
 SMs, FMMUs, PDOs, DC, General) and names each difference; the corpus test and
 ``pyethercat esi sii --compare`` use it.
 
-Pure functions: no I/O except :func:`sii_image_from_file`, which only reads the
-ESI file it is given (the simulator's topology loader calls it).
+Pure functions: no I/O except :func:`sii_image_from_file`, a convenience that
+only reads the ESI file it is given (the simulator's topology loader goes
+through ``sim.devices.esi_device.load_esi_device`` instead, which caches the
+parse).
 """
 
 from __future__ import annotations
