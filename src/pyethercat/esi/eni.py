@@ -68,6 +68,7 @@ from pyethercat.esi.parse import (
     parse_hex_bytes,
     parse_int,
 )
+from pyethercat.wire.frame import ETHERTYPE_ETHERCAT
 
 __all__ = [
     "EniCmd",
@@ -580,7 +581,7 @@ def build_eni(cfg: EniConfig) -> bytes:
     _sub(info, "Name", cfg.master_name)
     _sub(info, "Destination", cfg.destination.hex().upper())
     _sub(info, "Source", cfg.source.hex().upper())
-    _sub(info, "EtherType", "88A4")
+    _sub(info, "EtherType", f"{ETHERTYPE_ETHERCAT:04X}")
     for s in cfg.slaves:
         _slave_xml(config, s)
     if cfg.cycle_time_us is not None or cfg.frames:

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 from lxml import etree
 
+from pyethercat.esi.eni import _sub
 from pyethercat.esi.model import ESI_TYPE_NAMES
 from pyethercat.esi.sii_from_esi import FMMU_USAGES, MAILBOX_PROTOCOLS, PORT_LETTERS, SM_TYPES
 from pyethercat.wire.mailbox.coe import ObjectAccess, ObjectCode
@@ -68,13 +69,6 @@ def _type_name(code: int, bits: int) -> str:
     if name is not None:
         return name
     return {1: "BOOL", 8: "USINT", 16: "UINT", 32: "UDINT", 64: "ULINT"}.get(bits, "USINT")
-
-
-def _sub(parent: etree._Element, tag: str, text: object = None, **attrs: str) -> etree._Element:
-    el = etree.SubElement(parent, tag, attrs)
-    if text is not None:
-        el.text = str(text)
-    return el
 
 
 def _access(a: int) -> str:
