@@ -54,6 +54,7 @@ from pyethercat.wire.mailbox.objects import (
     StandardObject,
     assignment_sm,
 )
+from pyethercat.wire.registers import AL_STATE_MASK
 from pyethercat.wire.sii.model import CoeDetails, MailboxProtocol, SiiInfo, SyncManagerType
 
 if TYPE_CHECKING:
@@ -380,7 +381,7 @@ class CoeMasterMixin:
 def _transition(frm: AlState | None, to: AlState) -> str | None:
     if frm is None or frm == to:
         return None
-    a, b = _STATE_LETTER.get(AlState(int(frm) & 0x0F)), _STATE_LETTER.get(to)
+    a, b = _STATE_LETTER.get(AlState(int(frm) & AL_STATE_MASK)), _STATE_LETTER.get(to)
     if a is None or b is None:
         return None
     return a + b

@@ -70,6 +70,8 @@ __all__ = [
 
 #: Upper edges (µs) of the period-jitter histogram bins; the last bin is open.
 JITTER_BINS_US = (1, 2, 5, 10, 20, 50, 100, 200, 500, 1000)
+# AL status bits a supervised slave must show exactly: the state and no error flag.
+_STATE_AND_ERROR = reg.AL_STATE_MASK | reg.AL_ERROR_FLAG
 
 
 # --- time ----------------------------------------------------------------------------
@@ -701,7 +703,7 @@ class CyclicRunner:
                 state = brd.reply.data[0] if brd.reply.data else 0
                 count = brd.reply.wkc
                 want = int(self.target)
-                if count != len(self.slaves) or (state & 0x1F) != want or self._any_unhealthy():
+                if count != len(self.slaves) or (state & _STATE_AND_ERROR) != want or self._any_unhealthy():
                     self._want_detail = True
         detail = self._detail
         if detail is not None and all(r.done() for r in detail):
@@ -740,7 +742,7 @@ class CyclicRunner:
             if h.status == "ok":
                 h.lost_since_ns = now
                 self.log(f"slave {h.position} left {state_name(int(self.target))}: now "
-                         f"{state_name(status & 0x1F)}" + (f" (AL code 0x{code:04X})" if h.error else ""))
+                         f"{state_name(status & _STATE_AND_ERROR)}" + (f" (AL code 0x{code:04X})" if h.error else ""))
             if h.status != "recovering":
                 h.status = "dropped"
             bad.append(h.position)
