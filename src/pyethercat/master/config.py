@@ -46,7 +46,6 @@ Layout decisions (documented in docs/master.md):
 from __future__ import annotations
 
 import enum
-import struct
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
@@ -88,8 +87,6 @@ DEFAULT_LOGICAL_BASE = 0x0001_0000
 #: Each further group starts at the next multiple of this after the previous one.
 GROUP_ALIGNMENT = 0x0001_0000
 
-_SM_STRUCT = struct.Struct("<HHBBBB")
-_FMMU_STRUCT = struct.Struct("<IHBBHBBB3x")
 
 
 class Direction(enum.Enum):
@@ -231,7 +228,7 @@ class SyncManagerConfig:
 
     def encode(self) -> bytes:
         """The 8 register bytes (status and PDI control are written as 0; the ESC owns them)."""
-        return _SM_STRUCT.pack(self.start, self.length, self.control, 0, self.activate, 0)
+        return reg.SM_STRUCT.pack(self.start, self.length, self.control, 0, self.activate, 0)
 
 
 @dataclass
@@ -264,7 +261,7 @@ class FmmuConfig:
 
     def encode(self) -> bytes:
         """The 16 register bytes."""
-        return _FMMU_STRUCT.pack(
+        return reg.FMMU_STRUCT.pack(
             self.logical_start, self.length, self.logical_start_bit, self.logical_stop_bit,
             self.physical_start, self.physical_start_bit, int(self.fmmu_type), self.activate)
 

@@ -34,6 +34,7 @@ from pyethercat.wire.registers import (
     SM_ACTIVATE_ENABLE,
     SM_CONTROL_MAILBOX_IN,
     SM_CONTROL_MAILBOX_OUT,
+    SM_STRUCT,
     sm_address,
 )
 from pyethercat.wire.sii.model import SyncManagerType
@@ -289,8 +290,7 @@ def mailbox_sm_writes(slave: Slave, boot: bool = False) -> list[tuple[int, bytes
     for n, kind in enumerate((SyncManagerType.MAILBOX_OUT, SyncManagerType.MAILBOX_IN)):
         if n < len(sms) and sms[n].sm_type == kind and sms[n].control:
             controls[n] = sms[n].control
-    return [(sm_address(n), struct.pack("<HHBBBB", start, size, controls[n], 0,
-                                        SM_ACTIVATE_ENABLE, 0))
+    return [(sm_address(n), SM_STRUCT.pack(start, size, controls[n], 0, SM_ACTIVATE_ENABLE, 0))
             for n, (start, size) in enumerate((rx, tx))]
 
 

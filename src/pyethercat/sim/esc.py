@@ -26,7 +26,6 @@ Documented modelling choices (public sources leave these open):
 
 from __future__ import annotations
 
-import struct
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -151,7 +150,7 @@ class SmView:
     def __init__(self, n: int, raw: bytes) -> None:
         self.n = n
         self.start, self.length, self.control, self.status, self.activate, self.pdi_control = (
-            struct.unpack("<HHBBBB", raw))
+            R.SM_STRUCT.unpack(raw))
 
     @property
     def enabled(self) -> bool:

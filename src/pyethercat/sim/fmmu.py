@@ -35,7 +35,6 @@ last slave on the route wins, as on the wire).
 
 from __future__ import annotations
 
-import struct
 from dataclasses import dataclass
 
 import numpy as np
@@ -56,7 +55,6 @@ I64 = npt.NDArray[np.int64]
 U8 = npt.NDArray[np.uint8]
 BoolA = npt.NDArray[np.bool_]
 
-_FMMU = struct.Struct("<IHBBHBBB3x")
 SLAVE_STRIDE = R.ADDRESS_SPACE
 
 
@@ -88,7 +86,7 @@ def parse_fmmus(raw: bytes, count: int, pos: int, slave: int) -> list[FmmuConfig
     """Active FMMUs from the bytes of a slave's FMMU register block."""
     out = []
     for n in range(count):
-        (logical, length, sbit, ebit, phys, pbit, ftype, act) = _FMMU.unpack_from(raw, 16 * n)
+        (logical, length, sbit, ebit, phys, pbit, ftype, act) = R.FMMU_STRUCT.unpack_from(raw, 16 * n)
         if not act & 1 or length == 0 or not ftype & 3:
             continue
         cfg = FmmuConfig(pos, slave, logical, length, sbit & 7, ebit & 7, phys, pbit & 7,

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import bisect
 import enum
+import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -147,6 +148,8 @@ __all__ = [
     "SM_PDI_DEACTIVATE",
     "SM_PDI_REPEAT_ACK",
     "SM_SIZE",
+    "SM_STRUCT",
+    "FMMU_STRUCT",
     "SM_START",
     "SM_STATUS",
     "SM_STATUS_BUFFER_MASK",
@@ -360,6 +363,12 @@ SM_CONTROL = 4
 SM_STATUS = 5
 SM_ACTIVATE = 6
 SM_PDI_CONTROL = 7
+
+#: The 8 bytes of one sync manager: start, length, control, status, activate, PDI control.
+SM_STRUCT = struct.Struct("<HHBBBB")
+#: The 16 bytes of one FMMU: logical start, length, logical start bit, logical stop bit,
+#: physical start, physical start bit, type, activate (3 reserved bytes).
+FMMU_STRUCT = struct.Struct("<IHBBHBBB3x")
 
 
 # --- bit fields --------------------------------------------------------------------
