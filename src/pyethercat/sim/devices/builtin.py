@@ -87,7 +87,8 @@ _SM_CTRL_OUTPUTS_IO = R.sm_control(R.SmMode.BUFFERED, R.SmDirection.WRITE, al_ev
 
 # SII fixed-area word 0: low byte PDI type, high byte ESC configuration
 # (0x0141). Built-ins run a state machine of their own (no device emulation);
-# bits 2/3 ask for enhanced link detection like Beckhoff's images do.
+# bits 2/3 enable the DC SYNC-out and latch-in units (facts 3.6), as the
+# EK1100's image does (0x0D00: device emulation + SYNC-out + latch-in).
 _PDI_CONTROL_IO = 0x0C04  # PDI type 4: digital I/O
 _PDI_CONTROL_NONE = 0x0C00
 
