@@ -28,7 +28,7 @@ from pyethercat.wire.frame import (
     encode_udp_payload,
     returned_source_mac,
 )
-from pyethercat.wire.pcap import CaptureFormat, Direction, read_capture
+from pyethercat.wire.pcap import CaptureFormat, PacketDirection, read_capture
 
 
 def _frame(index: int, size: int = 2) -> bytes:
@@ -411,7 +411,7 @@ def test_capture_tees_both_directions(fmt: CaptureFormat) -> None:
     assert [r.data for r in recs] == [_frame(1), reply]
     assert [r.timestamp_ns for r in recs] == [1000, 2000]
     if fmt is CaptureFormat.PCAPNG:
-        assert [r.direction for r in recs] == [Direction.OUTBOUND, Direction.INBOUND]
+        assert [r.direction for r in recs] == [PacketDirection.OUTBOUND, PacketDirection.INBOUND]
 
 
 def test_capture_to_path_by_suffix(tmp_path: Path) -> None:
@@ -442,7 +442,7 @@ def test_capture_wall_clock_stamps_and_interface_name(tmp_path: Path) -> None:
     stamps = [r.timestamp_ns for r in recs]
     assert len(recs) == 6 and stamps == sorted(stamps)
     assert before <= stamps[0] and stamps[-1] <= after
-    assert [r.direction for r in recs] == [Direction.OUTBOUND, Direction.INBOUND] * 3
+    assert [r.direction for r in recs] == [PacketDirection.OUTBOUND, PacketDirection.INBOUND] * 3
     assert b"master-end" in raw  # the interface is named after the inner link
 
 

@@ -215,8 +215,17 @@ def test_emergency_delivered_while_waiting_for_an_answer() -> None:
     assert ev.error_code == 0x8110 and ev.error_register == 0x11
     assert ev.name == "CAN overrun (objects lost)"
     assert ev.data == b"\x01\x02\x03\x04\x05"
-    assert s.coe is not None and s.coe.emergencies.get_nowait() is ev
-    assert m.emergencies.get_nowait() is ev
+    # one queue: the slave's client files into the master's
+    assert s.coe is not None and s.coe.emergencies is m.emergencies
+    assert m.emergencies.get_nowait() is ev and m.emergencies.empty()
+
+
+def test_emergency_queue_drops_the_oldest_without_blocking() -> None:
+    from pyethercat.master.coe import DropOldestQueue
+    q: DropOldestQueue[int] = DropOldestQueue(3)
+    for i in range(5):
+        q.put(i)  # would block forever on a full queue.Queue
+    assert [q.get_nowait() for _ in range(3)] == [2, 3, 4]
 
 
 def test_emergency_polled_without_transaction() -> None:

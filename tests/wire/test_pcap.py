@@ -15,7 +15,7 @@ from pyethercat.wire.pcap import (
     LINKTYPE_ETHERNET,
     CaptureFormat,
     CaptureRecord,
-    Direction,
+    PacketDirection,
     PcapngWriter,
     PcapWriter,
     detect_format,
@@ -58,12 +58,12 @@ def test_pcap_round_trip(pkts: list[tuple[int, bytes]], ns: bool) -> None:
             st.integers(min_value=0, max_value=(1 << 64) - 1),
             st.binary(max_size=200),
             st.integers(min_value=0, max_value=2),
-            st.sampled_from(list(Direction)),
+            st.sampled_from(list(PacketDirection)),
         ),
         max_size=8,
     )
 )
-def test_pcapng_round_trip(pkts: list[tuple[int, bytes, int, Direction]]) -> None:
+def test_pcapng_round_trip(pkts: list[tuple[int, bytes, int, PacketDirection]]) -> None:
     out = io.BytesIO()
     w = PcapngWriter(out, interfaces=["a", "b", "c"])
     for ts, data, iface, direction in pkts:
@@ -156,7 +156,7 @@ def _good_files() -> list[bytes]:
     a = io.BytesIO()
     PcapWriter(a).write(5, FRAME)
     b = io.BytesIO()
-    PcapngWriter(b).write(5, FRAME, 0, Direction.INBOUND)
+    PcapngWriter(b).write(5, FRAME, 0, PacketDirection.INBOUND)
     return [a.getvalue(), b.getvalue()]
 
 
@@ -228,7 +228,7 @@ def _opt(o: str, code: int, value: bytes) -> bytes:
 
 
 @st.composite
-def _hand_made_pcapng(draw: st.DrawFn) -> tuple[bytes, list[tuple[int, bytes, int, Direction]]]:
+def _hand_made_pcapng(draw: st.DrawFn) -> tuple[bytes, list[tuple[int, bytes, int, PacketDirection]]]:
     """Several sections (each in its own byte order), several interfaces with their own
     time resolution and offset, packets with direction flags; plus what they must read as."""
     out, expect = b"", []
@@ -257,7 +257,7 @@ def _hand_made_pcapng(draw: st.DrawFn) -> tuple[bytes, list[tuple[int, bytes, in
                 body += _opt(o, 2, struct.pack(o + "I", flags)) + _opt(o, 0, b"")
             out += _blk(o, 6, body)
             num, den, offset_s = units[iid]
-            direction = Direction(flags) if flags != 3 else Direction.UNKNOWN
+            direction = PacketDirection(flags) if flags != 3 else PacketDirection.UNKNOWN
             expect.append((ts * num // den + offset_s * 10**9, data, iid, direction))
     return out, expect
 
@@ -265,7 +265,7 @@ def _hand_made_pcapng(draw: st.DrawFn) -> tuple[bytes, list[tuple[int, bytes, in
 @settings(max_examples=300)
 @given(_hand_made_pcapng())
 def test_pcapng_sections_interfaces_byte_orders(
-        made: tuple[bytes, list[tuple[int, bytes, int, Direction]]]) -> None:
+        made: tuple[bytes, list[tuple[int, bytes, int, PacketDirection]]]) -> None:
     raw, expect = made
     got = [(r.timestamp_ns, r.data, r.interface_id, r.direction) for r in parse_capture(raw)]
     assert got == expect
@@ -274,7 +274,7 @@ def test_pcapng_sections_interfaces_byte_orders(
 @settings(max_examples=300)
 @given(_hand_made_pcapng(), st.integers(0, 10**6), st.binary(min_size=1, max_size=8))
 def test_corrupted_multi_section_pcapng_raises_only_capture_error(
-        made: tuple[bytes, list[tuple[int, bytes, int, Direction]]], pos: int, junk: bytes) -> None:
+        made: tuple[bytes, list[tuple[int, bytes, int, PacketDirection]]], pos: int, junk: bytes) -> None:
     raw = bytearray(made[0])
     pos %= len(raw)
     raw[pos : pos + len(junk)] = junk

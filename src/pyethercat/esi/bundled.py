@@ -1,7 +1,8 @@
 """ESI files shipped with pyethercat (package data under ``pyethercat/data/esi``).
 
-``seed002_drive.xml`` describes the CoE servo drive of the project's seed
-document 002 (vendor 0xE4, product 0x264860D2, revision 0x20000).
+``seed002_drive.xml`` describes the Metronix EtherCAT servo drive (vendor 0xE4,
+product 0x264860D2, revision 0x20000) as its CANopen-over-EtherCAT manual
+describes it; the file's own comment says which chapters.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from pyethercat.errors import EsiError
 
 __all__ = ["SEED002_DRIVE", "bundled_esi", "bundled_esi_names"]
 
-#: File name of the seed 002 servo drive ESI.
+#: File name of the bundled Metronix servo drive ESI.
 SEED002_DRIVE = "seed002_drive.xml"
 
 

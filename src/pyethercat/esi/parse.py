@@ -622,7 +622,7 @@ class _Parser:
 
     def coe(self, el: _Element) -> EsiCoe:
         cmds: list[EsiInitCmd] = []
-        # Older files (e.g. seed 002) give the EDS file as an attribute.
+        # Older files (the bundled Metronix drive, for one) give the EDS file as an attribute.
         eds = el.get("EdsFile") or None
         for name, c in _kids(el):
             if name == "InitCmd":

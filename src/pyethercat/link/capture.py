@@ -19,7 +19,7 @@ from typing import BinaryIO
 from pyethercat.link.base import Link
 from pyethercat.wire.pcap import (
     CaptureFormat,
-    Direction,
+    PacketDirection,
     PcapngWriter,
     PcapWriter,
 )
@@ -62,7 +62,7 @@ class CaptureLink(Link):
         #: Frames recorded so far.
         self.count = 0
 
-    def _record(self, frame: bytes, direction: Direction) -> None:
+    def _record(self, frame: bytes, direction: PacketDirection) -> None:
         with self._lock:
             if self._stream.closed:
                 return
@@ -76,14 +76,14 @@ class CaptureLink(Link):
 
     def send(self, frame: bytes) -> None:
         self._check_open()
-        self._record(bytes(frame), Direction.OUTBOUND)
+        self._record(bytes(frame), PacketDirection.OUTBOUND)
         self.inner.send(frame)
 
     def recv(self, timeout: float | None = None) -> bytes | None:
         self._check_open()
         frame = self.inner.recv(timeout)
         if frame is not None:
-            self._record(frame, Direction.INBOUND)
+            self._record(frame, PacketDirection.INBOUND)
         return frame
 
     def flush(self) -> None:

@@ -30,13 +30,13 @@ this module drives it over the mailbox:
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import queue
 import threading
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 from pyethercat.errors import ConfigError, EtherCATError, MailboxError, SdoAbort
 from pyethercat.errors import TimeoutError as EcTimeoutError
@@ -82,6 +82,7 @@ from pyethercat.wire.mailbox.objects import mapping_word, sm_pdo_assignment, spl
 
 __all__ = [
     "DEFAULT_SDO_TIMEOUT",
+    "DropOldestQueue",
     "DTypeLike",
     "CoeClient",
     "EmergencyEvent",
@@ -99,6 +100,7 @@ __all__ = [
 ]
 
 _log = logging.getLogger("pyethercat.coe")
+_T = TypeVar("_T")
 
 #: Seconds one SDO transfer (all its segments) may take by default.
 DEFAULT_SDO_TIMEOUT = 2.0
@@ -122,6 +124,27 @@ def resolve_dtype(dtype: DTypeLike) -> DataType:
 
 
 # --- emergencies ----------------------------------------------------------------------
+
+
+class DropOldestQueue(queue.Queue[_T]):
+    """A :class:`queue.Queue` whose ``put`` never blocks: when full, the oldest item goes.
+
+    Emergencies must not stall the thread that read them (a mailbox
+    transaction) and the newest ones matter most.
+    """
+
+    def put(self, item: _T, block: bool = True, timeout: float | None = None) -> None:
+        """Append ``item``, dropping the oldest one first when the queue is full."""
+        with self.not_full:
+            if 0 < self.maxsize <= self._qsize():
+                self._get()
+            self._put(item)
+            self.unfinished_tasks += 1
+            self.not_empty.notify()
+
+    def put_nowait(self, item: _T) -> None:
+        """Same as :meth:`put` (it never blocks)."""
+        self.put(item)
 
 
 @dataclass(frozen=True, slots=True)
@@ -189,13 +212,16 @@ class CoeClient:
     """
 
     def __init__(self, mailbox: Mailbox, *, position: int = -1,
-                 timeout: float = DEFAULT_SDO_TIMEOUT, emergency_queue_size: int = 256) -> None:
+                 timeout: float = DEFAULT_SDO_TIMEOUT, emergency_queue_size: int = 256,
+                 emergencies: DropOldestQueue[EmergencyEvent] | None = None) -> None:
         self.mailbox = mailbox
         self.label = mailbox.label
         self.position = position
         self.timeout = timeout
-        #: Emergencies received (oldest dropped when full).
-        self.emergencies: queue.Queue[EmergencyEvent] = queue.Queue(emergency_queue_size)
+        #: Where emergencies are filed (oldest dropped when full). A master gives
+        #: every client the master's queue, so all slaves' emergencies wait in one.
+        self.emergencies: DropOldestQueue[EmergencyEvent] = (
+            DropOldestQueue(emergency_queue_size) if emergencies is None else emergencies)
         self._callbacks: list[Callable[[EmergencyEvent], None]] = []
         self._od: ObjectDictionary | None = None
         mailbox.add_handler(self._unsolicited)
@@ -217,13 +243,7 @@ class CoeClient:
         assert isinstance(decoded, Emergency)
         event = EmergencyEvent(self.label, self.position, decoded, time.time())
         _log.warning("%s", event)
-        while True:
-            try:
-                self.emergencies.put_nowait(event)
-                break
-            except queue.Full:
-                with contextlib.suppress(queue.Empty):
-                    self.emergencies.get_nowait()
+        self.emergencies.put(event)
         for cb in list(self._callbacks):
             try:
                 cb(event)

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import queue
 import threading
 from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING, Any
@@ -37,6 +36,7 @@ from pyethercat.errors import ConfigError, EtherCATError, MailboxError
 from pyethercat.master import states
 from pyethercat.master.coe import (
     CoeClient,
+    DropOldestQueue,
     DTypeLike,
     EmergencyEvent,
     StartupCommand,
@@ -178,7 +178,7 @@ class CoeMasterMixin:
         st: dict[str, Any] | None = self.__dict__.get("_coe_mixin_state")
         if st is None:
             st = {"poller": MailboxPoller(self.scheduler), "startup": [],
-                  "callbacks": [], "queue": queue.Queue(1024), "from": {}}
+                  "callbacks": [], "queue": DropOldestQueue(1024), "from": {}}
             self.__dict__["_coe_mixin_state"] = st
         return st
 
@@ -189,9 +189,9 @@ class CoeMasterMixin:
         return cmds
 
     @property
-    def emergencies(self) -> queue.Queue[EmergencyEvent]:
+    def emergencies(self) -> DropOldestQueue[EmergencyEvent]:
         """Emergencies of every slave (oldest dropped when 1024 are waiting)."""
-        q: queue.Queue[EmergencyEvent] = self._coe_state()["queue"]
+        q: DropOldestQueue[EmergencyEvent] = self._coe_state()["queue"]
         return q
 
     def _attach_mailboxes(self, slaves: Sequence[Slave]) -> None:
@@ -214,18 +214,13 @@ class CoeMasterMixin:
                           sleep=sleep)
             box.status_source = CyclicMailboxStatus(self, s.position)
             s.mbx = box
-            client = CoeClient(box, position=s.position)
+            client = CoeClient(box, position=s.position, emergencies=st["queue"])
             client.on_emergency(self._emergency)
             s.coe = client
 
     def _emergency(self, event: EmergencyEvent) -> None:
+        # The client filed it in the master's queue already: only the callbacks here.
         st = self._coe_state()
-        q: queue.Queue[EmergencyEvent] = st["queue"]
-        try:
-            q.put_nowait(event)
-        except queue.Full:
-            q.get_nowait()
-            q.put_nowait(event)
         for cb in list(st["callbacks"]):
             try:
                 cb(event)

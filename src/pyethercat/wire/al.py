@@ -1,4 +1,9 @@
-"""AL (application layer) states and AL status codes (facts sheet section 4)."""
+"""AL (application layer) states and AL status codes.
+
+States and the AL status code table as IEC 61158-6-12:2019 5.3 (ETG.1000.6) gives
+them; the same codes in SOEM ``src/ec_print.c`` (``ec_ALstatuscodelist``), IgH
+``master/fsm_change.c`` (``al_status_messages``) and SOES ``soes/esc.h`` (``ALERR_*``).
+"""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""EtherCAT datagram codec (facts sheet section 2).
+"""EtherCAT datagram codec (IEC 61158-4-12, ETG.1000.4; Wireshark ``packet-ethercat-datagram.c``).
 
 A datagram is ``cmd idx addr(4) len(2) irq(2) data wkc(2)``. The 32-bit
 address is kept raw: ADP in the low 16 bits and ADO in the high 16 bits for

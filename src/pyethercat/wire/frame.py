@@ -1,4 +1,4 @@
-"""Ethernet + EtherCAT frame codec (facts sheet section 1).
+"""Ethernet + EtherCAT frame codec (IEC 61158-4-12, ETG.1000.4; Wireshark ``packet-ethercat-frame.c``).
 
 Frames travel as raw Ethernet (EtherType 0x88A4) or as the payload of a UDP
 datagram on port 34980; in both cases the EtherCAT part is a 16-bit header

@@ -38,7 +38,7 @@ __all__ = [
     "PCAP_MAGIC_NS",
     "PCAPNG_SHB_TYPE",
     "CaptureFormat",
-    "Direction",
+    "PacketDirection",
     "CaptureRecord",
     "detect_format",
     "encode_pcap_header",
@@ -87,7 +87,7 @@ class CaptureFormat(enum.Enum):
     PCAPNG = "pcapng"
 
 
-class Direction(enum.IntEnum):
+class PacketDirection(enum.IntEnum):
     """Packet direction as stored in the pcapng ``epb_flags`` option (bits 0-1)."""
 
     UNKNOWN = 0
@@ -109,7 +109,7 @@ class CaptureRecord:
     interface_id: int = 0
     linktype: int = LINKTYPE_ETHERNET
     orig_len: int | None = None
-    direction: Direction = Direction.UNKNOWN
+    direction: PacketDirection = PacketDirection.UNKNOWN
 
     @property
     def wire_len(self) -> int:
@@ -188,7 +188,7 @@ def encode_pcapng_epb(
     timestamp_ns: int,
     data: bytes,
     interface_id: int = 0,
-    direction: Direction = Direction.UNKNOWN,
+    direction: PacketDirection = PacketDirection.UNKNOWN,
 ) -> bytes:
     """A pcapng Enhanced Packet Block (time stamp in ns, see :func:`encode_pcapng_idb`)."""
     if timestamp_ns < 0:
@@ -205,7 +205,7 @@ def encode_pcapng_epb(
         len(data),
     )
     body += data + b"\x00" * _pad4(len(data))
-    if direction != Direction.UNKNOWN:
+    if direction != PacketDirection.UNKNOWN:
         body += _option(_OPT_EPB_FLAGS, struct.pack("<I", int(direction)))
         body += _option(_OPT_END, b"")
     return _block(_BT_EPB, body)
@@ -230,7 +230,7 @@ class PcapWriter:
         timestamp_ns: int,
         data: bytes,
         interface_id: int = 0,
-        direction: Direction = Direction.UNKNOWN,
+        direction: PacketDirection = PacketDirection.UNKNOWN,
     ) -> None:
         """Append one packet. Interface and direction do not exist in pcap and are ignored."""
         self.stream.write(encode_pcap_record(timestamp_ns, data, self.nanosecond))
@@ -275,7 +275,7 @@ class PcapngWriter:
         timestamp_ns: int,
         data: bytes,
         interface_id: int = 0,
-        direction: Direction = Direction.UNKNOWN,
+        direction: PacketDirection = PacketDirection.UNKNOWN,
     ) -> None:
         """Append one packet as an Enhanced Packet Block."""
         if not 0 <= interface_id < self._count:
@@ -473,12 +473,12 @@ def read_pcapng(stream: BinaryIO) -> Iterator[CaptureRecord]:
                     f"pcapng packet length {cap} runs past its block (at byte {where})"
                 )
             iface = interfaces[if_id]
-            direction = Direction.UNKNOWN
+            direction = PacketDirection.UNKNOWN
             if btype == _BT_EPB:
                 for code, value in _options(body, 20 + cap + _pad4(cap), order, base):
                     if code == _OPT_EPB_FLAGS and len(value) >= 4:
                         bits = struct.unpack_from(order + "I", value)[0] & 3
-                        direction = Direction(bits) if bits != 3 else Direction.UNKNOWN
+                        direction = PacketDirection(bits) if bits != 3 else PacketDirection.UNKNOWN
             ts = (ts_hi << 32) | ts_lo
             yield CaptureRecord(
                 timestamp_ns=ts * iface.num // iface.den + iface.offset_s * 1_000_000_000,

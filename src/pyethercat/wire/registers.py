@@ -1,4 +1,4 @@
-"""The ESC register map (facts sheet section 3), shared by master and simulator.
+"""The ESC register map (Beckhoff ESC datasheet section II), shared by master and simulator.
 
 Every register address, size and bit used anywhere in pyethercat is defined
 here once. ``REGISTERS`` describes each register (name, size, who writes it)
@@ -313,7 +313,8 @@ DC_ACTIVATION_STATUS = 0x0984
 DC_SYNC0_STATUS = 0x098E
 DC_SYNC1_STATUS = 0x098F
 DC_START_TIME = 0x0990
-#: Wireshark calls it "StartTime1"; a "next SYNC1 pulse" reading is unverified (facts 3.14).
+#: Wireshark (packet-ethercat-datagram.c) calls it "StartTime1"; no public source we
+#: know says whether it reads back the next SYNC1 pulse.
 DC_START_TIME1 = 0x0998
 DC_SYNC0_CYCLE = 0x09A0
 DC_SYNC1_CYCLE = 0x09A4
@@ -531,7 +532,7 @@ class EscConfig(enum.IntFlag):
 
 
 class PdiType(enum.IntEnum):
-    """PDI control 0x0140: the kind of process data interface (facts 3.6)."""
+    """PDI control 0x0140: the kind of process data interface (Wireshark ``vals_esc_reg_140``)."""
 
     NONE = 0
     DIGITAL_IN_4BIT = 1
@@ -646,7 +647,8 @@ SM_ACTIVATE_LATCH_PDI = 1 << 7  # latch DC event time on a PDI buffer change (0x
 SM_PDI_DEACTIVATE = 1 << 0
 SM_PDI_REPEAT_ACK = 1 << 1
 
-#: Typical sync manager control bytes (facts 3.13).
+#: Typical sync manager control bytes (SOEM src/ec_config.c EC_DEFAULTMBXSM0/1 and
+#: EC_DEFAULTDOSM0; KickCAT protocol.h SM_CONTROL_*).
 SM_CONTROL_MAILBOX_OUT = 0x26  # SM0: mailbox, ECAT writes, AL event
 SM_CONTROL_MAILBOX_IN = 0x22  # SM1: mailbox, ECAT reads, AL event
 SM_CONTROL_OUTPUTS = 0x64  # SM2: buffered, ECAT writes, AL event, watchdog
@@ -714,11 +716,13 @@ WATCHDOG_TIME_DEFAULT = 1000
 WATCHDOG_TICK_NS = 40
 
 
-#: DC loop reset values (facts 3.14, KickCAT citing the ESC datasheet).
+#: DC loop reset values (ESC datasheet section II, 0x0930-0x0935; KickCAT
+#: lib/slave/src/ESC/EmulatedESC.cc constructor).
 DC_SPEED_COUNTER_START_DEFAULT = 0x1000
 DC_TIME_FILTER_DEPTH_DEFAULT = 4
 DC_SPEED_FILTER_DEPTH_DEFAULT = 12
-#: Bytes to write to ESC_RESET_ECAT, one per frame, to reset an ESC (facts 3.3).
+#: Bytes to write to ESC_RESET_ECAT, one per frame, to reset an ESC ("RES"; IgH
+#: master/fsm_reboot.c).
 ESC_RESET_SEQUENCE = (0x52, 0x45, 0x53)
 
 

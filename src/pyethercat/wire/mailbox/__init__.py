@@ -39,7 +39,7 @@ __all__ = [
     "MAILBOX_HEADER_SIZE",
     "MailboxHeader",
     "MailboxType",
-    "MailboxMessage",
+    "ProtocolMessage",
     "StandardObject",
     "SyncSub",
     "decode_mailbox",
@@ -51,14 +51,16 @@ __all__ = [
     "sm_pdo_assignment",
 ]
 
-MailboxMessage: TypeAlias = (
+#: A decoded mailbox payload of any protocol. (The master's transport calls the raw
+#: header + payload it reads a ``MailboxMessage``; this is the typed content.)
+ProtocolMessage: TypeAlias = (
     CoeMessage | FoeMessage | EoeMessage | SoeMessage | MailboxErrorReply | bytes
 )
 
 
 def decode_message(
     data: bytes | bytearray | memoryview,
-) -> tuple[MailboxHeader, MailboxMessage]:
+) -> tuple[MailboxHeader, ProtocolMessage]:
     """Header and typed message of a mailbox buffer (may be padded to the SM length).
 
     Error replies (type 0) come back as a :class:`MailboxErrorReply` instance

@@ -1,4 +1,4 @@
-"""CANopen basic data types (facts sheet 7.10): codes, sizes, value codecs.
+"""CANopen basic data types (IEC 61158-6-12:2019 5.6.7.3 Table 64): codes, sizes, value codecs.
 
 Also the mapping from user type names (the CLI ``--type`` option, spelled as
 IgH's ``ethercat`` tool spells them: ``uint16``, ``int32``, ``float``,

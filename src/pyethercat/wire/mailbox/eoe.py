@@ -1,4 +1,7 @@
-"""EoE (Ethernet over EtherCAT, mailbox type 2) codecs (facts sheet section 9).
+"""EoE (Ethernet over EtherCAT, mailbox type 2) codecs.
+
+Layout as SOEM ``include/soem/ec_eoe.h`` (``EOE_HDR_*``), IgH ``master/ethernet.c``
+and Wireshark ``packet-ecatmb.h`` (``EoeHeaderInfoUnion``) have it.
 
 Header (4 bytes after the mailbox header), little-endian words::
 
@@ -22,6 +25,7 @@ from ipaddress import IPv4Address
 from typing import ClassVar, TypeAlias
 
 from pyethercat.errors import MailboxError
+from pyethercat.wire.mailbox.fragments import FragmentReassembler
 from pyethercat.wire.mailbox.header import MAILBOX_HEADER_SIZE
 
 __all__ = [
@@ -80,7 +84,7 @@ class EoeFrameType(IntEnum):
 
 
 class EoeResult(IntEnum):
-    """EoE result codes (facts 9.4)."""
+    """EoE result codes (SOEM ``ec_eoe.h`` ``EOE_RESULT_*``)."""
 
     SUCCESS = 0x0000
     UNSPECIFIED_ERROR = 0x0001
@@ -578,70 +582,41 @@ class EoeReassembler:
     else ``None``. Fragment 0 always starts a new frame (an unfinished one is
     dropped and counted in ``dropped``). A fragment that does not continue
     the current frame (wrong fragment number, frame number or offset, or
-    overflowing the announced size) raises :class:`MailboxError` and resets.
+    overflowing the announced size) raises :class:`MailboxError` and resets
+    (the rules are :class:`~pyethercat.wire.mailbox.fragments.FragmentReassembler`'s).
     """
 
     def __init__(self) -> None:
-        self._buffer = bytearray()
-        self._next = 0
-        self._frame_number = 0
-        self._capacity = 0
-        self._active = False
-        self.dropped = 0
+        self._core = FragmentReassembler("EoE reassembly", key_name="frame number",
+                                         sequence_name="fragment", step=1)
         self.timestamp: int | None = None
         self.port = 0
 
     @property
     def in_progress(self) -> bool:
         """True while a frame is partly received."""
-        return self._active
+        return self._core.in_progress
+
+    @property
+    def dropped(self) -> int:
+        """Frames given up because fragment 0 of the next one came first."""
+        return self._core.dropped
 
     def reset(self) -> None:
         """Drop any partial frame."""
-        self._buffer = bytearray()
-        self._next = 0
-        self._active = False
-
-    def _fail(self, why: str) -> MailboxError:
-        self.reset()
-        return MailboxError(f"EoE reassembly: {why}")
+        self._core.reset()
 
     def feed(self, fragment: EoeFragment) -> bytes | None:
         """Add one fragment."""
-        if fragment.fragment_number == 0:
-            if self._active:
-                self.dropped += 1
-            self.reset()
-            self._active = True
-            self._frame_number = fragment.frame_number
-            self._capacity = fragment.offset * EOE_BLOCK
+        first = fragment.fragment_number == 0
+        if first:
             self.port = fragment.port
-        else:
-            if not self._active:
-                raise self._fail(f"fragment {fragment.fragment_number} without fragment 0")
-            if fragment.frame_number != self._frame_number:
-                raise self._fail(
-                    f"frame number {fragment.frame_number} inside frame {self._frame_number}"
-                )
-            if fragment.fragment_number != self._next:
-                raise self._fail(
-                    f"fragment {fragment.fragment_number} where {self._next} was expected"
-                )
-            if fragment.offset * EOE_BLOCK != len(self._buffer):
-                raise self._fail(
-                    f"fragment offset {fragment.offset * EOE_BLOCK} bytes,"
-                    f" {len(self._buffer)} received so far"
-                )
-        self._buffer += fragment.data
-        # capacity 0 means the sender did not announce a size: do not check it
-        if self._capacity and len(self._buffer) > self._capacity:
-            raise self._fail(
-                f"{len(self._buffer)} bytes exceed the announced {self._capacity}-byte frame"
-            )
-        self._next = fragment.fragment_number + 1
-        if not fragment.last:
-            return None
-        frame = bytes(self._buffer)
-        self.timestamp = fragment.timestamp
-        self.reset()
+        # capacity 0 means the sender did not announce a size: it is not checked
+        frame = self._core.feed(
+            fragment.data, key=fragment.frame_number, sequence=fragment.fragment_number,
+            last=fragment.last, first=first,
+            offset=None if first else fragment.offset * EOE_BLOCK,
+            capacity=fragment.offset * EOE_BLOCK if first else 0)
+        if frame is not None:
+            self.timestamp = fragment.timestamp
         return frame

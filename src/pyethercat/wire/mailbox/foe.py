@@ -1,4 +1,7 @@
-"""FoE (File access over EtherCAT, mailbox type 4) codecs (facts sheet section 8).
+"""FoE (File access over EtherCAT, mailbox type 4) codecs.
+
+Layout as Wireshark ``packet-ecatmb.h`` (``ETHERCAT_FOE_HEADER``), IgH
+``master/fsm_foe.c`` and SOES ``soes/esc_foe.c`` have it.
 
 Header (6 bytes after the mailbox header)::
 
@@ -57,7 +60,7 @@ class FoeOpCode(IntEnum):
 
 
 class FoeErrorCode(IntEnum):
-    """FoE error codes (facts 8.3)."""
+    """FoE error codes (SOES ``soes/esc.h`` ``FOE_ERR_*``; KickCAT ``FoE/protocol.h``)."""
 
     NOT_DEFINED = 0x8000
     NOT_FOUND = 0x8001

@@ -1,6 +1,7 @@
 """Mailbox header (6 bytes), mailbox types, error replies and counters.
 
-Layout (all little-endian, facts sheet section 6.1)::
+Layout (all little-endian; Wireshark ``packet-ecatmb.h`` ``ETHERCAT_MBOX_HEADER``,
+SOES ``soes/esc.h`` ``_MBXh``)::
 
     0  u16  length    bytes after this header
     2  u16  address   originator (master -> slave) / destination (slave -> master)
@@ -66,7 +67,7 @@ class MailboxType(IntEnum):
 
 
 class MailboxErrorCode(IntEnum):
-    """Detail code of a mailbox error reply (type 0), facts 6.4."""
+    """Detail code of a mailbox error reply (type 0; SOES ``soes/esc.h`` ``MBXERR_*``)."""
 
     SYNTAX = 0x0001
     UNSUPPORTED_PROTOCOL = 0x0002

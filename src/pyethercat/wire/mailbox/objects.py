@@ -1,4 +1,4 @@
-"""The standard CoE object indices and subindices (facts 7.8, 7.9): one table.
+"""The standard CoE object indices and subindices (ETG.1000.6 / CiA 301 communication area): one table.
 
 Master and simulator name the communication objects of a CANopen-over-EtherCAT
 slave from here instead of writing their numbers again:
@@ -48,7 +48,7 @@ __all__ = [
 
 
 class StandardObject(IntEnum):
-    """Indices of the standard communication objects (facts 7.8)."""
+    """Indices of the standard communication objects (0x1000-0x1FFF, CiA 301 and ETG.1000.6)."""
 
     DEVICE_TYPE = 0x1000
     """u32: bits 15:0 device profile (402, 5001, ...), bits 31:16 additional info."""
@@ -139,7 +139,7 @@ def is_pdo_mapping(index: int) -> bool:
 
 
 def mapping_word(index: int, subindex: int, bit_length: int) -> int:
-    """PDO mapping entry (u32): ``index << 16 | subindex << 8 | bit_length`` (facts 7.8).
+    """PDO mapping entry (u32): ``index << 16 | subindex << 8 | bit_length`` (CiA 301).
 
     Index 0 is a gap of ``bit_length`` bits. :class:`ConfigError` when a part
     does not fit its field (index 16 bits, subindex and length 8 bits each).
@@ -165,7 +165,8 @@ class IdentitySub(IntEnum):
 
 
 class SyncSub(IntEnum):
-    """Subindices of 0x1C32 / 0x1C33, SM output / input synchronisation (facts 7.9)."""
+    """Subindices of 0x1C32 / 0x1C33, SM output / input synchronisation (ETG.1020; SOES
+    ``applications/rtl_xmc4_dynpdo/slave_objectlist.c`` ``SDO1C32``)."""
 
     SYNC_MODE = 0x01
     """u16, a :class:`SyncMode`."""

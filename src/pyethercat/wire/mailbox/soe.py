@@ -1,4 +1,7 @@
-"""SoE (Servo drive profile over EtherCAT, mailbox type 5) codecs (facts section 10).
+"""SoE (Servo drive profile over EtherCAT, mailbox type 5) codecs.
+
+Layout as SOEM ``include/soem/ec_soe.h``, IgH ``master/fsm_soe.c`` and Wireshark
+``packet-ecatmb.h`` (``SoeHeaderControlUnion``) have it; IDN meanings from IEC 61800-7-204.
 
 Header (4 bytes after the mailbox header)::
 
@@ -17,6 +20,7 @@ from dataclasses import dataclass
 from enum import IntEnum, IntFlag
 
 from pyethercat.errors import MailboxError
+from pyethercat.wire.mailbox.fragments import FragmentReassembler
 from pyethercat.wire.mailbox.header import MAILBOX_HEADER_SIZE
 
 __all__ = [
@@ -270,45 +274,31 @@ class SoeReassembler:
     ``feed(msg)`` returns the complete message (last fragment's header, all
     data) or ``None`` while fragments are outstanding. A frame with the error
     bit ends the transfer and is returned as is. Opcode changes or a
-    fragments-left count that does not decrease raise :class:`MailboxError`.
+    fragments-left count that does not decrease raise :class:`MailboxError`
+    (the rules are :class:`~pyethercat.wire.mailbox.fragments.FragmentReassembler`'s).
     """
 
     def __init__(self) -> None:
-        self._opcode: int | None = None
-        self._left = 0
-        self._parts: list[bytes] = []
+        self._core = FragmentReassembler("SoE fragment", key_name="opcode",
+                                         sequence_name="fragments-left", step=-1, strict=False)
 
     @property
     def in_progress(self) -> bool:
         """True while fragments are outstanding."""
-        return self._opcode is not None
+        return self._core.in_progress
 
     def reset(self) -> None:
         """Forget a partial message."""
-        self._opcode = None
-        self._left = 0
-        self._parts = []
+        self._core.reset()
 
     def feed(self, msg: SoeMessage) -> SoeMessage | None:
         """Add one frame."""
         if msg.error_code is not None:
             self.reset()
             return msg
-        if self._opcode is not None:
-            if msg.opcode != self._opcode:
-                self.reset()
-                raise MailboxError(f"SoE fragment opcode {msg.opcode} inside opcode {self._opcode}")
-            if msg.incomplete and msg.fragments_left >= self._left:
-                left = self._left
-                self.reset()
-                raise MailboxError(
-                    f"SoE fragments-left {msg.fragments_left} does not count down from {left}"
-                )
-        self._opcode = msg.opcode
-        self._parts.append(msg.data)
-        if msg.incomplete:
-            self._left = msg.fragments_left
+        # the last fragment carries the IDN where the others count down
+        data = self._core.feed(msg.data, key=msg.opcode, last=not msg.incomplete,
+                               sequence=msg.fragments_left if msg.incomplete else None)
+        if data is None:
             return None
-        data = b"".join(self._parts)
-        self.reset()
         return SoeMessage(msg.opcode, msg.idn, msg.elements, msg.drive, False, None, data)

@@ -1,7 +1,7 @@
 """Typed model of an SII (slave information interface) EEPROM image.
 
 The image is a fixed area of 64 words (0x00-0x3F) followed by a chain of
-categories (facts sheet section 5). The model keeps every byte it read, so an
+categories (IEC 61158-6-12:2019 5.4, ETG.1000.6; ETG.2010 for the categories). The model keeps every byte it read, so an
 image parsed and rebuilt comes back the same: reserved words of the fixed area,
 categories nobody here understands (vendor categories, FMMUX, SyncUnit) and
 any bytes left over inside a known category after its structured content.
@@ -68,7 +68,8 @@ __all__ = [
     "category_name",
 ]
 
-# Word addresses of the fixed area (facts 5.1). Byte offset = 2 * word.
+# Word addresses of the fixed area (ETG.2010; SOEM ec_type.h ECT_SII_*, siitool sii.h).
+# Byte offset = 2 * word.
 WORD_PDI_CONTROL = 0x00
 WORD_PDI_CONFIG = 0x01
 WORD_SYNC_IMPULSE = 0x02
@@ -102,7 +103,10 @@ SM_NOT_ASSIGNED = 0xFF
 
 
 class CategoryType(IntEnum):
-    """Category type codes (facts 5.4). Bit 15 of the type word marks vendor categories."""
+    """Category type codes (ETG.2010; siitool ``sii.h`` ``eSection``).
+
+    Bit 15 of the type word marks vendor categories.
+    """
 
     NOP = 0
     STRINGS = 10
@@ -128,7 +132,7 @@ def category_name(ctype: int) -> str:
 
 
 class MailboxProtocol(IntFlag):
-    """Supported mailbox protocols, word 0x1C (facts 5.3)."""
+    """Supported mailbox protocols, word 0x1C (IEC 61158-6-12:2019 5.4 Table 18)."""
 
     NONE = 0
     AOE = 0x0001
@@ -248,7 +252,8 @@ class SiiStrings:
 
 @dataclass
 class SiiGeneral:
-    """General category (30), 32 bytes (facts 5.5). ``extra`` = bytes beyond 32."""
+    """General category (30), 32 bytes (ETG.2010; IgH ``master/slave.c``
+    ``ec_slave_fetch_sii_general``). ``extra`` = bytes beyond 32."""
 
     group_index: int = 0
     image_index: int = 0
@@ -363,7 +368,8 @@ class SiiPdos:
 
 @dataclass
 class SiiDcMode:
-    """One DC operation mode of the DC category (24 bytes, facts 5.5)."""
+    """One DC operation mode of the DC category (24 bytes; ETG.2010 Table 12 as KickCAT
+    ``lib/src/ESI/SIIBuilder.cc`` cites it, siitool ``sii.c`` ``parse_dclock_section``)."""
 
     cycle_time_sync0: int = 0  # u32
     shift_time_sync0: int = 0  # i32
