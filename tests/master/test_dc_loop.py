@@ -60,10 +60,13 @@ def test_reference_mode_writes_master_time_then_reads() -> None:
                                                                    R.DC_SYSTEM_TIME, 8)
     assert (frmw.command, frmw.ado) == (Command.FRMW, R.DC_SYSTEM_TIME)
     assert dc.fill(1_000) == struct.pack("<Q", 5_000_001_000)
+    # the first reply puts the master's cycle on the grid: frames half a cycle before SYNC0
+    assert dc.target_ns == CYCLE // 2
+    assert dc.on_reply(struct.pack("<Q", 5_000_001_040), 1_000) == CYCLE // 2 - 1_000
     # the reference answers 40 ns ahead of the master: the tracking error
-    assert dc.on_reply(struct.pack("<Q", 5_000_001_040), 1_000) == 0
     assert dc.master_difference_ns == 40
-    assert dc.on_reply(None, 2_000) == 0 and dc.lost == 1
+    assert dc.on_reply(struct.pack("<Q", 5_000_002_040), 2_000) == 0
+    assert dc.on_reply(None, 3_000) == 0 and dc.lost == 1
 
 
 def test_32bit_reference_is_extended_with_the_master_time() -> None:

@@ -49,6 +49,7 @@ import numpy.typing as npt
 
 from pyethercat.errors import ConfigError, EtherCATError
 from pyethercat.master.config import CyclicDatagram, GroupConfig, ProcessDataConfig
+from pyethercat.master.dc_loop import DcCycle, SyncEvent
 from pyethercat.master.image import ProcessImage
 from pyethercat.master.scheduler import CyclicFrame, CyclicTemplate, Request, Scheduler
 from pyethercat.wire import registers as reg
@@ -269,7 +270,7 @@ class _FramePlan:
     reply offset of the input bytes, buffer start, buffer end).
     """
 
-    __slots__ = ("template", "fills", "takes", "groups")
+    __slots__ = ("template", "fills", "takes", "groups", "dc_fill", "dc_read")
 
     def __init__(self, template: CyclicTemplate, fills: list[tuple[memoryview, int]],
                  takes: list[tuple[GroupRuntime, int, int, int, int, int, int]],
@@ -278,6 +279,9 @@ class _FramePlan:
         self.fills = fills
         self.takes = takes
         self.groups = groups
+        #: Frame offsets of the DC datagrams' data (master time written, FRMW read); -1: none.
+        self.dc_fill = -1
+        self.dc_read = -1
 
 
 @dataclass
@@ -349,7 +353,7 @@ class CyclicRunner:
                  check_interval: float = 0.1, target: AlState = AlState.OP,
                  recover: Callable[[list[int]], None] | None = None,
                  groups: Sequence[str] | None = None, late_fraction: float = 0.25,
-                 frame_timeout: float | None = None) -> None:
+                 frame_timeout: float | None = None, dc: DcCycle | None = None) -> None:
         if cycle <= 0:
             raise ConfigError(f"cycle time must be positive, got {cycle}")
         self.scheduler = scheduler
@@ -405,6 +409,15 @@ class CyclicRunner:
         self._all_due = tuple(range(len(self.groups)))
         #: False while the master is still walking the slaves up (no supervision yet).
         self.supervising = True
+        #: Distributed clocks: the FRMW (and in reference mode the time write) in every
+        #: cycle's first frame, the phase lock moving the deadlines, the sync monitor.
+        self.dc = dc
+        self.dc_events: deque[SyncEvent] = deque(maxlen=200)
+        self._dc_shift = 0
+        self._dc_brd: Request | None = None
+        if dc is not None and dc.cycle_ns != self.period_ns:
+            raise ConfigError(f"DC cycle {dc.cycle_ns} ns differs from the loop period "
+                              f"{self.period_ns} ns")
 
     # -- control ------------------------------------------------------------------------
 
@@ -505,6 +518,10 @@ class CyclicRunner:
         stats = self.stats
         cyc = self.cycle
         while not self._stop.is_set():
+            if self._dc_shift:
+                # The DC phase lock moved the cycle: every later deadline moves with it.
+                start += self._dc_shift
+                self._dc_shift = 0
             deadline = start + k * period
             if end is not None and deadline >= end:
                 break
@@ -565,9 +582,27 @@ class CyclicRunner:
     def _exchange(self, due: tuple[int, ...], k: int) -> tuple[bool, bool, int, tuple[str, ...]]:
         """One cycle's frames and the supervision riding in them."""
         self._supervise_before(k)
+        if self.dc is not None:
+            self._dc_monitor()
         ok, lost, rtt, names = self._exchange_frames(due)
         self._supervise_after(ok and not lost)
         return ok and not lost, lost, rtt, names
+
+    def _dc_monitor(self) -> None:
+        """The sync monitor's BRD of 0x092C rides in a cyclic frame now and then."""
+        dc = self.dc
+        assert dc is not None
+        brd = self._dc_brd
+        now = self.clock.now_ns()
+        if brd is not None and brd.done():
+            self._dc_brd = None
+            if brd.reply is not None:
+                ev = dc.monitor.on_reading(now, bytes(brd.reply.data), brd.reply.wkc)
+                if ev is not None:
+                    self.dc_events.append(ev)
+                    self.log(ev.text)
+        if self._dc_brd is None and dc.monitor.due(now):
+            self._dc_brd = self.scheduler.submit([dc.monitor.datagram()], flush=False)[0]
 
     def _exchange_frames(self, due: tuple[int, ...]
                          ) -> tuple[bool, bool, int, tuple[str, ...]]:
@@ -581,10 +616,16 @@ class CyclicRunner:
         timeout = self.frame_timeout
         t0 = now_ns()
         tickets: list[CyclicFrame] = []
+        dc = self.dc
         for p in plans:
             frame = p.template.frame
             for view, to in p.fills:
                 frame[to:to + len(view)] = view
+            if p.dc_fill >= 0:
+                assert dc is not None
+                value = dc.fill(now_ns())
+                if value is not None:
+                    frame[p.dc_fill:p.dc_fill + len(value)] = value
             tickets.append(sched.send_prepared(p.template, timeout=timeout))
         stats = self.stats
         lost = False
@@ -593,6 +634,11 @@ class CyclicRunner:
         for p, ticket in zip(plans, tickets, strict=True):
             stats.frames += 1
             raw = ticket.raw if ticket.raw is not None else ticket.wait_raw()
+            if p.dc_read >= 0:
+                assert dc is not None
+                at = p.dc_read
+                self._dc_shift += dc.on_reply(None if raw is None else bytes(raw[at:at + dc.size]),
+                                              t0)
             if raw is None:
                 lost = True
                 stats.lost_frames += 1
@@ -642,9 +688,16 @@ class CyclicRunner:
             used += size
         if cur:
             frames.append(cur)
+        # The DC datagrams lead the first frame (they belong to no group); a frame of
+        # their own when the first one is full.
+        dc_dgs = self.dc.datagrams() if self.dc is not None else []
+        if dc_dgs and (not frames or sum(d.size for d in dc_dgs) + sum(
+                g.plan[n].length + OVERHEAD for g, n in frames[0]) > MAX_PAYLOAD):
+            frames.insert(0, [])
         plans: list[_FramePlan] = []
-        for items in frames:
-            dgs = []
+        for fi, items in enumerate(frames):
+            lead = dc_dgs if fi == 0 else []
+            dgs = list(lead)
             for g, n in items:
                 d = g.plan[n]
                 dgs.append(Datagram(d.command, 0, d.logical_address, bytes(d.length)))
@@ -654,13 +707,17 @@ class CyclicRunner:
             groups: list[GroupRuntime] = []
             for i, (g, n) in enumerate(items):
                 d = g.plan[n]
-                at = template.data_offsets[i]
+                at = template.data_offsets[i + len(lead)]
                 fills.append((memoryview(g.image.buffer)[d.offset:d.offset + d.length], at))
-                takes.append((g, n, template.wkc_offsets[i], d.expected_wkc,
+                takes.append((g, n, template.wkc_offsets[i + len(lead)], d.expected_wkc,
                               at + d.copy_start - d.offset, d.copy_start, d.copy_end))
                 if g not in groups:
                     groups.append(g)
-            plans.append(_FramePlan(template, fills, takes, groups))
+            plan = _FramePlan(template, fills, takes, groups)
+            if lead:
+                plan.dc_read = template.data_offsets[len(lead) - 1]
+                plan.dc_fill = template.data_offsets[0] if len(lead) > 1 else -1
+            plans.append(plan)
         return plans, tuple(g.name for g in due), tuple(due)
 
     def _account(self, g: GroupRuntime, good: bool) -> None:
@@ -816,5 +873,17 @@ class CyclicRunner:
         for g in self.groups:
             lines.append(f"group {g.name}: WKC {g.total_wkc}/{g.expected_wkc} "
                          f"{'ok' if g.wkc_ok else 'BAD'}; errors {g.wkc_errors}, lost {g.lost}")
+        dc = self.dc
+        if dc is not None:
+            mon = dc.monitor
+            text = f"DC {dc.mode.value}: "
+            if dc.lock is not None:
+                text += f"phase error {dc.lock.error_ns} ns{' (locked)' if dc.lock.locked else ''}, "
+            elif dc.master_difference_ns is not None:
+                text += f"reference - master {dc.master_difference_ns} ns, "
+            last = "-" if mon.last_ns is None else f"{mon.last_ns}"
+            text += (f"|0x092C| <= {last} ns (worst {mon.worst_ns}), "
+                     f"{'SYNC UNSTABLE' if mon.unstable else 'in sync'}")
+            lines.append(text)
         return lines
 

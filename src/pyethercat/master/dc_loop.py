@@ -232,6 +232,7 @@ class DcCycle:
     master_difference_ns: int | None = None
     frames: int = 0
     lost: int = 0
+    _aligned: bool = False
 
     def __post_init__(self) -> None:
         if self.cycle_ns <= 0:
@@ -242,8 +243,13 @@ class DcCycle:
             # pulse leave with the next frame (SOEM's sample aims at 50 %).
             self.lead_ns = self.cycle_ns // 2
         if self.mode is DcMode.MASTER and self.lock is None:
-            self.lock = PhaseLock(self.cycle_ns, target_ns=(self.shift_ns - self.lead_ns)
-                                  % self.cycle_ns)
+            self.lock = PhaseLock(self.cycle_ns, target_ns=self.target_ns)
+
+    @property
+    def target_ns(self) -> int:
+        """System-time phase (modulo the cycle) at which frames should pass the reference."""
+        assert self.lead_ns is not None
+        return (self.shift_ns - self.lead_ns) % self.cycle_ns
 
     @property
     def size(self) -> int:
@@ -269,10 +275,16 @@ class DcCycle:
     def on_reply(self, frmw_data: bytes | None, send_ns: int) -> int:
         """The FRMW's data as it came back (``None``: frame lost); returns the deadline shift."""
         self.frames += 1
+        shift = 0
+        if self.mode is DcMode.REFERENCE and not self._aligned:
+            # System time follows the master's clock: put the master's cycle on
+            # the SYNC grid once; nothing to track afterwards.
+            self._aligned = True
+            shift = -_wrap(send_ns + self.clock_offset_ns - self.target_ns, self.cycle_ns)
         if frmw_data is None or len(frmw_data) < self.size:
             self.lost += 1
             self.reference_time = None
-            return 0
+            return shift
         ref = int.from_bytes(frmw_data[: self.size], "little")
         master = send_ns + self.clock_offset_ns
         if not self.wide:
@@ -281,7 +293,7 @@ class DcCycle:
         self.reference_time = ref
         self.master_difference_ns = ref - master
         if self.lock is None:
-            return 0
+            return shift
         return self.lock.update(ref)
 
 

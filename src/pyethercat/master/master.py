@@ -28,6 +28,7 @@ from pyethercat.errors import ConfigError, StateTimeoutError, WorkingCounterErro
 from pyethercat.link.base import Link
 from pyethercat.master import diag, states
 from pyethercat.master import scan as scanning
+from pyethercat.master.clocks import DistributedClocks
 from pyethercat.master.coe_setup import CoeMasterMixin
 from pyethercat.master.process import ProcessDataMixin
 from pyethercat.master.scheduler import (
@@ -76,6 +77,8 @@ class Master(CoeMasterMixin, ProcessDataMixin):
         self.topology_consistent = True
         self._lock = threading.RLock()
         self._closed = False
+        #: Distributed clocks: set-up, SYNC pulses, the cyclic plan (:class:`DistributedClocks`).
+        self.dc = DistributedClocks(self.scheduler.transact, lambda: self.slaves)
 
     # -- opening and closing ---------------------------------------------------------
 
@@ -328,6 +331,7 @@ class Master(CoeMasterMixin, ProcessDataMixin):
                 # Configured here, not earlier: CoE mappings are read in PREOP.
                 self._need_config()
                 self.write_process_data_config(group)
+                self.dc.before_safeop(group)
 
         return prepare
 

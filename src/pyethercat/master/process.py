@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Any
 from pyethercat.errors import ConfigError, EtherCATError, WorkingCounterError
 from pyethercat.master import scan as scanning
 from pyethercat.master import states
+from pyethercat.master.clocks import DistributedClocks
 from pyethercat.master.config import (
     GroupSpec,
     Layout,
@@ -32,7 +33,8 @@ from pyethercat.master.config import (
     SlaveSpec,
     configure,
 )
-from pyethercat.master.cyclic import Clock, Cycle, CycleStats, CyclicRunner
+from pyethercat.master.cyclic import Clock, Cycle, CycleStats, CyclicRunner, PerfClock
+from pyethercat.master.dc_loop import DcMode
 from pyethercat.master.image import ProcessImage, build_images
 from pyethercat.master.slave import Slave
 from pyethercat.wire import registers as reg
@@ -68,6 +70,7 @@ class ProcessDataMixin:
     process_data: ProcessDataConfig | None = None
     images: dict[str, ProcessImage]
     runner: CyclicRunner | None = None
+    dc: DistributedClocks
 
     def _sleep(self, seconds: float) -> None: ...  # provided by Master
 
@@ -155,6 +158,7 @@ class ProcessDataMixin:
                 before(scheduler, step, group)
             if step == AlState.SAFEOP:
                 self.write_process_data_config(group)
+                self.dc.before_safeop(group)
 
         states.set_state(st, slaves, AlState.SAFEOP, timeout, sleep=self._sleep,
                          prepare=prepare, **hooks)
@@ -165,22 +169,35 @@ class ProcessDataMixin:
               callback: Callable[[Cycle], None] | None = None, clock: Clock | None = None,
               check_interval: float = 0.1, recover: bool = True, timeout: float = 5.0,
               groups: Sequence[str] | None = None,
-              frame_timeout: float | None = None) -> CyclicRunner:
+              frame_timeout: float | None = None, dc: DcMode | str | None = None,
+              dc_lead: float | None = None) -> CyclicRunner:
         """Configure (if needed), bring every slave to SAFE-OP, start cycles, then go to ``target``.
 
         Returns the running :class:`CyclicRunner` (a context manager; ``stop()``
         ends it). OP is requested only once outputs flow, as slaves demand.
+        ``dc`` ("master" or "reference", see :class:`DcMode`) adds distributed
+        clocks: the set-up if it has not run, the reference's time in every
+        frame, the phase lock or the reference write, the sync monitor;
+        ``dc_lead`` (seconds, default half a cycle) is how long before SYNC0
+        the frames pass the reference clock.
         """
         want = AlState.parse(target) if isinstance(target, str) else AlState(int(target))
         with self._lock:
             if self.runner is not None and self.runner.running:
                 raise ConfigError("cyclic exchange is already running")
             cfg = self._need_config()
+            clock = clock or PerfClock()
+            plan = None
+            if dc is not None:
+                if self.dc.report is None:
+                    self.dc.setup()
+                lead = None if dc_lead is None else int(round(dc_lead * 1e9))
+                plan = self.dc.cycle(int(round(cycle * 1e9)), dc, clock, lead_ns=lead)
             self._bring_up(self.slaves, timeout)
             runner = CyclicRunner(self.scheduler, cfg, self.images, self.slaves, cycle=cycle,
                                   clock=clock, callback=callback, check_interval=check_interval,
                                   target=want, recover=self._recover if recover else None,
-                                  groups=groups, frame_timeout=frame_timeout)
+                                  groups=groups, frame_timeout=frame_timeout, dc=plan)
             self.runner = runner
             # Supervision starts once the slaves are where they were asked to be: the
             # check would otherwise see SAFE-OP during the walk up and "recover" them.
