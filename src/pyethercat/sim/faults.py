@@ -1,0 +1,91 @@
+"""Frame faults of a segment: CRC errors on a port, frames lost on the wire, malformed frames.
+
+A frame with a CRC error on a link (ETG.1000.4 section 5.7 "Error
+detection"; ET1100 datasheet section I, "Error counters" 0x0300-0x0313):
+
+- the port that receives it counts an invalid frame (RX error counter,
+  0x0300 + 2 * port), every later port on the walk counts a forwarded error
+  (0x0308 + port): only the first detecting port counts the error itself;
+- the slaves passed before the bad link took the frame (their FCS check was
+  good); the receiving slave and all after it discard its content, and the
+  master's NIC drops it for its bad FCS.
+
+A malformed EtherCAT frame (datagrams running past the frame) is not
+processed at all and counted by the first slave's processing-unit error
+counter 0x030C.
+
+Dropped frames (``drop_probability``) are lost before any slave sees them.
+"""
+
+from __future__ import annotations
+
+import random
+
+from pyethercat.errors import ConfigError
+from pyethercat.sim.memory import EscMemory
+from pyethercat.sim.ports import Route
+from pyethercat.wire import registers as R
+
+__all__ = ["NEVER", "Faults"]
+
+#: "No arrival": later than any arrival index.
+NEVER = 1 << 62
+
+
+class Faults:
+    """Pending CRC faults per port and the drop probability (see the module docstring)."""
+
+    def __init__(self, memory: EscMemory) -> None:
+        self.memory = memory
+        #: Frames still to corrupt, by (slave, port) of arrival.
+        self.corrupt: dict[tuple[int, int], int] = {}
+        self.drop_p = 0.0
+        self._rng = random.Random()
+
+    def corrupt_frames(self, slave: int, port: int, count: int) -> None:
+        self.corrupt[(slave, port)] = self.corrupt.get((slave, port), 0) + count
+
+    def set_drop_probability(self, p: float, seed: int | None = None) -> None:
+        if not 0.0 <= p <= 1.0:
+            raise ConfigError(f"drop probability {p} is not within 0..1")
+        self.drop_p = p
+        if seed is not None:
+            self._rng.seed(seed)
+
+    def drops(self) -> bool:
+        """Whether this frame is lost on the wire (one draw per frame)."""
+        return self._rng.random() < self.drop_p
+
+    def apply_corruption(self, route: Route) -> tuple[int, int]:
+        """Count CRC errors along the walk.
+
+        Returns the number of processing-unit passes made before the corrupted
+        arrival (those slaves execute the frame) and that arrival's index in
+        ``route.arrivals``, or (-1, :data:`NEVER`) if no pending fault hit this frame."""
+        mem = self.memory.mem
+        corrupted = False
+        cut, at = -1, NEVER
+        for i, (s, p, _t, before) in enumerate(route.arrivals):
+            if not corrupted:
+                left = self.corrupt.get((s, p), 0)
+                if left:
+                    corrupted = True
+                    cut, at = before, i
+                    if left == 1:
+                        del self.corrupt[(s, p)]
+                    else:
+                        self.corrupt[(s, p)] = left - 1
+                    a = R.RX_ERROR_COUNTER + 2 * p
+                    mem[s, a] = min(255, int(mem[s, a]) + 1)
+            else:
+                a = R.FORWARDED_RX_ERROR_COUNTER + p
+                mem[s, a] = min(255, int(mem[s, a]) + 1)
+        return cut, at
+
+    def processing_error(self, route: Route) -> None:
+        """A malformed EtherCAT frame: counted by the first slave's processing unit."""
+        if len(route.passes):
+            s = int(route.passes[0])
+            mem = self.memory.mem
+            c = int(mem[s, R.ECAT_PROCESSING_ERROR_COUNTER])
+            mem[s, R.ECAT_PROCESSING_ERROR_COUNTER] = min(255, c + 1)
