@@ -26,6 +26,7 @@ from pathlib import Path
 
 from lxml import etree
 
+from pyethercat.clock import VirtualClock
 from pyethercat.esi import parse_esi
 from pyethercat.esi.bundled import bundled_esi
 from pyethercat.esi.eni import build_eni, parse_eni
@@ -56,7 +57,7 @@ def _topology(n: int, folder: Path) -> Path:
 
 def _master(topo: Path) -> Master:
     seg = load_topology(topo).build()
-    return Master(PairLink.responder_link(seg.process), deterministic=True)
+    return Master(PairLink.responder_link(seg.process), clock=VirtualClock())
 
 
 def main() -> None:

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from pyethercat.clock import VirtualClock
 from pyethercat.errors import SdoAbort
 from pyethercat.link.capture import CaptureLink
 from pyethercat.link.pair import PairLink
@@ -33,7 +34,7 @@ def capture(tmp_path_factory: pytest.TempPathFactory) -> Path:
     seg = load_topology(d / "coe.toml").build()
     path = d / "coe.pcap"
     m = Master(CaptureLink(PairLink.responder_link(seg.process), str(path)),
-               deterministic=True)
+               clock=VirtualClock())
     m.scan()
     m.set_state("PREOP")
     io = m.slaves[0]

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 
+from pyethercat.clock import VirtualClock
 from pyethercat.link.pair import PairLink
 from pyethercat.master.master import Master
 from pyethercat.wire import registers as reg
@@ -46,7 +47,7 @@ def sim(corpus_dir: Path, tmp_path: Path) -> tuple[object, Master, Recorder]:
                     '[[slave]]\nname = "fw"\ndevice = "builtin:coe-io"\n')
     seg = load_topology(path).build()
     rec = Recorder(seg.process)
-    m = Master(PairLink.responder_link(rec), deterministic=True)
+    m = Master(PairLink.responder_link(rec), clock=VirtualClock())
     m.scan()
     m.set_state("PREOP")
     return seg, m, rec
@@ -65,7 +66,7 @@ def test_device_emulation_is_known_from_the_sii(sim: tuple[object, Master, Recor
 def test_device_emulation_is_known_without_the_sii(sim: tuple[object, Master, Recorder]) -> None:
     """The scan reads 0x0141 itself, so a scan without SII (ENI start) knows it too."""
     seg, _, _ = sim
-    m = Master(PairLink.responder_link(seg.process), deterministic=True)  # type: ignore[attr-defined]
+    m = Master(PairLink.responder_link(seg.process), clock=VirtualClock())  # type: ignore[attr-defined]
     m.scan(read_sii=False)
     assert [s.sii for s in m.slaves] == [None, None]
     assert [s.esc_config is not None for s in m.slaves] == [True, True]

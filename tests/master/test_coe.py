@@ -9,6 +9,7 @@ import struct
 import pytest
 from mini_coe import MiniCoe, coe_segment
 
+from pyethercat.clock import VirtualClock
 from pyethercat.errors import ConfigError, EtherCATError, MailboxError, SdoAbort
 from pyethercat.errors import TimeoutError as EcTimeoutError
 from pyethercat.master.coe import mapping_word, parse_transition, split_mapping_word
@@ -28,7 +29,7 @@ from pyethercat.wire.mailbox.datatypes import DataType
 
 def _master(count: int = 1, mailbox_size: int = 128) -> tuple[Master, list[MiniCoe]]:
     _seg, apps, _drop, link = coe_segment(count, mailbox_size=mailbox_size)
-    m = Master(link, deterministic=True)
+    m = Master(link, clock=VirtualClock())
     m.scan()
     m.set_state("PREOP")
     return m, apps

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from pyethercat.clock import VirtualClock
 from pyethercat.errors import SdoAbort
 from pyethercat.errors import TimeoutError as EcTimeoutError
 from pyethercat.link.pair import PairLink
@@ -36,7 +37,7 @@ def m(tmp_path: Path) -> Master:
     path = tmp_path / "coe.toml"
     path.write_text(TOPOLOGY)
     seg = load_topology(path).build()
-    master = Master(PairLink.responder_link(seg.process), deterministic=True)
+    master = Master(PairLink.responder_link(seg.process), clock=VirtualClock())
     master.scan()
     master.set_state("PREOP")
     return master

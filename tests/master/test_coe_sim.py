@@ -12,9 +12,10 @@ from pathlib import Path
 
 import pytest
 
+from pyethercat.clock import VirtualClock
 from pyethercat.errors import SdoAbort
 from pyethercat.link.pair import PairLink
-from pyethercat.master.cyclic import CyclicRunner, VirtualClock
+from pyethercat.master.cyclic import CyclicRunner
 from pyethercat.master.master import Master
 from pyethercat.wire.al import AlState
 from pyethercat.wire.mailbox.coe import SdoAbortCode
@@ -41,7 +42,7 @@ def sim(tmp_path: Path) -> tuple[object, Master]:
     path = tmp_path / "coe.toml"
     path.write_text(TOPOLOGY)
     seg = load_topology(path).build()
-    m = Master(PairLink.responder_link(seg.process), deterministic=True)
+    m = Master(PairLink.responder_link(seg.process), clock=VirtualClock())
     m.scan()
     m.set_state("PREOP")
     return seg, m

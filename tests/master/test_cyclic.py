@@ -15,8 +15,9 @@ from fake_esc_segment import FakeSlave
 from fake_logical import LogicalSegment
 from master_sii_helpers import coupler, di, do
 
+from pyethercat.clock import VirtualClock
 from pyethercat.link.pair import PairLink
-from pyethercat.master.cyclic import CyclicRunner, VirtualClock
+from pyethercat.master.cyclic import CyclicRunner
 from pyethercat.master.master import Master
 from pyethercat.wire.al import AlState
 from pyethercat.wire.sii import build_sii
@@ -29,7 +30,7 @@ def make(layout: str = "packed"):
     seg = LogicalSegment([FakeSlave(build_sii(s)) for s in siis])
     # do2 (1) -> di2 (2), do2 (3) -> di2 (4), do8 (5) -> di8 (6)
     seg.wires = [(1, OUT_RAM, 2, IN_RAM, 2), (3, OUT_RAM, 4, IN_RAM, 2), (5, OUT_RAM, 6, IN_RAM, 8)]
-    m = Master(PairLink.responder_link(seg.process), deterministic=True)
+    m = Master(PairLink.responder_link(seg.process), clock=VirtualClock())
     m.scan()
     m.configure(layout=layout)
     return seg, m

@@ -12,9 +12,10 @@ from pathlib import Path
 
 import pytest
 
+from pyethercat.clock import VirtualClock
 from pyethercat.link.pair import PairLink
 from pyethercat.master.config import Layout
-from pyethercat.master.cyclic import CyclicRunner, VirtualClock
+from pyethercat.master.cyclic import CyclicRunner
 from pyethercat.master.master import Master
 from pyethercat.wire.al import AlState
 
@@ -25,7 +26,7 @@ def open_sim():
     from pyethercat.sim.topology import load_topology
 
     seg = load_topology(DEMO).build()
-    m = Master(PairLink.responder_link(seg.process), deterministic=True)
+    m = Master(PairLink.responder_link(seg.process), clock=VirtualClock())
     m.scan()
     return seg, m
 

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import pytest
 
+from pyethercat.clock import VirtualClock
 from pyethercat.errors import ConfigError, TopologyMismatchError
 from pyethercat.esi.bundled import bundled_esi
 from pyethercat.esi.eni import build_eni, parse_eni
@@ -36,7 +37,7 @@ def _master(path: Path) -> Master:
     from pyethercat.sim.topology import load_topology  # tests join master and simulator
 
     seg = load_topology(path).build()
-    return Master(PairLink.responder_link(seg.process), deterministic=True)
+    return Master(PairLink.responder_link(seg.process), clock=VirtualClock())
 
 
 def test_expected_network_mismatch_names_position_expected_found(
@@ -152,7 +153,7 @@ def test_scan_does_not_wait_out_the_ack_echo_of_device_emulation_slaves(
         frames += 1
         return seg.process(frame)
 
-    m = Master(PairLink.responder_link(counting), deterministic=True)
+    m = Master(PairLink.responder_link(counting), clock=VirtualClock())
     m.scan(read_sii=False)
     assert [m.read_u16(s.position, AL_STATUS) for s in m.slaves] == [int(AlState.INIT)] * 3
     assert frames < 40, frames

@@ -9,6 +9,7 @@ import threading
 import pytest
 from mini_coe import MiniCoe, coe_segment
 
+from pyethercat.clock import VirtualClock
 from pyethercat.errors import MailboxError, MailboxErrorReply, SdoAbort
 from pyethercat.errors import TimeoutError as EcTimeoutError
 from pyethercat.master.mailbox import Mailbox, MailboxMessage, MailboxPoller
@@ -22,7 +23,7 @@ from pyethercat.wire.mailbox.header import MailboxHeader, MailboxType, encode_ma
 
 def _master(count: int = 1, **kw: object) -> tuple[Master, list[MiniCoe], object]:
     _seg, apps, drop, link = coe_segment(count, **kw)  # type: ignore[arg-type]
-    m = Master(link, deterministic=True)
+    m = Master(link, clock=VirtualClock())
     m.scan()
     m.set_state("PREOP")
     return m, apps, drop
@@ -281,7 +282,7 @@ def test_segmented_both_ways_with_small_and_large_mailboxes(size: int) -> None:
     # 800-byte mailboxes: SM0 write + SM1 read do not fit one frame, the
     # speculative read goes out as separate requests instead of the prepared frame
     _seg, _apps, drop, link = coe_segment(1, mailbox_size=size)
-    m = Master(link, deterministic=True)
+    m = Master(link, clock=VirtualClock())
     m.scan()
     m.set_state("PREOP")
     s = m.slaves[0]

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 
+from pyethercat.clock import VirtualClock
 from pyethercat.errors import AlStatusError, TopologyMismatchError
 from pyethercat.link.pair import PairLink
 from pyethercat.master import Identity, Master
@@ -52,7 +53,7 @@ def _open(text: str = TREE) -> tuple[Master, Topology, object]:
     topo = parse_topology(text)
     segment = topo.build()
     link = PairLink.responder_link(segment.process)
-    return Master(link, deterministic=True), topo, segment
+    return Master(link, clock=VirtualClock()), topo, segment
 
 
 def test_scan_matches_what_the_segment_was_built_from() -> None:
@@ -129,7 +130,7 @@ def test_multiple_read_takes_one_frame() -> None:
         frames.append(frame)
         return segment.process(frame)  # type: ignore[no-any-return]
 
-    m = Master(PairLink.responder_link(counting), deterministic=True)
+    m = Master(PairLink.responder_link(counting), clock=VirtualClock())
     m.scan()
     before = len(frames)
     report = m.error_counters()
@@ -160,6 +161,6 @@ def test_demo_topology_file_scans(tmp_path: Path) -> None:
     from pyethercat.sim.topology import load_topology
 
     segment = load_topology(demo).build()
-    m = Master(PairLink.responder_link(segment.process), deterministic=True)
+    m = Master(PairLink.responder_link(segment.process), clock=VirtualClock())
     slaves = m.scan()
     assert slaves and all(s.sii is not None for s in slaves)

@@ -7,6 +7,7 @@ import struct
 from fake_esc_segment import FakeSegment, FakeSlave
 from master_sii_helpers import io_sii
 
+from pyethercat.clock import VirtualClock
 from pyethercat.link.pair import PairLink
 from pyethercat.master.scheduler import Scheduler
 from pyethercat.wire import registers as reg
@@ -26,7 +27,7 @@ def _setup(n: int = 2) -> tuple[Scheduler, FakeSegment, list[bytes]]:
         sent.append(frame)
         return seg.process(frame)
 
-    s = Scheduler(PairLink.responder_link(responder), deterministic=True)
+    s = Scheduler(PairLink.responder_link(responder), clock=VirtualClock())
     s.transact([Datagram.positional(Command.APWR, i, reg.STATION_ADDRESS,
                                     struct.pack("<H", 0x1001 + i)) for i in range(n)])
     return s, seg, sent

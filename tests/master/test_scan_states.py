@@ -8,6 +8,7 @@ import pytest
 from fake_esc_segment import FakeSegment, FakeSlave
 from master_sii_helpers import BOOL, io_sii
 
+from pyethercat.clock import VirtualClock
 from pyethercat.errors import AlStatusError, SiiError, StateTimeoutError, TopologyMismatchError
 from pyethercat.link.pair import PairLink
 from pyethercat.master import Identity, Master
@@ -43,7 +44,7 @@ class Counting:
 def _master(slaves: list[FakeSlave]) -> tuple[Master, FakeSegment, Counting]:
     seg = FakeSegment(slaves)
     counter = Counting(seg)
-    return Master(PairLink.responder_link(counter), deterministic=True), seg, counter
+    return Master(PairLink.responder_link(counter), clock=VirtualClock()), seg, counter
 
 
 def _tree() -> list[FakeSlave]:
@@ -242,7 +243,7 @@ def test_scan_frames_are_all_standard_datagrams() -> None:
         sent.append(frame)
         return seg.process(frame)
 
-    m = Master(PairLink.responder_link(rec), deterministic=True)
+    m = Master(PairLink.responder_link(rec), clock=VirtualClock())
     m.scan()
     cmds = {Command(d.command) for raw in sent for d in decode_frame(raw).datagrams}
     assert cmds <= {Command.BRD, Command.BWR, Command.APWR, Command.FPRD, Command.FPWR}

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 
+from pyethercat.clock import VirtualClock
 from pyethercat.errors import ConfigError
 from pyethercat.link.pair import PairLink
 from pyethercat.master.config import GroupSpec
@@ -25,7 +26,7 @@ DEMO = Path(__file__).resolve().parents[2] / "examples" / "demo.toml"
 
 def scanned() -> Master:
     seg = load_topology(DEMO).build()
-    m = Master(PairLink.responder_link(seg.process), deterministic=True)
+    m = Master(PairLink.responder_link(seg.process), clock=VirtualClock())
     m.scan()
     return m
 
@@ -65,7 +66,7 @@ def test_a_slave_in_no_group_says_so() -> None:
 
 def test_two_groups_with_different_cycle_times_exchange_at_their_own_rates() -> None:
     """Seed 004 'cyclic mode': the loop ticks at the fast cycle, the slow group every 5th tick."""
-    from pyethercat.master.cyclic import CyclicRunner, VirtualClock
+    from pyethercat.master.cyclic import CyclicRunner
 
     m = scanned()
     cfg = m.configure(groups=[GroupSpec("fast", [1, 2], cycle=0.001),

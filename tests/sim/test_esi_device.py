@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 
+from pyethercat.clock import VirtualClock
 from pyethercat.errors import ConfigError
 from pyethercat.esi import load_esi
 from pyethercat.esi.bundled import bundled_esi
@@ -59,7 +60,7 @@ def _topology(tmp_path: Path, corpus_dir: Path) -> Path:
 def test_esi_slaves_reach_op_with_the_declared_layout(tmp_path: Path, corpus_dir: Path) -> None:
     topo = load_topology(_topology(tmp_path, corpus_dir))
     seg = topo.build()
-    m = Master(PairLink.responder_link(seg.process), deterministic=True)
+    m = Master(PairLink.responder_link(seg.process), clock=VirtualClock())
     m.scan()
     cfg = m.configure()
     files = [bundled_esi()] + [corpus_dir / "esi" / c[0] for c in CASES]

@@ -47,13 +47,14 @@ def connect(obj: dict[str, Any] | None, *, child: bool = False, pcap: str | None
                           "or --sim TOPOLOGY.toml (before the command)")
     conn: Connection
     if sim is not None and not child:
+        from pyethercat.clock import VirtualClock
         from pyethercat.link.pair import PairLink
         from pyethercat.sim.topology import load_topology
 
         segment = load_topology(sim).build()
         link: Any = PairLink.responder_link(segment.process, name=f"sim:{sim}")
         link = _capture(link, pcap)
-        options.setdefault("deterministic", True)
+        options.setdefault("clock", VirtualClock())
         conn = Connection(Master(link, **options), segment=segment)
     elif sim is not None:
         from pyethercat.sim.server import start_sim_process

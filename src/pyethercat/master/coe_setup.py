@@ -161,7 +161,6 @@ class CoeMasterMixin:
 
     scheduler: Scheduler
     slaves: list[Slave]
-    deterministic: bool
     process_data: ProcessDataConfig | None = None
     runner: CyclicRunner | None = None
     _lock: threading.RLock
@@ -206,12 +205,10 @@ class CoeMasterMixin:
             s._startup = self.startup_commands
             if info is None or not s.has_mailbox:
                 continue
-            sleep = self._sleep if not self.deterministic else (lambda _t: None)
             box = Mailbox(self.scheduler, s.station_address, s.describe(),
                           rx_offset=info.rx_offset, rx_size=info.rx_size,
                           tx_offset=info.tx_offset, tx_size=info.tx_size, poller=st["poller"],
-                          timeout=self.mailbox_timeout, deterministic=self.deterministic,
-                          sleep=sleep)
+                          timeout=self.mailbox_timeout)
             box.status_source = CyclicMailboxStatus(self, s.position)
             s.mbx = box
             client = CoeClient(box, position=s.position, emergencies=st["queue"])

@@ -42,11 +42,11 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
-from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
 
+from pyethercat.clock import Clock, PerfClock
 from pyethercat.errors import ConfigError, EtherCATError
 from pyethercat.master.config import CyclicDatagram, GroupConfig, ProcessDataConfig
 from pyethercat.master.dc_loop import DcCycle, SyncEvent
@@ -57,9 +57,6 @@ from pyethercat.wire.al import AlState, state_name
 from pyethercat.wire.datagram import MAX_PAYLOAD, OVERHEAD, Command, Datagram
 
 __all__ = [
-    "Clock",
-    "PerfClock",
-    "VirtualClock",
     "CycleStats",
     "Cycle",
     "GroupRuntime",
@@ -73,54 +70,6 @@ __all__ = [
 JITTER_BINS_US = (1, 2, 5, 10, 20, 50, 100, 200, 500, 1000)
 # AL status bits a supervised slave must show exactly: the state and no error flag.
 _STATE_AND_ERROR = reg.AL_STATE_MASK | reg.AL_ERROR_FLAG
-
-
-# --- time ----------------------------------------------------------------------------
-
-
-class Clock(Protocol):
-    """Time source of the loop: nanoseconds and waiting for a deadline."""
-
-    def now_ns(self) -> int: ...
-
-    def sleep_until(self, deadline_ns: int) -> None: ...
-
-
-class PerfClock:
-    """``time.perf_counter_ns`` with sleep-then-spin waiting.
-
-    ``spin_ns`` is the slice before a deadline spent busy-waiting instead of
-    sleeping (the OS timer may wake us late by tens of microseconds).
-    """
-
-    def __init__(self, spin_ns: int = 100_000) -> None:
-        self.spin_ns = spin_ns
-
-    def now_ns(self) -> int:
-        return time.perf_counter_ns()
-
-    def sleep_until(self, deadline_ns: int) -> None:
-        left = deadline_ns - time.perf_counter_ns()
-        if left > self.spin_ns:
-            time.sleep((left - self.spin_ns) / 1e9)
-        while time.perf_counter_ns() < deadline_ns:
-            pass
-
-
-class VirtualClock:
-    """Deterministic clock for tests: ``sleep_until`` jumps; ``advance`` models work."""
-
-    def __init__(self, start_ns: int = 0) -> None:
-        self.now = start_ns
-
-    def now_ns(self) -> int:
-        return self.now
-
-    def sleep_until(self, deadline_ns: int) -> None:
-        self.now = max(self.now, deadline_ns)
-
-    def advance(self, ns: int) -> None:
-        self.now += ns
 
 
 # --- statistics ------------------------------------------------------------------------

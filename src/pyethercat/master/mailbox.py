@@ -47,7 +47,6 @@ from __future__ import annotations
 import logging
 import struct
 import threading
-import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -208,9 +207,9 @@ class Mailbox:
     def __init__(self, scheduler: Scheduler, station: int, label: str, *,
                  rx_offset: int, rx_size: int, tx_offset: int, tx_size: int,
                  rx_sm: int = 0, tx_sm: int = 1, poller: MailboxPoller | None = None,
-                 timeout: float = DEFAULT_MAILBOX_TIMEOUT, deterministic: bool = False,
-                 clock: Callable[[], float] = time.monotonic,
-                 sleep: Callable[[float], None] = time.sleep) -> None:
+                 timeout: float = DEFAULT_MAILBOX_TIMEOUT,
+                 clock: Callable[[], float] | None = None,
+                 sleep: Callable[[float], None] | None = None) -> None:
         for name, size in (("receive (SM0)", rx_size), ("send (SM1)", tx_size)):
             if size < MAILBOX_HEADER_SIZE + 2:
                 raise MailboxError(f"{label}: {name} mailbox of {size} bytes is too small")
@@ -225,9 +224,9 @@ class Mailbox:
         self.tx_sm = tx_sm
         self.poller = poller if poller is not None else MailboxPoller(scheduler)
         self.timeout = timeout
-        self.deterministic = deterministic
-        self.clock = clock
-        self._sleep = sleep
+        # The scheduler's time by default (virtual time moves on instead of sleeping).
+        self.clock = scheduler.now if clock is None else clock
+        self._sleep = scheduler.sleep if sleep is None else sleep
         #: Held by a protocol client for a whole transaction (re-entrant).
         self.lock = threading.RLock()
         # Serialises fetches and inbox access between threads.
@@ -541,9 +540,7 @@ class Mailbox:
         return bytes(reply.data)
 
     def _pause(self, waited: float) -> float:
-        """Pause between polls: none at first, then growing (never on deterministic links)."""
-        if self.deterministic:
-            return waited
+        """Pause between polls: none at first, then growing."""
         pause = 0.0 if waited < _BUSY_POLL else min(_MAX_POLL_PAUSE, max(0.0001, waited / 8))
         if pause:
             self._sleep(pause)

@@ -19,11 +19,11 @@ from __future__ import annotations
 import contextlib
 import struct
 import threading
-import time
 from collections.abc import Sequence
 from types import TracebackType
 from typing import Self
 
+from pyethercat.clock import Clock
 from pyethercat.errors import ConfigError, StateTimeoutError, WorkingCounterError
 from pyethercat.link.base import Link
 from pyethercat.master import diag, states
@@ -54,21 +54,20 @@ class Master(CoeMasterMixin, ProcessDataMixin):
     """An EtherCAT master on one link.
 
     ``timeout``/``retries``/``max_in_flight`` configure the scheduler;
-    ``deterministic`` is for links that answer synchronously inside ``send``
-    (the in-process pair link with a responder): lost frames are detected at
-    once and state polling does not sleep. ``owns_link``: ``close`` closes
-    the link too.
+    ``clock`` is its time base: a :class:`~pyethercat.clock.VirtualClock` for
+    links that answer synchronously inside ``send`` (the in-process pair link
+    with a simulator as responder), where lost frames are known at once and
+    waits move the virtual clock instead of sleeping. ``owns_link``:
+    ``close`` closes the link too.
     """
 
     def __init__(self, link: Link, *, timeout: float = DEFAULT_TIMEOUT,
                  retries: int = DEFAULT_RETRIES, max_in_flight: int = DEFAULT_MAX_IN_FLIGHT,
-                 deterministic: bool = False, src: bytes = MASTER_MAC,
+                 clock: Clock | None = None, src: bytes = MASTER_MAC,
                  station_base: int = scanning.DEFAULT_STATION_BASE, owns_link: bool = True) -> None:
         self.link = link
         self.scheduler = Scheduler(link, timeout=timeout, retries=retries,
-                                   max_in_flight=max_in_flight, src=src,
-                                   deterministic=deterministic)
-        self.deterministic = deterministic
+                                   max_in_flight=max_in_flight, src=src, clock=clock)
         self.station_base = station_base
         self.owns_link = owns_link
         #: Slaves in ring order, filled by :meth:`scan`.
@@ -135,8 +134,7 @@ class Master(CoeMasterMixin, ProcessDataMixin):
     # -- helpers ----------------------------------------------------------------------
 
     def _sleep(self, seconds: float) -> None:
-        if not self.deterministic:
-            time.sleep(seconds)
+        self.scheduler.sleep(seconds)
 
     def slave(self, ref: SlaveRef) -> Slave:
         """The scanned slave at a position (or the slave itself)."""

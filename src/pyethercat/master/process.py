@@ -22,6 +22,7 @@ import struct
 from collections.abc import Callable, Iterator, Sequence
 from typing import TYPE_CHECKING, Any
 
+from pyethercat.clock import Clock, PerfClock
 from pyethercat.errors import ConfigError, EtherCATError, WorkingCounterError
 from pyethercat.master import scan as scanning
 from pyethercat.master import states
@@ -33,7 +34,7 @@ from pyethercat.master.config import (
     SlaveSpec,
     configure,
 )
-from pyethercat.master.cyclic import Clock, Cycle, CycleStats, CyclicRunner, PerfClock
+from pyethercat.master.cyclic import Cycle, CycleStats, CyclicRunner
 from pyethercat.master.dc_loop import DcMode
 from pyethercat.master.image import ProcessImage, build_images
 from pyethercat.master.slave import Slave
@@ -66,7 +67,6 @@ class ProcessDataMixin:
     scheduler: Scheduler
     slaves: list[Slave]
     _lock: threading.RLock
-    deterministic: bool
     process_data: ProcessDataConfig | None = None
     images: dict[str, ProcessImage]
     runner: CyclicRunner | None = None

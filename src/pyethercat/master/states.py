@@ -16,7 +16,6 @@ straight down; BOOT only from INIT), each step for all slaves at once.
 from __future__ import annotations
 
 import struct
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -55,7 +54,7 @@ __all__ = [
 
 #: Seconds one transition may take before the wait gives up.
 DEFAULT_STATE_TIMEOUT = 5.0
-#: Longest pause between two polls on a real link (deterministic links poll back to back).
+#: Longest pause between two polls (in the scheduler's time: virtual time does not wait).
 DEFAULT_POLL_INTERVAL = 0.001
 #: First pause between polls; it doubles up to the poll interval (most slaves, and the
 #: simulator, answer a request within the frame that carries it or soon after).
@@ -169,8 +168,8 @@ def _stuck_message(target: AlState | int, stuck: list[tuple[Slave, AlStatusReadi
 def wait_for_state(scheduler: Scheduler, slaves: Sequence[Slave], state: AlState | int,
                    timeout: float = DEFAULT_STATE_TIMEOUT,
                    poll_interval: float = DEFAULT_POLL_INTERVAL,
-                   clock: Callable[[], float] = time.monotonic,
-                   sleep: Callable[[float], None] = time.sleep,
+                   clock: Callable[[], float] | None = None,
+                   sleep: Callable[[float], None] | None = None,
                    first: Sequence[AlStatusReading] | None = None) -> None:
     """Poll until every slave is in ``state``.
 
@@ -179,7 +178,11 @@ def wait_for_state(scheduler: Scheduler, slaves: Sequence[Slave], state: AlState
     the request). Raises :class:`AlStatusError` for the first slave that sets
     its error flag while not in ``state`` (the message names every such
     slave), and :class:`StateTimeoutError` naming the slaves still on their way.
+    ``clock``/``sleep`` default to the scheduler's time (virtual time polls
+    without sleeping for real).
     """
+    clock = scheduler.now if clock is None else clock
+    sleep = scheduler.sleep if sleep is None else sleep
     target = int(state)
     pending = list(slaves)
     last: dict[int, AlStatusReading] = {}
@@ -322,8 +325,8 @@ PrepareStep = Callable[[Scheduler, AlState, Sequence[Slave]], None]
 def set_state(scheduler: Scheduler, slaves: Sequence[Slave], state: AlState | int,
               timeout: float = DEFAULT_STATE_TIMEOUT, *, ack_errors: bool = True,
               poll_interval: float = DEFAULT_POLL_INTERVAL,
-              clock: Callable[[], float] = time.monotonic,
-              sleep: Callable[[float], None] = time.sleep,
+              clock: Callable[[], float] | None = None,
+              sleep: Callable[[float], None] | None = None,
               prepare: PrepareStep | None = setup_mailboxes,
               finish: PrepareStep | None = None) -> None:
     """Bring every slave to ``state`` step by step (all slaves per step at once).

@@ -72,10 +72,9 @@ from pyethercat.wire.frame import (
     ECAT_LENGTH_MASK,
     ECAT_TYPE_SHIFT,
     ETH_HEADER_SIZE,
-    ETHERTYPE_ETHERCAT,
-    ETHERTYPE_VLAN,
     LOCALLY_ADMINISTERED_BIT,
     FrameType,
+    ecat_offset,
 )
 from pyethercat.wire.sii import SiiInfo
 
@@ -556,12 +555,8 @@ class Segment:
         """Check and parse a frame: (datagram headers, any circulating bit) to process it,
         else what process() returns (the unchanged non-EtherCAT frame, or None if lost).
         A malformed frame is not processed at all (counted as a processing error)."""
-        start = ETH_HEADER_SIZE
-        ethertype = (buf[12] << 8) | buf[13]
-        if ethertype == ETHERTYPE_VLAN and len(buf) >= 18:
-            ethertype = (buf[16] << 8) | buf[17]
-            start += 4
-        if ethertype != ETHERTYPE_ETHERCAT:
+        start = ecat_offset(buf)
+        if start is None:
             # Non-EtherCAT frames pass unchanged unless the first slave destroys them.
             if len(route.passes) and self.memory.mem[route.passes[0], R.DL_CONTROL] & R.DL_CONTROL_FORWARDING_RULE:
                 return None

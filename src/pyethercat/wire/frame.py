@@ -44,13 +44,16 @@ __all__ = [
     "decode_frame",
     "decode_udp_payload",
     "ecat_header",
+    "ecat_offset",
     "encode_ecat_payload",
     "encode_frame",
     "encode_mailbox_frame",
     "encode_udp_payload",
     "ethernet_frame",
+    "first_index",
     "is_ethercat",
     "returned_source_mac",
+    "untagged",
 ]
 
 ETHERTYPE_ETHERCAT = 0x88A4
@@ -164,14 +167,39 @@ def ethernet_frame(payload: bytes, src: bytes = MASTER_MAC,
     return frame
 
 
-def is_ethercat(raw: bytes | bytearray | memoryview) -> bool:
-    """Whether an Ethernet frame carries EtherCAT (optionally VLAN-tagged)."""
+def ecat_offset(raw: bytes | bytearray | memoryview) -> int | None:
+    """Where the EtherCAT header starts in an Ethernet frame, or ``None`` if it is no EtherCAT.
+
+    14 for an untagged frame, 18 behind one IEEE 802.1Q VLAN tag (EtherType
+    0x8100); the EtherType 0x88A4 follows the MAC addresses or the tag.
+    """
     if len(raw) < ETH_HEADER_SIZE:
-        return False
+        return None
     ethertype = (raw[12] << 8) | raw[13]
     if ethertype == ETHERTYPE_VLAN and len(raw) >= ETH_HEADER_SIZE + 4:
         ethertype = (raw[16] << 8) | raw[17]
-    return ethertype == ETHERTYPE_ETHERCAT
+        return ETH_HEADER_SIZE + 4 if ethertype == ETHERTYPE_ETHERCAT else None
+    return ETH_HEADER_SIZE if ethertype == ETHERTYPE_ETHERCAT else None
+
+
+def is_ethercat(raw: bytes | bytearray | memoryview) -> bool:
+    """Whether an Ethernet frame carries EtherCAT (optionally VLAN-tagged)."""
+    return ecat_offset(raw) is not None
+
+
+def untagged(raw: bytes) -> bytes:
+    """The frame without its VLAN tag, so that offsets match the frame as it was sent."""
+    if len(raw) >= ETH_HEADER_SIZE + 4 and ((raw[12] << 8) | raw[13]) == ETHERTYPE_VLAN:
+        return raw[:12] + raw[16:]
+    return raw
+
+
+def first_index(raw: bytes | bytearray | memoryview) -> int | None:
+    """Index byte of the first datagram of an EtherCAT frame (``None``: no datagram there)."""
+    start = ecat_offset(raw)
+    if start is None or len(raw) < start + ECAT_HEADER_SIZE + 2:
+        return None
+    return raw[start + ECAT_HEADER_SIZE + 1]
 
 
 def decode_frame(raw: bytes | bytearray | memoryview, strict: bool = True) -> EtherCATFrame:
