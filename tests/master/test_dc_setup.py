@@ -166,3 +166,12 @@ def test_sync_config_writes_order_and_values() -> None:
     # SYNC1 every 3rd cycle: the start grid is the SYNC1 period
     s3 = SyncSettings(0x0700, 1_000_000, cycle1=2_000_000)
     assert s3.grid == 3_000_000 and s3.start_time(0) % 3_000_000 == 0
+
+
+def test_trace_of_the_compensation() -> None:
+    bus = Bus()
+    report = run_dc_setup(bus, SLAVES, DcSettings(static_sync=1500, trace_every=592),
+                          master_time=lambda: 7)
+    # FRMW go out in chunks of 8 frames (592 datagrams): a snapshot after each
+    assert [(t, n) for t, n, _ in report.trace] == [(7, 592), (7, 1184), (7, 1500)]
+    assert report.trace[0][2] == (0, 35)

@@ -74,7 +74,8 @@ def _register() -> None:
     """Attach the command modules that exist (each module adds its commands)."""
     import importlib
 
-    for name in ("decode", "sim", "master_cmds", "run_cmds", "coe_cmds", "esi_cmds", "demo"):
+    for name in ("decode", "sim", "master_cmds", "run_cmds", "coe_cmds", "esi_cmds", "dc_cmds",
+                 "demo"):
         try:
             module = importlib.import_module(f"pyethercat.cli.{name}")
         except ModuleNotFoundError as exc:

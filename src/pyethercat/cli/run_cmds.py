@@ -128,6 +128,7 @@ def live_view(master: Master, runner: CyclicRunner, extra: Callable[[], list[str
         stats.add_row(f"group {g.name} WKC", Text.assemble(f"{g.total_wkc}/{g.expected_wkc} ", ok))
     parts: list[Any] = [slaves, stats]
     lines = list(extra()) if extra is not None else []
+    lines += runner.status_lines()[len(runner.groups):]  # DC, when it runs
     lines += [e.text for e in list(runner.events)[-4:]]
     if lines:
         parts.append(Text("\n".join(lines)))
@@ -147,7 +148,7 @@ def format_summary(runner: CyclicRunner) -> str:
         f"late cycles: {st.late}, overruns: {st.overruns} (callback {st.callback_overruns}), "
         f"skipped: {st.skipped}",
         f"WKC errors: {st.wkc_errors}, lost frames: {st.lost_frames}",
-    ])
+    ] + runner.status_lines()[len(runner.groups):])
 
 
 def register(cli: click.Group) -> None:
@@ -181,10 +182,29 @@ def register(cli: click.Group) -> None:
                   show_default=True, help="Bit-packed or byte-aligned process image.")
     @click.option("--eni", "eni_file", default=None, metavar="FILE",
                   help="Start from this ENI file (no SII scan; see 'eni export').")
+    @click.option("--dc", "dc", is_flag=True,
+                  help="Distributed clocks: set-up, SYNC0 on slaves with a DC op mode, "
+                       "the reference time in every frame.")
+    @click.option("--sync0", "sync0_us", default=None, metavar="US",
+                  help="SYNC0 cycle (µs) [default: the cycle time]; implies --dc.")
+    @click.option("--sync1", "sync1_us", default=None, metavar="US",
+                  help="SYNC1: delay after SYNC0 (below its cycle) or a multiple of it; implies --dc.")
+    @click.option("--shift", "shift_us", default=None, metavar="US",
+                  help="SYNC0 shift on the cycle grid (µs); implies --dc.")
+    @click.option("--dc-mode", "dc_mode", type=click.Choice(["master", "reference"]),
+                  default="master", show_default=True,
+                  help="master: the cycle follows the reference clock; reference: the "
+                       "reference clock follows the master's time.")
+    @click.option("--plot", "plot", default=None, metavar="FILE.png",
+                  help="With --dc: plot the set-up's convergence, the sync monitor, the phase "
+                       "lock and (simulator) the SYNC0 spread (matplotlib).")
     @click.pass_obj
     def run_cmd(obj: dict[str, Any], cycle_us: str | None, seconds: float | None,
-                pcap: str | None, layout: str, eni_file: str | None) -> None:
+                pcap: str | None, layout: str, eni_file: str | None, dc: bool,
+                sync0_us: str | None, sync1_us: str | None, shift_us: str | None,
+                dc_mode: str, plot: str | None) -> None:
         """Bring the segment to OP and run cyclic exchange with a live view."""
+        dc = dc or any(x is not None for x in (sync0_us, sync1_us, shift_us))
         eni = None
         if eni_file is not None:
             from pyethercat.esi.eni import load_eni
@@ -202,6 +222,10 @@ def register(cli: click.Group) -> None:
         console = Console() if sys.stdout.isatty() else Console(width=140)
         with connect(obj, pcap=pcap) as conn:
             m = conn.master
+            if dc:
+                from pyethercat.cli.dc_cmds import wall_clock_for_sim
+
+                wall_clock_for_sim(conn)
             if eni is not None:
                 from pyethercat.master.esi_config import start_from_eni
 
@@ -209,7 +233,14 @@ def register(cli: click.Group) -> None:
             else:
                 m.scan()
             m.configure(layout=layout)
-            runner = m.start(cycle)
+            if dc:
+                from pyethercat.cli.dc_cmds import configure_sync_from_options
+                from pyethercat.master.dc import DcSettings
+
+                m.dc.setup(DcSettings(trace_every=250 if plot else 0))
+                configure_sync_from_options(m, int(round(cycle * 1e9)), sync0_us, sync1_us,
+                                            shift_us)
+            runner = m.start(cycle, dc=dc_mode if dc else None)
             end = None if seconds is None else time.monotonic() + seconds
             try:
                 with Live(live_view(m, runner), console=console, refresh_per_second=4,
@@ -225,3 +256,10 @@ def register(cli: click.Group) -> None:
             # would start on it).
             console.print()
             click.echo(format_summary(runner))
+            if plot and runner.dc is not None:
+                from pyethercat.cli.dc_plot import plot_dc
+
+                plot_dc(plot, m.dc.report, runner.dc,
+                        title=f"run --dc ({dc_mode} mode), {len(m.slaves)} slaves, "
+                              f"{cycle * 1e6:g} us cycle")
+                click.echo(f"plot written to {plot}")

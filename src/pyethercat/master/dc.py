@@ -117,6 +117,9 @@ class DcSettings:
     reference: int | None = None
     static_sync: int = DEFAULT_STATIC_SYNC
     max_difference_ns: int = MAX_SYNC_DIFF_NS
+    #: Read every following slave's 0x092C after each this many FRMW of the
+    #: compensation (0: not at all); kept in ``DcReport.trace`` for plots.
+    trace_every: int = 0
 
 
 @dataclass
@@ -161,6 +164,8 @@ class DcReport:
     duration_s: float = 0.0
     warnings: list[str] = field(default_factory=list)
     max_difference_ns: int = MAX_SYNC_DIFF_NS
+    #: (master time ns, FRMW sent so far, |0x092C| per following slave) during the compensation.
+    trace: list[tuple[int, int, tuple[int | None, ...]]] = field(default_factory=list)
 
     @property
     def reference_slave(self) -> DcSlaveResult | None:
@@ -192,6 +197,7 @@ class _Stage(enum.Enum):
     WRITE = "write offsets and delays"
     RESET = "reset time-control loops"
     STATIC = "static drift compensation"
+    TRACE = "trace system time difference"
     CHECK = "check system time difference"
     DONE = "done"
 
@@ -230,6 +236,9 @@ class DcSetup:
         self._static_frames = 0
         self._frmw_size = 8
         self._started: float | None = None
+        self._trace_at: int | None = None   # FRMW count of a pending trace read
+        self._trace_time = 0
+        self._next_trace = self.settings.trace_every
         self.report = DcReport(self.results, None, max_difference_ns=self.settings.max_difference_ns)
 
     # -- driving --------------------------------------------------------------------
@@ -247,6 +256,10 @@ class DcSetup:
         stage = self._stage
         if stage is _Stage.DONE:
             return None
+        if self._trace_at is not None:
+            self._trace_time = now_ns
+            self._pending = _Stage.TRACE
+            return DcRequest(_Stage.TRACE.value, self._difference_reads())
         if stage is _Stage.LATCH:
             # Sampled before the latching frame leaves (the issue's "master time
             # before the latch"); the offsets make every system time equal it
@@ -277,16 +290,26 @@ class DcSetup:
             total = self.settings.static_sync
             return DcRequest(stage.value, dgs, total - self._static_left, total)
         else:  # CHECK
-            dgs = [Datagram.device(Command.FPRD, r.station_address, R.DC_SYSTEM_TIME_DIFFERENCE, 4)
-                   for r in self.report.synchronised]
+            dgs = self._difference_reads()
         self._pending = stage
         return DcRequest(stage.value, dgs)
+
+    def _difference_reads(self) -> list[Datagram]:
+        return [Datagram.device(Command.FPRD, r.station_address, R.DC_SYSTEM_TIME_DIFFERENCE, 4)
+                for r in self.report.synchronised]
 
     def receive(self, replies: Sequence[Datagram]) -> None:
         """The replies of the last request, in order."""
         stage, self._pending = self._pending, None
         if stage is None:
             raise ConfigError("DcSetup: no request is waiting for replies")
+        if stage is _Stage.TRACE:
+            assert self._trace_at is not None
+            values = tuple(decode_time_difference(struct.unpack("<I", d.data)[0])
+                           if d.wkc == 1 else None for d in replies)
+            self.report.trace.append((self._trace_time, self._trace_at, values))
+            self._trace_at = None
+            return
         if stage is _Stage.LATCH:
             if replies[0].wkc == 0:
                 raise DcError("no DC found: the latching write to 0x0900 reached no slave")
@@ -309,6 +332,11 @@ class DcSetup:
             self._stage = _Stage.STATIC
         elif stage is _Stage.STATIC:
             self._static_left -= len(replies)
+            sent = self.settings.static_sync - self._static_left
+            every = self.settings.trace_every
+            if every > 0 and (sent >= self._next_trace or self._static_left <= 0):
+                self._trace_at = sent
+                self._next_trace = (sent // every + 1) * every
             expected = len(self.report.synchronised)
             low = [d.wkc for d in replies if d.wkc != expected]
             if low and not any("static drift" in w for w in self.report.warnings):

@@ -40,6 +40,8 @@ from pyethercat.wire.sii import (
     CoeDetails,
     FmmuUsage,
     MailboxProtocol,
+    SiiDc,
+    SiiDcMode,
     SiiFmmus,
     SiiGeneral,
     SiiInfo,
@@ -156,6 +158,10 @@ class BuiltinDevice:
     vendor_id: int = VENDOR_ID
     revision: int = REVISION
     app_factory: Callable[[SiiInfo], DeviceApp] | None = None
+    # DC op modes in the SII (ESI <Dc><OpMode>): "SM-Synchron" (no SYNC pulses)
+    # and "DC-Synchron" (AssignActivate 0x0300, SYNC0), as Beckhoff terminals with
+    # a DC mode list them.
+    dc_modes: bool = False
 
     @property
     def input_bits(self) -> int:
@@ -252,6 +258,13 @@ class BuiltinDevice:
             categories.append(tx)
         if self.rx_pdos:
             categories.append(rx)
+        if self.dc_modes:
+            categories.append(SiiDc(modes=[
+                SiiDcMode(assign_activate=0, name_index=intern("SM-Synchron"),
+                          description_index=intern("SM-Synchron")),
+                SiiDcMode(assign_activate=0x0300, name_index=intern("DC-Synchron"),
+                          description_index=intern("DC-Synchron")),
+            ]))
         info = SiiInfo(
             pdi_control=self.pdi_control,
             station_alias=alias,
@@ -321,6 +334,7 @@ DI8 = BuiltinDevice(
     fmmus=(FmmuUsage.INPUTS, FmmuUsage.NOT_USED),
     tx_pdos=_bits(0x1A00, 8, "Input", 0, 0x6000),
     ebus_current_ma=90,
+    dc_modes=True,
     description="8 digital inputs, 1 byte, TxPDOs 0x1A00-0x1A07 (0x6000+0x10*ch:01, BOOL)",
 )
 
@@ -336,6 +350,7 @@ DO8 = BuiltinDevice(
     fmmus=(FmmuUsage.OUTPUTS, FmmuUsage.NOT_USED),
     rx_pdos=_bits(0x1600, 8, "Output", 0, 0x7000),
     ebus_current_ma=110,
+    dc_modes=True,
     description="8 digital outputs, 1 byte, RxPDOs 0x1600-0x1607 (0x7000+0x10*ch:01, BOOL)",
 )
 
@@ -351,6 +366,7 @@ DI2 = BuiltinDevice(
     fmmus=(FmmuUsage.INPUTS, FmmuUsage.NOT_USED),
     tx_pdos=_bits(0x1A00, 2, "Input", 0, 0x6000),
     ebus_current_ma=90,
+    dc_modes=True,
     description="2 digital inputs (2 bits: masters map it with a bit-wise FMMU)",
 )
 
@@ -375,6 +391,7 @@ AI2 = BuiltinDevice(
     ),
     mailbox=(0x1000, 128, 0x1080, 128),
     ebus_current_ma=130,
+    dc_modes=True,
     description="2 analog inputs, INT16 each (4 bytes), standard mailbox SM0/SM1, inputs on SM3",
 )
 

@@ -1,0 +1,66 @@
+"""``pyethercat dc`` and ``run --dc`` against the in-process simulator (demo segment)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from pyethercat.cli.main import cli
+
+DEMO = Path(__file__).resolve().parents[2] / "examples" / "demo.toml"
+
+
+def run(*args: str) -> tuple[int, str, str]:
+    result = CliRunner().invoke(cli, list(args), catch_exceptions=False)
+    return result.exit_code, result.stdout, result.stderr
+
+
+def rows(out: str) -> list[list[str]]:
+    return [line.split() for line in out.splitlines() if line[:1].isdigit()]
+
+
+def test_dc_sets_up_and_lists_every_slave(tmp_path: Path) -> None:
+    plot = tmp_path / "dc.png"
+    code, out, err = run("--sim", str(DEMO), "dc", "--static", "600", "--sync0", "500",
+                         "--shift", "20", "--plot", str(plot))
+    assert code == 0, out + err
+    lines = out.splitlines()
+    assert lines[0].startswith("# reference clock: slave 0 (0x1001, PEC-CU4")
+    assert "600 FRMW in 9 frames" in lines[1]
+    table = rows(out)
+    assert len(table) == 6
+    # pos station dc ref entry parent delay offset diff sync...
+    assert [r[3] for r in table] == ["*", "-", "-", "-", "-", "-"]
+    assert all(r[2] == "64-bit" for r in table)
+    assert [r[5] for r in table] == ["-", "0:3", "0:1", "2:1", "3:1", "4:1"]
+    delays = [int(r[6]) for r in table]
+    # the branch on port 3 comes first; then the E-Bus line, each one further away
+    assert delays[0] == 0 and delays[1] > 0 and delays[2] < delays[3] < delays[4] < delays[5]
+    assert table[0][9] == "off"  # the coupler has no DC op mode
+    for r in table[1:]:
+        assert r[9:13] == ["SYNC0", "(0x0300)", "cycle0", "500000"]
+        assert int(r[-1]) % 500_000 == 20_000  # start time on the grid, shifted
+    assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_dc_errors_are_one_line() -> None:
+    code, out, err = run("--sim", str(DEMO), "dc", "--reference", "9", "--static", "0")
+    assert code == 1 and err.startswith("pyethercat: error: reference clock: slave 9")
+    code, out, err = run("--sim", str(DEMO), "dc", "--static", "0", "--sync0", "1000",
+                         "--sync1", "1500")
+    assert code == 1 and "--sync1 1500 us" in err
+
+
+@pytest.mark.parametrize("mode", ["master"])
+def test_run_dc_shows_the_dc_state(mode: str, tmp_path: Path) -> None:
+    plot = tmp_path / "run.png"
+    code, out, err = run("--sim", str(DEMO), "run", "--dc", "--dc-mode", mode, "--cycle", "2000",
+                         "--seconds", "0.6", "--plot", str(plot))
+    assert code == 0, out + err
+    dc_lines = [line for line in out.splitlines() if line.startswith(f"DC {mode}: ")]
+    assert dc_lines, out
+    assert dc_lines[-1].endswith("in sync")
+    assert "WKC errors: 0" in out
+    assert plot.exists()
