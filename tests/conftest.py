@@ -81,3 +81,24 @@ def veth_pair(root: None) -> Iterator[tuple[str, str]]:
         yield a, b
     finally:
         delete_veth(a)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def private_runtime_dir(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
+    """Control sockets and SII backups of this test run in its own directories.
+
+    Masters opened on an interface serve a control socket named after it; a
+    suite running beside another (or beside a user's master) must not meet
+    their sockets. Child processes inherit the variables.
+    """
+    base = tmp_path_factory.mktemp("runtime")
+    base.chmod(0o700)
+    saved = {k: os.environ.get(k) for k in ("PYETHERCAT_RUNTIME_DIR", "XDG_STATE_HOME")}
+    os.environ["PYETHERCAT_RUNTIME_DIR"] = str(base / "run")
+    os.environ["XDG_STATE_HOME"] = str(base / "state")
+    yield base
+    for key, value in saved.items():
+        if value is None:
+            os.environ.pop(key, None)
+        else:
+            os.environ[key] = value

@@ -226,3 +226,41 @@ def test_any_packet_is_decoded_counted_or_reported(prefix: bytes, tail: bytes) -
     # Exactly one verdict per packet.
     verdicts = (stats.ethercat - stats.other_types - len(stats.malformed) > 0) + stats.non_ethercat
     assert verdicts + stats.other_types + len(stats.malformed) == 1
+
+
+def test_linux_cooked_captures_are_decoded(tmp_path: Path) -> None:
+    """``tcpdump -i any`` writes SLL (113) or SLL2 (276) headers instead of Ethernet ones.
+
+    The captures are written by scapy (its CookedLinux layers), not by us.
+    """
+    scapy_all = pytest.importorskip("scapy.all")
+    from scapy.layers.l2 import CookedLinux, CookedLinuxV2
+
+    frame = encode_frame([FPRD, LRW], src=SRC)
+    payload = frame[14:]
+    sll = CookedLinux(pkttype=4, lladdrtype=1, lladdrlen=6, src=SRC + b"\0\0",
+                      proto=0x88A4) / scapy_all.Raw(payload)
+    sll2 = CookedLinuxV2(proto=0x88A4, ifindex=3, lladdrtype=1, pkttype=4, lladdrlen=6,
+                         src=SRC + b"\0\0") / scapy_all.Raw(payload)
+    want = [line for line in _run(str(_write(tmp_path / "e.pcap", [frame]))).stdout.splitlines()]
+    for name, pkt in (("sll.pcap", sll), ("sll2.pcap", sll2)):
+        scapy_all.wrpcap(str(tmp_path / name), [pkt, pkt])
+        result = _run(str(tmp_path / name))
+        assert result.exit_code == 0, result.stderr
+        lines = result.stdout.splitlines()
+        assert len(lines) == 4
+        # Same datagrams as from the Ethernet capture (times differ).
+        assert [ln.split()[2:] for ln in lines[:2]] == [ln.split()[2:] for ln in want]
+        assert "2 EtherCAT frames" in result.stderr and "not decoded" not in result.stderr
+
+
+def test_other_link_types_are_named(tmp_path: Path) -> None:
+    out = io.BytesIO()
+    writer = PcapWriter(out, linktype=101)  # LINKTYPE_RAW: IP packets without a link header
+    writer.write(T0, b"\x45" + bytes(27))
+    path = tmp_path / "raw.pcap"
+    path.write_bytes(out.getvalue())
+    result = _run(str(path))
+    assert result.exit_code == 0
+    assert result.stdout == ""
+    assert "1 packets of LINKTYPE_RAW (101) not decoded" in result.stderr

@@ -11,7 +11,7 @@ from click.testing import CliRunner
 pytest.importorskip("pyethercat.sim.topology")
 
 from pyethercat.cli.main import cli  # noqa: E402
-from pyethercat.cli.master_cmds import format_registers  # noqa: E402
+from pyethercat.cli.reg_cmds import format_registers  # noqa: E402
 from pyethercat.wire.sii import parse_sii, sii_fix_checksum  # noqa: E402
 
 TOPOLOGY = """
@@ -49,12 +49,14 @@ def test_slaves_table(topo: str) -> None:
     code, out, _ = run("--sim", topo, "slaves")
     assert code == 0
     lines = out.splitlines()
-    assert lines[0].startswith("#")
-    rows = [line.split(maxsplit=4) for line in lines[1:]]
+    # IgH's layout: position, alias:relative position, state, flag, name.
+    rows = [line.split(maxsplit=4) for line in lines]
     assert [r[0] for r in rows] == ["0", "1", "2", "3"]
-    assert [r[1] for r in rows] == ["0x1001/-", "0x1002/-", "0x1003/-", "0x1004/5"]
-    assert {r[3] for r in rows} == {"+"}
+    # Ring order: the branch on the coupler's port 3 comes first (position 1).
+    assert [r[1] for r in rows] == ["0:0", "0:1", "0:2", "5:0"]
+    assert {r[2] for r in rows} == {"INIT"} and {r[3] for r in rows} == {"+"}
     assert "coupler" in rows[0][4]
+    assert lines[0] == "0  0:0  INIT  +  " + rows[0][4]
 
 
 def test_slaves_verbose_shows_identity_ports_and_tree(topo: str) -> None:
@@ -68,10 +70,12 @@ def test_slaves_verbose_shows_identity_ports_and_tree(topo: str) -> None:
 
 def test_states_show_and_request(topo: str) -> None:
     code, out, _ = run("--sim", topo, "states", "PREOP")
+    assert code == 0 and out == ""  # IgH: the request is sent, nothing printed
+    code, out, _ = run("--sim", topo, "states", "PREOP", "--wait")
     assert code == 0
     assert [line.split()[2] for line in out.splitlines()] == ["PREOP"] * 4
     # A refused request (these devices have no bootstrap mailbox) is one line with its code.
-    code, out, err = run("--sim", topo, "states", "BOOT")
+    code, out, err = run("--sim", topo, "states", "BOOT", "--wait")
     assert code != 0
     assert err.startswith("pyethercat: error: ") and "AL status code 0x0013" in err
     assert "Bootstrap not supported" in err
@@ -102,19 +106,22 @@ def test_sii_read_write_roundtrip(topo: str, tmp_path: Path) -> None:
     assert info.end_marker and info.device_name is not None
     code, out, _ = run("--sim", topo, "sii_read", "-p", "1", "-v")
     assert code == 0 and "Category GENERAL" in out and info.device_name in out
-    code, out, _ = run("--sim", topo, "sii_read", "-p", "1")
-    assert out.splitlines()[0].startswith("0000  ")
+    # Off a terminal the image itself goes to stdout (IgH: sii_read -p1 > eeprom.bin).
+    result = CliRunner().invoke(cli, ["--sim", topo, "sii_read", "-p", "1"])
+    assert result.exit_code == 0 and result.stdout_bytes == image
+    result = CliRunner().invoke(cli, ["--sim", topo, "sii_read", "-p", "1", "-o", "-"])
+    assert result.stdout_bytes == image
     # Each --sim invocation starts a fresh segment: the write is checked in the output.
     changed = bytearray(image)
     changed[8:10] = struct.pack("<H", 3)
     new_file = tmp_path / "new.bin"
     new_file.write_bytes(sii_fix_checksum(bytes(changed)))
     code, out, _ = run("--sim", topo, "sii_write", "-p", "1", str(new_file))
-    assert code == 0 and out.startswith("wrote 2 of ")
+    assert code == 0 and "wrote 2 of " in out and "alias 3" in out
     bad = tmp_path / "bad.bin"
-    bad.write_bytes(bytes(changed))  # stale checksum
-    code, _, err = run("--sim", topo, "sii_write", "-p", "1", str(bad))
-    assert code != 0 and "checksum" in err
+    bad.write_bytes(bytes(changed))  # stale checksum: the writer computes its own
+    code, out, err = run("--sim", topo, "sii_write", "-p", "1", str(bad))
+    assert code == 0 and "header checksum set to" in out and "wrote 2 of " in out
 
 
 def test_counters(topo: str) -> None:

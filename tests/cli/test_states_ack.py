@@ -65,17 +65,17 @@ def test_slaves_and_states_show_errors_and_ack_clears_them(
     server: tuple[SimServer, str],
 ) -> None:
     srv, addr = server
-    code, out, _ = run("--udp", addr, "states", "PREOP")
+    code, out, _ = run("--udp", addr, "states", "PREOP", "--wait")
     assert code == 0, out
     _set_error(srv, 0, AlStatusCode.SM_WATCHDOG)
     _set_error(srv, 1, AlStatusCode.INVALID_OUTPUT_CONFIG)
 
     code, out, _ = run("--udp", addr, "slaves")
     assert code == 0
-    rows = out.splitlines()[1:]
+    rows = out.splitlines()
     assert len(rows) == 2
     for row in rows:
-        assert row.split()[2:4] == ["PREOP", "E"]
+        assert row.split()[2:4] == ["PREOP+ERROR", "E"]
     assert rows[0].endswith("[0x001B Sync manager watchdog]"), rows[0]
     assert rows[1].endswith("[0x001D Invalid output configuration]"), rows[1]
     code, out, _ = run("--udp", addr, "slaves", "-v", "-p", "1")
@@ -100,7 +100,7 @@ def test_slaves_and_states_show_errors_and_ack_clears_them(
     # A request acknowledges first (as IgH's tool does).
     _set_error(srv, 0, AlStatusCode.SM_WATCHDOG)
     _set_error(srv, 1, AlStatusCode.INVALID_OUTPUT_CONFIG)
-    code, out, _ = run("--udp", addr, "states", "INIT")
+    code, out, _ = run("--udp", addr, "states", "INIT", "--wait")
     assert code == 0
     assert _rows(out) == [["0", "0x1001", "INIT"], ["1", "0x1002", "INIT"]]
 

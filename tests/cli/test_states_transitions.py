@@ -16,7 +16,7 @@ def states(topology: str, *args: str) -> subprocess.CompletedProcess[str]:
 
 def test_safeop_is_reached_by_every_slave_with_process_data_configured() -> None:
     for topology, count in (("demo.toml", 6), ("coe.toml", 2)):
-        result = states(topology, "SAFEOP")
+        result = states(topology, "SAFEOP", "--wait")
         assert result.returncode == 0, result.stderr
         lines = result.stdout.strip().splitlines()
         assert len(lines) == count
@@ -25,7 +25,16 @@ def test_safeop_is_reached_by_every_slave_with_process_data_configured() -> None
 
 
 def test_op_without_cyclic_data_names_the_waiting_slaves_and_says_what_to_do() -> None:
-    result = states("demo.toml", "OP", "-t", "0.5")
+    result = states("demo.toml", "OP", "--wait", "-t", "0.5")
     assert result.returncode == 1
     (line,) = result.stderr.strip().splitlines()
     assert "did not reach OP" in line and "PEC-DO8" in line and "pyethercat run" in line
+
+
+def test_a_request_without_wait_returns_after_the_last_request() -> None:
+    # IgH's `ethercat states OP` only requests: the steps before (INIT -> PREOP ->
+    # SAFEOP, with the set-up) are walked, OP is requested, nothing is printed.
+    result = states("demo.toml", "OP")
+    assert result.returncode == 0, result.stderr
+    assert result.stdout == ""
+    assert "stays in SAFEOP without process data" in result.stderr

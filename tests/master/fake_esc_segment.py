@@ -38,6 +38,10 @@ class FakeSlave:
     mem: bytearray = field(default_factory=lambda: bytearray(0x10000))
     busy_left: int = 0
     sii_writes: int = 0
+    #: SII words whose write the EEPROM does not acknowledge (status bit 13, nothing written).
+    refuse_sii_writes: set[int] = field(default_factory=set)
+    #: SII word -> bits that stay set whatever is written (a worn EEPROM cell).
+    stuck_sii_bits: dict[int, int] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.sii = bytearray(self.sii)
@@ -88,6 +92,8 @@ class FakeSlave:
             self._al_control(struct.unpack_from("<H", self.mem, reg.AL_CONTROL)[0])
         if address <= reg.SII_CONTROL < end:
             self._sii_command()
+        if address <= reg.SII_CONFIG < end and self.mem[reg.SII_CONFIG] & reg.SII_CONFIG_FORCE_ECAT:
+            self.mem[reg.SII_PDI_ACCESS] = 0
 
     def _al_control(self, value: int) -> None:
         status = self.al_status
@@ -132,10 +138,15 @@ class FakeSlave:
         elif cmd == reg.SiiControl.CMD_WRITE:
             if not ctrl & reg.SiiControl.WRITE_ENABLE:
                 status |= reg.SiiControl.WRITE_ENABLE_ERROR
+            elif addr in self.refuse_sii_writes:
+                status |= reg.SiiControl.ACK_ERROR
             else:
                 if 2 * addr + 2 > len(self.sii):
                     self.sii.extend(b"\xff" * (2 * addr + 2 - len(self.sii)))
                 self.sii[2 * addr:2 * addr + 2] = self.mem[reg.SII_DATA:reg.SII_DATA + 2]
+                if addr in self.stuck_sii_bits:
+                    self.sii[2 * addr] |= self.stuck_sii_bits[addr] & 0xFF
+                    self.sii[2 * addr + 1] |= self.stuck_sii_bits[addr] >> 8
                 self.sii_writes += 1
         elif cmd == reg.SiiControl.CMD_RELOAD:
             self._reload()

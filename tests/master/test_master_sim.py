@@ -147,9 +147,8 @@ def test_sii_write_and_reload_change_the_alias() -> None:
     image = bytearray(m.sii_read(1))
     image[8:10] = struct.pack("<H", 77)  # word 4: station alias
     image = bytearray(sii_fix_checksum(bytes(image)))
-    written = m.sii_write(1, bytes(image))
-    if written == 0:
-        pytest.fail("nothing written")
+    report = m.sii_write(1, bytes(image))
+    assert report.written == [4, 7]
     assert m.sii_read(1)[:16] == bytes(image[:16])
     assert m.read(1, reg.STATION_ALIAS, 2) == struct.pack("<H", 77)
 

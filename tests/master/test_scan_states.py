@@ -204,8 +204,8 @@ def test_sii_write_changes_only_differing_words_and_reloads() -> None:
     m, seg, _ = _master([FakeSlave(_image("A", 1, alias=3))])
     m.scan()
     new = bytearray(_image("A", 1, alias=9))
-    written = m.sii_write(0, bytes(new))
-    assert written == 2  # alias word and checksum word
+    report = m.sii_write(0, bytes(new))
+    assert report.written == [4, 7]  # alias word and checksum word
     assert bytes(seg.slaves[0].sii[:len(new)]) == bytes(new)
     assert m.read(0, reg.STATION_ALIAS, 2) == struct.pack("<H", 9)
     assert m.sii_read(0) == bytes(new[:len(m.sii_read(0))])

@@ -94,4 +94,8 @@ def _capture(link: Any, pcap: str | None) -> Any:
         return link
     from pyethercat.link.capture import CaptureLink
 
-    return CaptureLink(link, pcap)
+    try:
+        return CaptureLink(link, pcap)
+    except OSError as exc:
+        link.close()
+        raise ConfigError(f"cannot write the capture {pcap}: {exc.strerror or exc}") from None

@@ -21,7 +21,10 @@ register``. As in Wireshark's ``ecat`` fields, ``adp``/``ado`` are set (and
 
 EtherCAT frames are recognised by EtherType 0x88A4 (also behind one VLAN
 tag) and as the payload of IPv4/IPv6 UDP datagrams whose source or
-destination port is 34980. A summary goes to stderr at the end: packets,
+destination port is 34980. Captures of Ethernet (link type 1) and of Linux
+"cooked" captures (``tcpdump -i any``: SLL, link type 113, and SLL2, link
+type 276) are decoded; packets of any other link type are counted and named
+in the summary. A summary goes to stderr at the end: packets,
 EtherCAT frames (how many over UDP), datagrams, non-EtherCAT packets skipped,
 EtherCAT frames of other types than datagrams (e.g. mailbox gateway), and
 malformed frames. A malformed EtherCAT frame is reported on stderr as
@@ -92,6 +95,8 @@ class DecodeStats:
     #: Frames whose EtherCAT length covers bytes after the last datagram (tolerated).
     trailing: int = 0
     malformed: list[tuple[int, str]] = field(default_factory=list)
+    #: Packets of link types this decoder does not read, by link type.
+    other_links: dict[int, int] = field(default_factory=dict)
 
 
 def _udp_payload(packet: bytes, ethertype: int, start: int) -> bytes | None:
@@ -121,6 +126,41 @@ def _udp_payload(packet: bytes, ethertype: int, start: int) -> bytes | None:
     return packet[udp + 8 : min(end, len(packet))]
 
 
+#: Linux cooked captures (tcpdump -i any): SLL v1 (16-byte header, protocol at
+#: bytes 14-15) and SLL2 (20-byte header, protocol at bytes 0-1); see
+#: tcpdump.org/linktypes/LINKTYPE_LINUX_SLL.html and LINKTYPE_LINUX_SLL2.html.
+LINKTYPE_LINUX_SLL = 113
+LINKTYPE_LINUX_SLL2 = 276
+#: Names of common link types for the summary (tcpdump.org/linktypes.html).
+_LINK_NAMES = {0: "NULL", 101: "RAW", 105: "IEEE802_11", 108: "LOOP", 127: "IEEE802_11_RADIOTAP",
+               228: "IPV4", 229: "IPV6", 147: "USER0"}
+
+
+def link_name(linktype: int) -> str:
+    """``LINKTYPE_RAW (101)``: how the summary names a link type."""
+    names = {LINKTYPE_ETHERNET: "ETHERNET", LINKTYPE_LINUX_SLL: "LINUX_SLL",
+             LINKTYPE_LINUX_SLL2: "LINUX_SLL2", **_LINK_NAMES}
+    return f"LINKTYPE_{names[linktype]} ({linktype})" if linktype in names else \
+        f"link type {linktype}"
+
+
+def _network_start(linktype: int, packet: bytes) -> tuple[int, int] | None:
+    """(EtherType, offset of what follows) of a packet, or None for a link type we do not read."""
+    if linktype == LINKTYPE_ETHERNET:
+        if len(packet) < 14:
+            return 0, len(packet)
+        return (packet[12] << 8) | packet[13], 14
+    if linktype == LINKTYPE_LINUX_SLL:
+        if len(packet) < 16:
+            return 0, len(packet)
+        return (packet[14] << 8) | packet[15], 16
+    if linktype == LINKTYPE_LINUX_SLL2:
+        if len(packet) < 20:
+            return 0, len(packet)
+        return (packet[0] << 8) | packet[1], 20
+    return None
+
+
 def _frame_type(ecat: bytes) -> int:
     return (ecat[1] << 8 | ecat[0]) >> ECAT_TYPE_SHIFT if len(ecat) >= ECAT_HEADER_SIZE else -1
 
@@ -138,11 +178,14 @@ def decode_records(records: Iterable[CaptureRecord], stats: DecodeStats) -> Iter
             first_ts = rec.timestamp_ns
         when = (rec.timestamp_ns - first_ts) / 1e9
         packet = rec.data
-        if rec.linktype != LINKTYPE_ETHERNET or len(packet) < 14:
+        network = _network_start(rec.linktype, packet)
+        if network is None:
+            stats.other_links[rec.linktype] = stats.other_links.get(rec.linktype, 0) + 1
+            continue
+        ethertype, start = network
+        if start >= len(packet):
             stats.non_ethercat += 1
             continue
-        start = 14
-        ethertype = (packet[12] << 8) | packet[13]
         while ethertype in (ETHERTYPE_VLAN, _ETHERTYPE_QINQ) and len(packet) >= start + 4:
             ethertype = (packet[start + 2] << 8) | packet[start + 3]
             start += 4
@@ -227,6 +270,8 @@ def summary(stats: DecodeStats) -> str:
         f"{stats.other_types} EtherCAT frames without datagrams, "
         f"{stats.trailing} with bytes after the last datagram, "
         f"{len(stats.malformed)} malformed"
+        + "".join(f", {n} packets of {link_name(t)} not decoded (Ethernet and Linux cooked "
+                  "captures are)" for t, n in sorted(stats.other_links.items()))
     )
 
 

@@ -31,6 +31,7 @@ from rich.table import Table
 from rich.tree import Tree
 
 from pyethercat.cli._connect import connect
+from pyethercat.cli._session import serving
 from pyethercat.cli.run_cmds import format_summary, live_view
 from pyethercat.errors import ConfigError
 from pyethercat.master.cyclic import Cycle
@@ -237,8 +238,16 @@ def register(cli: click.Group) -> None:
         """Run the main job: scan, configure, OP, 1 ms cycles with loop-back checks, pcap."""
         # Off a terminal (make demo | tee, CI logs) rich would squeeze tables
         # into 80 columns and cut names; give it room instead.
+        if seconds <= 0:
+            raise ConfigError(f"demo: --seconds must be positive, got {seconds:g}")
+        if cycle_us <= 0:
+            raise ConfigError(f"demo: --cycle must be a positive number of microseconds, "
+                              f"got {cycle_us}")
         console = Console() if sys.stdout.isatty() else Console(width=140)
         obj = dict(obj or {})
+        if obj.get("sim") is not None and topology is not None:
+            raise ConfigError("demo: give the simulated segment once: --sim TOPOLOGY (before "
+                              "the command) or --topology, not both")
         real = obj.get("iface") is not None or obj.get("udp") is not None
         topo_path = Path(topology) if topology else (None if real else find_demo_topology())
         if not real:
@@ -251,7 +260,7 @@ def register(cli: click.Group) -> None:
         where = obj.get("iface") or obj.get("udp") or f"simulated segment {topo_path} (child process)"
         console.print(f"[bold]pyethercat demo[/bold] on {where}")
         t0 = time.monotonic()
-        with connect(obj, child=not real, pcap=pcap) as conn:
+        with connect(obj, child=not real, pcap=pcap) as conn, serving(obj, conn.master):
             m = conn.master
             m.scan()
             t_scan = time.monotonic() - t0

@@ -17,8 +17,8 @@ from typing import Any
 
 import click
 
-from pyethercat.cli._connect import connect
-from pyethercat.cli._util import parse_int
+from pyethercat.cli._session import own_master
+from pyethercat.cli._util import number, parse_int
 from pyethercat.errors import ConfigError, EtherCATError
 from pyethercat.esi.model import EsiDevice, EsiFile
 
@@ -129,6 +129,8 @@ def register(cli: click.Group) -> None:
         """List the devices of FILE, or one in detail (builtin:seed002_drive.xml works too)."""
         from pyethercat.esi.parse import load_esi
 
+        if revision is not None and product is None:
+            raise ConfigError("esi show: --revision needs --product (which device's revision)")
         esi = load_esi(_esi_path(file))
         if product is None:
             click.echo(format_device_list(esi))
@@ -152,9 +154,10 @@ def register(cli: click.Group) -> None:
         from pyethercat.esi.sii_from_esi import esi_to_sii, pick_device, sii_differences
         from pyethercat.wire.sii import parse_sii
 
+        serial_no = number(serial, "--serial", 0xFFFFFFFF)  # SII words 0x0E-0x0F: 32 bits
         esi = load_esi(_esi_path(file))
         dev = pick_device(esi, _int(product), _int(revision))
-        res = esi_to_sii(dev, vendor_id=esi.vendor.id, serial=_int(serial) or 0,
+        res = esi_to_sii(dev, vendor_id=esi.vendor.id, serial=serial_no,
                          include_pdos=False if no_pdos else None)  # fmt: skip
         try:
             Path(output).write_bytes(res.image)
@@ -185,7 +188,7 @@ def register(cli: click.Group) -> None:
 
         pos = _int(position)
         assert pos is not None
-        with connect(ctx.obj) as conn:
+        with own_master(ctx.obj) as conn:
             m = conn.master
             m.scan()
             if not 0 <= pos < len(m.slaves):
@@ -244,7 +247,7 @@ def register(cli: click.Group) -> None:
             expected_from_topology,
         )
 
-        with connect(ctx.obj) as conn:
+        with own_master(ctx.obj) as conn:
             m = conn.master
             m.scan()
             if expect is not None:
@@ -268,7 +271,7 @@ def register(cli: click.Group) -> None:
         from pyethercat.master.esi_config import start_from_eni
 
         eni = load_eni(file)
-        with connect(ctx.obj) as conn:
+        with own_master(ctx.obj) as conn:
             m = conn.master
             start_from_eni(m, eni)
             cfg = m.configure()

@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import click
@@ -24,11 +24,15 @@ from rich.table import Table
 from rich.text import Text
 
 from pyethercat.cli._connect import connect
+from pyethercat.cli._select import selection_options
+from pyethercat.cli._session import open_session, serving
 from pyethercat.cli._util import parse_int
 from pyethercat.errors import ConfigError
 from pyethercat.master.config import Direction, ProcessDataConfig
+from pyethercat.master.control import messages as msg
 from pyethercat.master.cyclic import CyclicRunner
 from pyethercat.master.master import Master
+from pyethercat.master.slave import Slave
 from pyethercat.wire.al import state_name
 from pyethercat.wire.mailbox.datatypes import DataType
 from pyethercat.wire.registers import AL_ERROR_FLAG
@@ -47,11 +51,11 @@ def _type_name(code: int) -> str:
         return f"type 0x{code:04X}" if code else "-"
 
 
-def format_pdos(master: Master, cfg: ProcessDataConfig, positions: list[int]) -> str:
+def format_pdos(slaves: Sequence[Slave], cfg: ProcessDataConfig, positions: list[int]) -> str:
     """The text of ``pyethercat pdos`` for the given slave positions."""
     lines: list[str] = []
     for p in positions:
-        s = master.slaves[p]
+        s = slaves[p]
         sc = cfg.slaves[p]
         lines.append(f"=== slave {p} ({s.address_text}, {s.name or '?'}) ===")
         if not sc.sync_managers:
@@ -155,22 +159,19 @@ def register(cli: click.Group) -> None:
     """Add ``pdos`` and ``run`` to the command line."""
 
     @cli.command("pdos")
-    @click.option("-p", "--position", "position", metavar="POS", default=None,
-                  help="Only this slave (ring position).")
+    @selection_options
     @click.pass_obj
-    def pdos_cmd(obj: dict[str, Any], position: str | None) -> None:
+    def pdos_cmd(obj: dict[str, Any], position: str | None, alias: str | None) -> None:
         """Sync managers, PDOs and entries of every slave, and their logical mapping."""
-        with connect(obj) as conn:
-            m = conn.master
-            m.scan()
-            cfg = m.configure()
-            if position is None:
-                positions = [s.position for s in m.slaves]
-            else:
-                pos = parse_int(position)
-                m.slave(pos)
-                positions = [pos]
-            click.echo(format_pdos(m, cfg, positions))
+        with open_session(obj) as session:
+            cfg = session.call(msg.GetConfig(compute=True)).config
+            slaves = session.slaves()
+            positions = [p for p in session.select(position, alias) if p < len(slaves)]
+            if position is not None and not positions:
+                raise ConfigError(f"no slave at position {position}: the segment has "
+                                  f"{len(slaves)} slaves")
+        assert cfg is not None
+        click.echo(format_pdos(slaves, cfg, positions))
 
     @cli.command("run")
     @click.option("--cycle", "cycle_us", default=None, metavar="US",
@@ -218,9 +219,11 @@ def register(cli: click.Group) -> None:
             cycle = 1e-3
         if cycle <= 0:
             raise ConfigError(f"cycle time must be positive, got {cycle_us} us")
+        if seconds is not None and seconds <= 0:
+            raise ConfigError(f"run: --seconds must be positive, got {seconds:g}")
         # Off a terminal rich would squeeze the table into 80 columns: give it room.
         console = Console() if sys.stdout.isatty() else Console(width=140)
-        with connect(obj, pcap=pcap) as conn:
+        with connect(obj, pcap=pcap) as conn, serving(obj, conn.master):
             m = conn.master
             if dc:
                 from pyethercat.cli.dc_cmds import wall_clock_for_sim

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
 
 from pyethercat.errors import ConfigError
 
-__all__ = ["register", "sim_command"]
+__all__ = ["register", "sim_command", "check_control_path"]
 
 
 @click.command("sim")
@@ -64,6 +66,8 @@ def sim_command(
     log = None if quiet else (lambda msg: click.echo(f"pyethercat sim: {msg}", err=True))
     # Load the topology before opening the link: a bad file fails fast.
     load_topology(topology)
+    if control is not None:
+        check_control_path(control)
     link = open_link(iface=iface, udp=udp, fd=sim_fd, pcap=pcap)
     try:
         stats = serve(topology, link, control=control, log=log, realtime=realtime)
@@ -75,6 +79,35 @@ def sim_command(
             f"stopped: {d['frames']} frames, {d['replies']} replies, {d['lost']} lost, "
             f"mean {d['mean_process_us']} us, max {d['max_process_us']} us per frame"
         )
+
+
+def check_control_path(path: str) -> None:
+    """Refuse a ``--control`` path that cannot be bound or belongs to a running simulator.
+
+    The server replaces a socket file left behind by a simulator that is gone;
+    one that still answers is another simulator's control channel.
+    """
+    import socket
+    import stat
+
+    target = Path(path)
+    parent = target.parent if str(target.parent) else Path(".")
+    if not parent.is_dir():
+        raise ConfigError(f"--control {path}: directory {parent} does not exist")
+    if not target.exists() and not target.is_symlink():
+        return
+    if not stat.S_ISSOCK(target.lstat().st_mode):
+        raise ConfigError(f"--control {path}: exists and is not a socket")
+    probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    probe.settimeout(1.0)
+    try:
+        probe.connect(path)
+    except OSError:
+        return  # nobody listens: a stale socket file
+    finally:
+        probe.close()
+    raise ConfigError(f"--control {path}: in use by a running simulator (stop it, or give "
+                      "another path)")
 
 
 def register(cli: click.Group) -> None:

@@ -583,6 +583,21 @@ class EsiValueInfo:
     max_value: str | None = None
     unit: str | None = None
 
+    def default_bytes(self, type_name: str | None = None) -> bytes | None:
+        """The default as value bytes: ``DefaultData``, else ``DefaultString`` encoded.
+
+        ``DefaultString`` (ETG.2000, for STRING/VISIBLE_STRING objects such as
+        0x1008 device name) is text: UTF-16LE for a UNICODE_STRING, else the
+        text's UTF-8 bytes.
+        """
+        if self.default_data is not None:
+            return self.default_data
+        if self.default_string is None:
+            return None
+        if type_name is not None and type_name.upper().startswith("UNICODE_STRING"):
+            return self.default_string.encode("utf-16-le")
+        return self.default_string.encode("utf-8")
+
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class EsiObjectSubItem:
@@ -678,7 +693,7 @@ class EsiDictionary:
                     code=info.code if info else None,
                     bit_size=obj.bit_size,
                     flags=obj.flags,
-                    default=obj.info.default_data,
+                    default=obj.info.default_bytes(obj.type),
                 )
             ]
         flat: list[tuple[int, str, str, int, EsiFlags]] = []
@@ -700,7 +715,7 @@ class EsiDictionary:
             info = self.type_info(type_)
             default = None
             if pos < len(obj.sub_items):
-                default = obj.sub_items[pos].info.default_data
+                default = obj.sub_items[pos].info.default_bytes(type_)
                 name = obj.sub_items[pos].name or name
             out.append(
                 EsiOdEntry(

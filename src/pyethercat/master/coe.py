@@ -120,7 +120,15 @@ def resolve_dtype(dtype: DTypeLike) -> DataType:
             return DataType(dtype)
         except ValueError:
             raise ConfigError(f"unknown CANopen data type 0x{dtype:04X}") from None
+    if dtype.strip().lower() in _SIGN_MAGNITUDE_NAMES:
+        # IgH's tool prints these with the sign bit apart; as a CANopen type they
+        # would silently decode as two's complement.
+        raise ConfigError(f"{dtype!r} is the command line's sign-and-magnitude notation "
+                          "(IgH), no CANopen type: read the raw bytes, or an INTEGER type")
     return parse_type_name(dtype)
+
+
+_SIGN_MAGNITUDE_NAMES = frozenset({"sm8", "sm16", "sm32", "sm64"})
 
 
 # --- emergencies ----------------------------------------------------------------------

@@ -13,7 +13,8 @@ from pyethercat.master.slave import Slave
 from pyethercat.wire.registers import PortType
 from pyethercat.wire.sii.model import CoeDetails, GeneralFlags
 
-__all__ = ["slave_line", "slave_table", "slave_record", "topology_tree", "TABLE_HEADER"]
+__all__ = ["slave_line", "slave_table", "slave_record", "topology_tree", "TABLE_HEADER",
+           "igh_state", "alias_positions", "igh_slave_list"]
 
 #: Column heads of :func:`slave_table` (``#`` so tools can skip the line).
 TABLE_HEADER = "# pos  station/alias  state    flag  name"
@@ -161,3 +162,52 @@ def topology_tree(slaves: Sequence[Slave]) -> str:
         for n, (p, c) in reversed(list(enumerate(kids))):
             stack.append((c, p, child_prefix, n == len(kids) - 1))
     return "\n".join(lines)
+
+
+def igh_state(state: int, error: bool) -> str:
+    """A state as IgH's tool prints it: ``PREOP``, ``SAFEOP+ERROR``, ``???``."""
+    names = {1: "INIT", 2: "PREOP", 3: "BOOT", 4: "SAFEOP", 8: "OP"}
+    return names.get(state & 0x0F, "???") + ("+ERROR" if error else "")
+
+
+def alias_positions(slaves: Sequence[Slave]) -> dict[int, tuple[int, int]]:
+    """IgH's ``alias:relative position`` of every slave: the last alias met and the distance."""
+    out: dict[int, tuple[int, int]] = {}
+    alias, rel = 0, 0
+    for s in slaves:
+        if s.alias:
+            alias, rel = s.alias, 0
+        out[s.position] = (alias, rel)
+        rel += 1
+    return out
+
+
+def igh_slave_list(slaves: Sequence[Slave], positions: Sequence[int] | None = None) -> list[str]:
+    """``slaves`` lines exactly as IgH's ``ethercat slaves`` prints them.
+
+    ``0  0:0  PREOP  +  EK1100 EtherCAT-Koppler (2A E-Bus)``: ring position,
+    alias and position relative to it, state, flag (``+``, or ``E`` when the
+    slave shows an AL error or its SII could not be read), name (or
+    ``0xVENDOR:0xPRODUCT``). Columns are as wide as their widest entry. A
+    slave with an AL error gets its status code after the name
+    (``[0x001B Sync manager watchdog]``), which IgH's list does not show.
+    """
+    rel = alias_positions(slaves)
+    chosen = set(positions) if positions is not None else None
+    rows = []
+    for s in slaves:
+        if chosen is not None and s.position not in chosen:
+            continue
+        alias, pos = rel[s.position]
+        name = s.name if s.sii is not None and s.name and s.name != "?" else (
+            f"0x{s.identity.vendor_id:08x}:0x{s.identity.product_code:08x}")
+        flag = "E" if s.al_error or s.sii_error else "+"
+        if s.al_error and s.al_status_code:
+            name += f"  [{s.al_status_text}]"
+        rows.append((str(s.position), str(alias), str(pos), igh_state(int(s.al_state), s.al_error),
+                     flag, name))
+    if not rows:
+        return []
+    w = [max(len(r[k]) for r in rows) for k in range(4)]
+    return [f"{r[0]:>{w[0]}}  {r[1]:>{w[1]}}:{r[2]:<{w[2]}}  {r[3]:<{w[3]}}  {r[4]}  {r[5]}"
+            for r in rows]

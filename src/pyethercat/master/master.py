@@ -19,9 +19,10 @@ from __future__ import annotations
 import contextlib
 import struct
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from pathlib import Path
 from types import TracebackType
-from typing import Self
+from typing import TYPE_CHECKING, Self
 
 from pyethercat.clock import Clock
 from pyethercat.errors import ConfigError, StateTimeoutError, WorkingCounterError
@@ -37,12 +38,16 @@ from pyethercat.master.scheduler import (
     DEFAULT_TIMEOUT,
     Scheduler,
 )
+from pyethercat.master.sii_write import SiiWriteReport, WriteTiming, with_alias, write_sii_image
 from pyethercat.master.slave import Identity, Slave
 from pyethercat.wire.al import AlState
 from pyethercat.wire.datagram import Command, Datagram
 from pyethercat.wire.frame import MASTER_MAC, returned_source_mac
-from pyethercat.wire.registers import RX_ERROR_COUNTER, SII_CONTROL, SiiControl
+from pyethercat.wire.registers import RX_ERROR_COUNTER, SII_CONTROL, STATION_ALIAS, SiiControl
 from pyethercat.wire.sii import SII_DEFAULT_MAX_BYTES
+
+if TYPE_CHECKING:
+    from pyethercat.master.control.server import ControlServer
 
 __all__ = ["Master", "SlaveRef"]
 
@@ -78,16 +83,21 @@ class Master(CoeMasterMixin, ProcessDataMixin):
         self._closed = False
         #: Distributed clocks: set-up, SYNC pulses, the cyclic plan (:class:`DistributedClocks`).
         self.dc = DistributedClocks(self.scheduler.transact, lambda: self.slaves)
+        #: The control socket server, while one serves this master (see :meth:`open`).
+        self.control: ControlServer | None = None
 
     # -- opening and closing ---------------------------------------------------------
 
     @classmethod
     def open(cls, iface: str | None = None, *, udp: str | None = None,
-             link: Link | None = None, **options: object) -> Master:
+             link: Link | None = None, control: bool = True, **options: object) -> Master:
         """Open a master on a network interface (raw socket), a UDP peer or a given link.
 
         ``udp`` is ``HOST[:PORT]`` (port 34980 by default). Other keyword
-        options go to :class:`Master`.
+        options go to :class:`Master`. With ``control`` (on an interface or
+        UDP peer) the master serves its control socket, so the command line
+        reaches it while it runs (:mod:`pyethercat.master.control`); a second
+        master on the same link is refused with :class:`ConfigError`.
         """
         given = [x for x in (iface, udp, link) if x is not None]
         if len(given) != 1:
@@ -104,7 +114,17 @@ class Master(CoeMasterMixin, ProcessDataMixin):
                 src = options.get("src", MASTER_MAC)
                 assert isinstance(src, bytes)
                 link = UdpLink(peer=udp, rx_src=returned_source_mac(src))
-        return cls(link, **options)  # type: ignore[arg-type]
+        master = cls(link, **options)  # type: ignore[arg-type]
+        if control and (iface is not None or udp is not None):
+            from pyethercat.master.control.endpoint import link_spec
+            from pyethercat.master.control.server import serve
+
+            try:
+                master.control = serve(master, link_spec(iface=iface, udp=udp))
+            except BaseException:
+                master.close()
+                raise
+        return master
 
     def close(self) -> None:
         """Stop the scheduler and (if owned) close the link. Idempotent."""
@@ -112,6 +132,9 @@ class Master(CoeMasterMixin, ProcessDataMixin):
             if self._closed:
                 return
             self._closed = True
+            if self.control is not None:
+                self.control.close()
+                self.control = None
             self.scheduler.close()
             if self.owns_link:
                 self.link.close()
@@ -295,7 +318,7 @@ class Master(CoeMasterMixin, ProcessDataMixin):
                   timeout: float = states.DEFAULT_STATE_TIMEOUT, *,
                   ack_errors: bool = True,
                   prepare: states.PrepareStep | None = states.setup_mailboxes,
-                  configure: bool = False) -> None:
+                  configure: bool = False, wait: bool = True) -> None:
         """Bring slaves to ``state`` through the standard path and wait for it.
 
         ``timeout`` applies to each step. Refusals raise
@@ -317,7 +340,7 @@ class Master(CoeMasterMixin, ProcessDataMixin):
                 prepare = self._with_process_data_config(prepare)
             states.set_state(self.scheduler, self._select(slaves), _state(state), timeout,
                              ack_errors=ack_errors, sleep=self._sleep, prepare=prepare,
-                             finish=finish)
+                             finish=finish, wait=wait)
 
     def _with_process_data_config(self, inner: states.PrepareStep | None) -> states.PrepareStep:
         """``inner``, then the process-data SMs/FMMUs before the SAFEOP step."""
@@ -374,24 +397,57 @@ class Master(CoeMasterMixin, ProcessDataMixin):
             return result
 
     def sii_write(self, slave: SlaveRef, image: bytes, *, reload: bool = True,
-                  only_changed: bool = True, progress: scanning.Progress | None = None) -> int:
-        """Write an SII image into a slave's EEPROM; returns the words written.
+                  only_changed: bool = True, force: bool = False,
+                  backup: Path | Callable[[bytes], Path] | None = None,
+                  progress: scanning.Progress | None = None) -> SiiWriteReport:
+        """Write an SII image into a slave's EEPROM, safely (see :mod:`pyethercat.master.sii_write`).
 
-        With ``only_changed`` the current content is read first and equal
-        words are skipped (EEPROM writes take milliseconds each). ``reload``
-        makes the ESC load its configuration words (alias...) afterwards.
+        The header checksum is computed here; the old content is read first
+        (and saved to ``backup`` when given, before anything changes); an
+        image of another identity (vendor, product, revision) is refused
+        unless ``force``; every word is read back. With ``only_changed``
+        equal words are skipped (EEPROM writes take milliseconds each).
+        ``reload`` makes the ESC load its configuration words (alias...)
+        afterwards. Raises :class:`~pyethercat.master.sii_write.SiiWriteError`
+        naming the failed word.
         """
         with self._lock:
             access = self._sii_access(slave)
-            old = None
-            if only_changed:
-                result = scanning.read_sii_batch(self.scheduler, [access], length=len(image))[0]
-                if not isinstance(result, Exception):
-                    old = result
-            written = scanning.write_sii(self.scheduler, access, image, old=old, progress=progress)
-            if reload:
-                scanning.reload_sii(self.scheduler, access)
-            return written
+            report = write_sii_image(self.scheduler, access, image, force=force,
+                                     only_changed=only_changed, reload=reload, backup=backup,
+                                     timing=self._sii_timing(), sleep=self._sleep,
+                                     now=self.scheduler.now, progress=progress)
+            self._refresh_alias(slave, reload)
+            return report
+
+    def set_alias(self, slave: SlaveRef, alias: int, *,
+                  backup: Path | Callable[[bytes], Path] | None = None,
+                  force: bool = False) -> SiiWriteReport:
+        """Write the station alias (SII word 4, with a new checksum) and reload it.
+
+        The rest of the EEPROM stays as it is (only words 4 and 7 change).
+        """
+        with self._lock:
+            access = self._sii_access(slave)
+            current = scanning.read_sii_batch(self.scheduler, [access])[0]
+            if isinstance(current, Exception) or len(current) < 16:
+                current = scanning.read_sii_batch(self.scheduler, [access], length=16)[0]
+                if isinstance(current, Exception):
+                    raise current
+            report = write_sii_image(self.scheduler, access, with_alias(current, alias),
+                                     force=force, backup=backup, timing=self._sii_timing(),
+                                     sleep=self._sleep, now=self.scheduler.now)
+            self._refresh_alias(slave, True)
+            return report
+
+    def _sii_timing(self) -> WriteTiming:
+        # In virtual time the simulated EEPROM's clock moves with the frames only.
+        return WriteTiming.for_virtual_time() if self.scheduler.virtual else WriteTiming()
+
+    def _refresh_alias(self, slave: SlaveRef, reloaded: bool) -> None:
+        if reloaded and (isinstance(slave, Slave) or 0 <= slave < len(self.slaves)):
+            s = self.slave(slave)
+            s.alias = self.read_u16(s, STATION_ALIAS)
 
 
 def _state(state: AlState | int | str) -> AlState:

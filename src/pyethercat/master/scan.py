@@ -44,7 +44,6 @@ from pyethercat.wire.registers import (
     SII_CONFIG,
     SII_CONFIG_FORCE_ECAT,
     SII_CONTROL,
-    SII_DATA,
     STATION_ADDRESS,
     STATION_ALIAS,
     TYPE,
@@ -67,8 +66,6 @@ __all__ = [
     "read_esc_info",
     "SiiAccess",
     "read_sii_batch",
-    "write_sii",
-    "reload_sii",
     "build_topology",
     "check_expected",
     "scan",
@@ -407,68 +404,6 @@ def _fail(r: _Reader, why: str) -> None:
     if r.failures > _SII_RETRIES:
         r.done = True
         r.error = why
-
-
-def _wait_sii_idle(scheduler: Scheduler, access: SiiAccess, what: str,
-                   max_polls: int = 100000) -> int:
-    for _ in range(max_polls):
-        reply = scheduler.transact_one(access.rd(SII_CONTROL, 2))
-        if reply.wkc != 1:
-            raise WorkingCounterError(f"{access.label}: SII status read ({what})", 1, reply.wkc)
-        (ctrl,) = struct.unpack("<H", reply.data)
-        if not ctrl & _SII_BUSY:
-            return int(ctrl)
-    raise SiiError(f"{access.label}: SII interface stays busy ({what})")
-
-
-def write_sii(scheduler: Scheduler, access: SiiAccess, image: bytes, *,
-              old: bytes | None = None, progress: Progress | None = None) -> int:
-    """Write ``image`` into a slave's SII word by word; returns the number of words written.
-
-    Words equal to ``old`` (the current content, when given) are skipped. Each
-    word: data to 0x0508, then command write + enable with its address, then
-    polling until the ESC is no longer busy; error bits raise
-    :class:`SiiError` naming the word.
-    """
-    if len(image) % 2:
-        image += b"\xff"
-    words = len(image) // 2
-    todo = [w for w in range(words)
-            if old is None or image[2 * w:2 * w + 2] != old[2 * w:2 * w + 2]]
-    ctrl = _wait_sii_idle(scheduler, access, "before writing")
-    if ctrl & SII_ERROR_BITS:
-        scheduler.transact_one(access.wr(SII_CONTROL, b"\0\0"))
-    for n, w in enumerate(todo):
-        if progress is not None:
-            progress("sii_write", n, len(todo))
-        replies = scheduler.transact([
-            access.wr(SII_DATA, image[2 * w:2 * w + 2]),
-            access.wr(SII_CONTROL, _sii_command(SiiControl.CMD_WRITE | SiiControl.WRITE_ENABLE,
-                                                w)),
-        ])
-        _check_wkc(f"{access.label}: SII write of word 0x{w:04X}", replies)
-        ctrl = _wait_sii_idle(scheduler, access, f"writing word 0x{w:04X}")
-        if ctrl & _SII_CMD_ERRORS:
-            raise SiiError(f"{access.label}: SII write of word 0x{w:04X} failed "
-                           f"(status 0x{ctrl:04X})")
-    if progress is not None:
-        progress("sii_write", len(todo), len(todo))
-    return len(todo)
-
-
-#: Every error bit of the SII status (cleared by writing 0 to 0x0502).
-SII_ERROR_BITS = 0x7800
-
-
-def reload_sii(scheduler: Scheduler, access: SiiAccess) -> None:
-    """Make the ESC reload its configuration words (alias...) from the SII."""
-    _wait_sii_idle(scheduler, access, "before reload")
-    reply = scheduler.transact_one(access.wr(SII_CONTROL, _sii_command(SiiControl.CMD_RELOAD, 0)))
-    if reply.wkc != 1:
-        raise WorkingCounterError(f"{access.label}: SII reload command", 1, reply.wkc)
-    ctrl = _wait_sii_idle(scheduler, access, "reloading")
-    if ctrl & _SII_CMD_ERRORS:
-        raise SiiError(f"{access.label}: SII reload failed (status 0x{ctrl:04X})")
 
 
 # --- slave objects from SII ------------------------------------------------------------

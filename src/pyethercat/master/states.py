@@ -328,7 +328,7 @@ def set_state(scheduler: Scheduler, slaves: Sequence[Slave], state: AlState | in
               clock: Callable[[], float] | None = None,
               sleep: Callable[[float], None] | None = None,
               prepare: PrepareStep | None = setup_mailboxes,
-              finish: PrepareStep | None = None) -> None:
+              finish: PrepareStep | None = None, wait: bool = True) -> None:
     """Bring every slave to ``state`` step by step (all slaves per step at once).
 
     ``timeout`` applies to each step. With ``ack_errors`` pending error
@@ -337,6 +337,8 @@ def set_state(scheduler: Scheduler, slaves: Sequence[Slave], state: AlState | in
     for INIT -> PREOP/BOOT; pass None when the configuration does that);
     ``finish`` after the slaves of a step reached it (CoE start-up commands
     of INIT -> PREOP run there: the mailbox works only from PRE-OP on).
+    Without ``wait`` the last step is requested and not waited for (nor
+    finished): what IgH's ``ethercat states`` does.
     """
     target = AlState(int(state))
     if not slaves:
@@ -369,10 +371,14 @@ def set_state(scheduler: Scheduler, slaves: Sequence[Slave], state: AlState | in
                 prepare(scheduler, step, group)
         for step, group in by_state.items():
             todo = [s for s in group if s.position not in there]
-            if todo:
+            if todo and not wait and n == steps - 1:
+                request_state(scheduler, todo, step)
+            elif todo:
                 first = request_and_read(scheduler, todo, step)
                 wait_for_state(scheduler, todo, step, timeout, poll_interval, clock, sleep,
                                first=first)
+        if not wait and n == steps - 1:
+            break
         if finish is not None:
             for step, group in by_state.items():
                 finish(scheduler, step, group)

@@ -29,6 +29,7 @@ Modelling choices (public sources leave these open):
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 
@@ -197,6 +198,11 @@ class OdEntry:
         value = decode_value(self.data_type, raw)
         if self.data_type is DataType.BOOLEAN and raw[0] > 1:
             raise sdo_abort(SdoAbortCode.VALUE_RANGE, index, sub, f"BOOLEAN byte 0x{raw[0]:02X}")
+        if (isinstance(value, float) and math.isnan(value)
+                and (self.minimum is not None or self.maximum is not None)):
+            # NaN compares false with both limits: without this it passes any range.
+            raise sdo_abort(SdoAbortCode.VALUE_RANGE, index, sub,
+                            f"NaN outside {self.minimum!r}..{self.maximum!r}")
         if self.allowed is not None and value not in self.allowed:
             raise sdo_abort(SdoAbortCode.VALUE_RANGE, index, sub, f"value {value!r} not allowed")
         if self.maximum is not None and value > self.maximum:  # type: ignore[operator]

@@ -52,7 +52,8 @@ from pyethercat.sim.devices.builtin import BuiltinDevice, get_builtin
 from pyethercat.sim.devices.esi_device import EsiSlave, load_esi_device
 from pyethercat.sim.profiles import DEVICE_PROFILES, PROFILES, EscProfile
 from pyethercat.wire.registers import PortType
-from pyethercat.wire.sii import SiiInfo, SiiPortType, parse_sii
+from pyethercat.wire.sii import SiiInfo, SiiPortType, parse_sii, sii_crc
+from pyethercat.wire.sii.model import CategoryType
 
 if TYPE_CHECKING:
     from pyethercat.sim.clock import Clock
@@ -311,7 +312,7 @@ def _parse_slave(raw: dict[str, Any], i: int, topo: Topology, base: Path) -> Sla
             ) from exc
     else:
         source = _str(raw["esi"], f"{where}: esi")
-        esi_slave = _esi_slave(raw, base / source, where, serial)
+        esi_slave = _esi_slave(raw, _esi_file(source, base, where), where, serial)
         image = esi_slave.sii
     if "product" in raw and kind != "esi":
         raise ConfigError(f"{where}: product/revision only go with esi = ...")
@@ -330,6 +331,7 @@ def _parse_slave(raw: dict[str, Any], i: int, topo: Topology, base: Path) -> Sla
             f"choose one of {', '.join(sorted(PROFILES))}"
         )
     profile = profile_for(PROFILES[profile_name.upper()], info)
+    _check_image(image, info, profile, f"{where}: SII image {source}")
     cfg = SlaveConfig(
         name=name, source=source, sii=image, info=info, profile=profile, builtin=builtin
     )
@@ -364,6 +366,58 @@ def _parse_slave(raw: dict[str, Any], i: int, topo: Topology, base: Path) -> Sla
             raise ConfigError(f"{where}: port needs a parent")
         cfg.port = _int(raw["port"], f"{where}: port", 1, 3)
     return cfg
+
+
+def _esi_file(source: str, base: Path, where: str) -> Path:
+    """``esi = "PATH"`` (relative to the topology file) or ``"builtin:NAME"`` (shipped ESI)."""
+    if source.startswith("builtin:"):
+        from pyethercat.errors import EsiError
+        from pyethercat.esi.bundled import SEED002_DRIVE, bundled_esi
+
+        try:
+            return bundled_esi(source.removeprefix("builtin:") or SEED002_DRIVE)
+        except EsiError as exc:
+            raise ConfigError(f"{where}: {exc}") from None
+    return base / source
+
+
+def _check_image(image: bytes, info: SiiInfo, profile: EscProfile, where: str) -> None:
+    """Refuse an SII image a real slave could not run from, saying why.
+
+    A wrong header checksum (the ESC would not load its configuration words),
+    an image ending inside the fixed area (words 0x00-0x3F), a damaged standard
+    category, or a mailbox or sync manager outside the chip's process RAM
+    (0x1000 up to the profile's RAM end; process data may also use the
+    digital I/O registers from 0x0F00): such an image would otherwise fail
+    much later, in a master, with an unrelated error (a frame too large for
+    a 64 KiB mailbox read from 0xFFFF words).
+    """
+    if len(image) < 128:
+        raise ConfigError(f"{where}: {len(image)} bytes end inside the fixed area "
+                          "(words 0x00-0x3F, 128 bytes)")
+    if not info.checksum_ok:
+        raise ConfigError(f"{where}: header checksum (word 0x07) is 0x{info.checksum & 0xFF:02X}, "
+                          f"the CRC of words 0x00-0x06 is 0x{sii_crc(image):02X}")
+    for w in info.warnings:
+        # A standard category damaged; a vendor one (named by its number) may be cut short.
+        head = w.split()
+        if len(head) > 1 and head[0] == "category" and head[1] in CategoryType.__members__:
+            raise ConfigError(f"{where}: {w}")
+    end = profile.ram_end
+    boxes = (("receive mailbox", info.rx_mailbox_offset, info.rx_mailbox_size),
+             ("send mailbox", info.tx_mailbox_offset, info.tx_mailbox_size),
+             ("bootstrap receive mailbox", info.boot_rx_mailbox_offset, info.boot_rx_mailbox_size),
+             ("bootstrap send mailbox", info.boot_tx_mailbox_offset, info.boot_tx_mailbox_size))
+    # Mailboxes live in the process RAM; process-data SMs may also use the digital
+    # I/O registers 0x0F00-0x0FFF (ET1200 terminals such as the EL2004 do).
+    windows = [(what, start, size, 0x1000) for what, start, size in boxes if size]
+    windows += [(f"sync manager {n}", sm.start, sm.length, 0x0F00)
+                for n, sm in enumerate(info.sync_managers) if sm.length]
+    for what, start, size, low in windows:
+        if start < low or start + size > end:
+            raise ConfigError(f"{where}: {what} at 0x{start:04X} with {size} bytes lies outside "
+                              f"0x{low:04X}-0x{end - 1:04X} (process RAM of profile "
+                              f"{profile.name})")
 
 
 def _esi_slave(raw: dict[str, Any], path: Path, where: str, serial: int) -> EsiSlave:
@@ -468,6 +522,10 @@ def _parse_fault(raw: dict[str, Any], i: int, topo: Topology) -> FaultConfig:
                               f"(ports {', '.join(map(str, cfg.ports))})")
         if port not in cabled:
             raise ConfigError(f"{where}: port {port} of slave {slave!r} has no cable")
+        if kind == "break_link" and port == 0 and topo.index(slave) == 0:
+            raise ConfigError(f"{where}: port 0 of the first slave {slave!r} is the master's "
+                              "cable; broken, no slave would answer (cut it at run time "
+                              "with the control socket instead)")
     count = _int(raw.get("count", 1), f"{where}: count", 1)
     return FaultConfig(kind, slave, port, count)
 

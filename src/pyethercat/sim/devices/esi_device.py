@@ -120,6 +120,10 @@ def _entry(e: EsiOdEntry) -> OdEntry:
     dt = DataType(code)
     size = dt.byte_size
     max_length = None if size is not None else max(0, e.bit_size // 8)
+    if max_length is not None and e.default is not None:
+        # A string declared STRING(0)/BitSize 0 with a DefaultString (SOES's ESI
+        # generator writes 0x1009/0x100A so) holds its default.
+        max_length = max(max_length, len(e.default))
     entry = OdEntry(e.subindex, e.name, dt, _access(e.flags), None, max_length=max_length)
     if e.default is not None:
         raw = e.default
