@@ -22,6 +22,7 @@ from click.testing import CliRunner
 
 from pyethercat.cli.main import cli
 from pyethercat.errors import ConfigError
+from pyethercat.clock import VirtualClock
 from pyethercat.link.pair import PairLink
 from pyethercat.link.udp import UdpLink
 from pyethercat.master.control import messages as msg
@@ -41,7 +42,7 @@ from pyethercat.master.control.protocol import (
 )
 from pyethercat.master.control.server import serve
 from pyethercat.master.master import Master
-from pyethercat.sim.clock import WallClock
+from pyethercat.clock import WallClock
 from pyethercat.sim.server import SimServer
 from pyethercat.sim.topology import load_topology
 
@@ -119,7 +120,7 @@ def test_direct_access_warns_and_a_second_master_is_refused(running: tuple[Maste
 
 def test_socket_is_private_and_goes_away_with_the_master() -> None:
     segment = load_topology(COE).build()
-    m = Master(PairLink.responder_link(segment.process), deterministic=True)
+    m = Master(PairLink.responder_link(segment.process), clock=VirtualClock())
     m.scan()
     server = serve(m, link_spec(sim=COE))
     path = endpoint_path(link_spec(sim=COE))

@@ -13,11 +13,10 @@ from pathlib import Path
 import pytest
 from fake_esc_segment import FakeSegment, FakeSlave
 
-from pyethercat.clock import VirtualClock
+from pyethercat.clock import VirtualClock, WallClock
 from pyethercat.link.pair import PairLink
 from pyethercat.master import Master
 from pyethercat.master.sii_write import SiiWriteError, identity_difference, with_alias
-from pyethercat.clock import WallClock
 from pyethercat.sim.profiles import PROFILES
 from pyethercat.sim.topology import load_topology
 from pyethercat.wire import registers as reg

@@ -183,9 +183,6 @@ def decode_records(records: Iterable[CaptureRecord], stats: DecodeStats) -> Iter
             stats.other_links[rec.linktype] = stats.other_links.get(rec.linktype, 0) + 1
             continue
         ethertype, start = network
-        if start >= len(packet):
-            stats.non_ethercat += 1
-            continue
         while ethertype in (ETHERTYPE_VLAN, _ETHERTYPE_QINQ) and len(packet) >= start + 4:
             ethertype = (packet[start + 2] << 8) | packet[start + 3]
             start += 4

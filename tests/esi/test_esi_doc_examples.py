@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from pyethercat.errors import SdoAbort
 from pyethercat.clock import VirtualClock
+from pyethercat.errors import SdoAbort
 from pyethercat.link.pair import PairLink
 from pyethercat.master.master import Master
 from pyethercat.sim.topology import load_topology
