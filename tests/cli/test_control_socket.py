@@ -21,8 +21,8 @@ import pytest
 from click.testing import CliRunner
 
 from pyethercat.cli.main import cli
+from pyethercat.clock import VirtualClock, WallClock
 from pyethercat.errors import ConfigError
-from pyethercat.clock import VirtualClock
 from pyethercat.link.pair import PairLink
 from pyethercat.link.udp import UdpLink
 from pyethercat.master.control import messages as msg
@@ -42,7 +42,6 @@ from pyethercat.master.control.protocol import (
 )
 from pyethercat.master.control.server import serve
 from pyethercat.master.master import Master
-from pyethercat.clock import WallClock
 from pyethercat.sim.server import SimServer
 from pyethercat.sim.topology import load_topology
 
