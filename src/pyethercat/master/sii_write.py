@@ -273,23 +273,22 @@ class _Interface:
         def spent() -> bool:
             return polls >= self.timing.min_polls and self.now() >= deadline
 
-        ctrl, data = self.status()
-        while True:
+        def idle(ctrl: int, data: bytes) -> tuple[int, bytes]:
+            nonlocal polls
             while ctrl & _BUSY:
                 polls += 1
                 if spent():
                     raise SiiError(f"SII interface stays busy ({what}, status 0x{ctrl:04X})")
                 ctrl, data = self.status()
+            return ctrl, data
+
+        ctrl, data = idle(*self.status())
+        while True:
             if ctrl & SII_ERROR_MASK:
                 self.clear_errors()
             replies = self._transact([*command, self.access.rd(SII_CONTROL, _WINDOW)], what)
-            ctrl, = struct.unpack_from("<H", replies[-1].data)
-            data = bytes(replies[-1].data[6:8])
-            while ctrl & _BUSY:
-                polls += 1
-                if spent():
-                    raise SiiError(f"SII interface stays busy ({what}, status 0x{ctrl:04X})")
-                ctrl, data = self.status()
+            ctrl, data = idle(struct.unpack_from("<H", replies[-1].data)[0],
+                              bytes(replies[-1].data[6:8]))
             if ctrl & _WE_ERROR:
                 raise SiiError(f"{what}: write enable not taken (status 0x{ctrl:04X})")
             if not ctrl & _ACK_ERROR:
@@ -300,8 +299,6 @@ class _Interface:
             self.retries += 1
             if spent():
                 raise SiiError(f"{what}: the EEPROM does not acknowledge (status 0x{ctrl:04X})")
-            self.clear_errors()
-            ctrl = 0
             if self.timing.pause:
                 self.sleep(self.timing.pause)
 
