@@ -87,7 +87,7 @@ device = "builtin:seed002-drive"
 
 
 def test_coe_io_sdos_and_emergency_while_cyclic_runs(tmp_path: Path) -> None:
-    from pyethercat.sim.coe import CoeDevice
+    from pyethercat.sim.coe import coe_server
     from pyethercat.sim.topology import load_topology
 
     path = tmp_path / "coe.toml"
@@ -117,9 +117,8 @@ def test_coe_io_sdos_and_emergency_while_cyclic_runs(tmp_path: Path) -> None:
         assert io.sdo_read(0x2000) == blob
         assert io.sdo_read(0x1018, 0, complete_access=True)[2:6] == (0x00504543).to_bytes(4, "little")
         # an emergency: the status byte in the image says "full", the poll needs no frame
-        app = seg.slaves[0].spec.app
-        assert isinstance(app, CoeDevice)
-        chores.append(lambda: app.emergency(0x8210, 0x10, b"\x01\x02\x03\x04\x05"))
+        coe = coe_server(seg.slaves[0].spec.app)
+        chores.append(lambda: coe.emergency(0x8210, 0x10, b"\x01\x02\x03\x04\x05"))
         for _ in range(200):
             status = img.mailbox_status(0)
             if status is not None and status & reg.SM_STATUS_MAILBOX_FULL:

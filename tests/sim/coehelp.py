@@ -10,7 +10,7 @@ import struct
 
 from pyethercat.errors import SdoAbort
 from pyethercat.sim.clock import VirtualClock
-from pyethercat.sim.devices import BUILTINS, make_app
+from pyethercat.sim.devices import DEVICES, behaviour
 from pyethercat.sim.profiles import PROFILES
 from pyethercat.sim.segment import Segment, SlaveSpec
 from pyethercat.wire import registers as R
@@ -42,12 +42,14 @@ class CoeSlave:
     """One built-in CoE slave in PREOP on its own segment."""
 
     def __init__(self, builtin: str = "coe-io", serial: int = 7) -> None:
-        dev = BUILTINS[builtin]
+        dev = DEVICES[builtin]
         sii = dev.sii_image(serial=serial)
-        self.app = make_app(dev, parse_sii(sii))
+        run = behaviour(dev, parse_sii(sii))
+        self.app = run.app
         self.clock = VirtualClock(1_000_000)
         self.seg = Segment(self.clock)
-        self.seg.add_slave(SlaveSpec(builtin, sii, PROFILES[dev.profile], self.app))
+        self.seg.add_slave(SlaveSpec(builtin, sii, PROFILES[dev.profile], run.app, model=run.model,
+                                     instance=run.instance))
         assert self.dg(Datagram.positional(Command.APWR, 0, R.STATION_ADDRESS,
                                            struct.pack("<H", STATION))).wkc == 1
         self.fpwr(R.sm_address(0), sm_bytes(MBX_OUT, MBX_SIZE, R.SM_CONTROL_MAILBOX_OUT))

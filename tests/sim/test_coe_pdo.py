@@ -7,10 +7,10 @@ import struct
 import pytest
 from coehelp import SM2, SM3, CoeSlave
 
-from pyethercat.sim.coe import mapping_word
 from pyethercat.wire import registers as R
 from pyethercat.wire.al import AlState, AlStatusCode
 from pyethercat.wire.mailbox.coe import SdoAbortCode
+from pyethercat.wire.mailbox.objects import mapping_word
 
 
 @pytest.fixture

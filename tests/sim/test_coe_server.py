@@ -8,6 +8,7 @@ import pytest
 from coehelp import MBX_SIZE, CoeSlave, coe_of
 
 from pyethercat.errors import MailboxErrorReply
+from pyethercat.sim.coe import coe_server
 from pyethercat.wire import registers as R
 from pyethercat.wire.al import AlState
 from pyethercat.wire.mailbox.coe import (
@@ -234,7 +235,7 @@ def test_complete_access_refused_without_the_sii_flag() -> None:
 
 
 def test_od_list_all_types(slave: CoeSlave) -> None:
-    od = slave.app.od  # type: ignore[attr-defined]
+    od = coe_server(slave.app).od
     everything = slave.info(SdoInfoGetOdListRequest(1))
     assert isinstance(everything, SdoInfoGetOdListResponse)
     assert everything.indices == tuple(o.index for o in od)
@@ -308,7 +309,7 @@ def test_long_entry_description_is_fragmented(slave: CoeSlave) -> None:
 
 
 def test_emergency_goes_out_through_sm1(slave: CoeSlave) -> None:
-    assert slave.app.emergency(0x8210, 0x11, b"\x01\x02\x03")  # type: ignore[attr-defined]
+    assert coe_server(slave.app).emergency(0x8210, 0x11, b"\x01\x02\x03")
     header, msg = slave.fetch_message()
     assert header.type == MailboxType.COE and header.counter != 0
     assert msg == Emergency(0x8210, 0x11, b"\x01\x02\x03\x00\x00")
@@ -317,8 +318,8 @@ def test_emergency_goes_out_through_sm1(slave: CoeSlave) -> None:
 
 def test_emergency_waits_while_sm1_is_full(slave: CoeSlave) -> None:
     app = slave.app
-    app.emergency(0x1000, 1)  # type: ignore[attr-defined]
-    app.emergency(0x2000, 2)  # type: ignore[attr-defined]
+    coe_server(app).emergency(0x1000, 1)
+    coe_server(app).emergency(0x2000, 2)
     slave.send(SdoInitiateUploadRequest(0x1000, 0).encode())
     codes = []
     for _ in range(3):
@@ -331,7 +332,7 @@ def test_emergency_waits_while_sm1_is_full(slave: CoeSlave) -> None:
 
 def test_no_emergency_in_init(slave: CoeSlave) -> None:
     assert slave.request_state(AlState.INIT)[0] == int(AlState.INIT)
-    assert not slave.app.emergency(0x1000)  # type: ignore[attr-defined]
+    assert not coe_server(slave.app).emergency(0x1000)
 
 
 # --- mailbox layer ---------------------------------------------------------------------
@@ -423,7 +424,7 @@ def test_coe_service_errors(slave: CoeSlave) -> None:
 
 def test_no_sdo_info_without_the_sii_flag() -> None:
     drive = CoeSlave("seed002-drive")
-    drive.app.coe.details &= ~0x02  # type: ignore[attr-defined]
+    coe_server(drive.app).details &= ~0x02
     drive.send(SdoInfoGetOdListRequest(1).encode())
     assert mailbox_error(drive) == MailboxErrorCode.SERVICE_NOT_SUPPORTED
 

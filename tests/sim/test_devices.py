@@ -7,15 +7,18 @@ import struct
 import pytest
 
 from pyethercat.errors import ConfigError
-from pyethercat.sim.device import DeviceApp
+from pyethercat.sim.coe import coe_server
 from pyethercat.sim.devices import (
-    BUILTINS,
+    DEVICES,
     VENDOR_ID,
-    IoTerminal,
+    DeviceRegistry,
     MailboxErrorApp,
+    behaviour,
     get_builtin,
-    make_app,
 )
+from pyethercat.sim.devices.builtin import BuiltinDevice
+from pyethercat.sim.devices.coe_io import CoeIoModel
+from pyethercat.sim.model import DeviceModel
 from pyethercat.wire.mailbox.header import (
     MailboxErrorCode,
     MailboxType,
@@ -32,9 +35,9 @@ from pyethercat.wire.sii import (
 )
 
 
-@pytest.mark.parametrize("key", sorted(BUILTINS))
+@pytest.mark.parametrize("key", sorted(DEVICES))
 def test_image_parses_strictly_with_identity(key: str) -> None:
-    dev = BUILTINS[key]
+    dev = DEVICES[key]
     image = dev.sii_image(serial=7)
     assert len(image) == 2048  # word 0x3E = 15 -> 16 Kbit
     info = parse_sii(image, strict=True)
@@ -59,17 +62,17 @@ def test_vendor_id_is_pec_ascii() -> None:
     assert VENDOR_ID.to_bytes(4, "big")[1:] == b"PEC"
 
 
-IO_BUILTINS = ("coupler", "di8", "do8", "di2", "ai2")
+IO_DEVICES = ("coupler", "di8", "do8", "di2", "ai2")
 
 
 def test_io_builtins_carry_our_vendor_id() -> None:
-    for key in IO_BUILTINS:
-        assert parse_sii(BUILTINS[key].sii_image()).vendor_id == VENDOR_ID
-        assert BUILTINS[key].revision == 0x00010000
+    for key in IO_DEVICES:
+        assert parse_sii(DEVICES[key].sii_image()).vendor_id == VENDOR_ID
+        assert DEVICES[key].revision == 0x00010000
 
 
 def test_process_data_sizes() -> None:
-    assert {k: (BUILTINS[k].input_bits, BUILTINS[k].output_bits) for k in IO_BUILTINS} == {
+    assert {k: (DEVICES[k].input_bits, DEVICES[k].output_bits) for k in IO_DEVICES} == {
         "coupler": (0, 0),
         "di8": (8, 0),
         "do8": (0, 8),
@@ -79,7 +82,7 @@ def test_process_data_sizes() -> None:
 
 
 def test_coupler_has_four_ports_and_no_process_data() -> None:
-    info = parse_sii(BUILTINS["coupler"].sii_image())
+    info = parse_sii(DEVICES["coupler"].sii_image())
     assert info.general is not None
     assert info.general.ports == (SiiPortType.MII, SiiPortType.EBUS, SiiPortType.MII, SiiPortType.MII)
     assert info.sync_managers == [] and info.fmmus == []
@@ -92,7 +95,7 @@ def test_digital_terminals_are_mailbox_less_like_el1xxx_el2xxx() -> None:
         ("di2", SyncManagerType.INPUTS, FmmuUsage.INPUTS),
         ("do8", SyncManagerType.OUTPUTS, FmmuUsage.OUTPUTS),
     ):
-        info = parse_sii(BUILTINS[key].sii_image())
+        info = parse_sii(DEVICES[key].sii_image())
         assert info.rx_mailbox_size == 0 and info.tx_mailbox_size == 0
         (sm0,) = info.sync_managers
         assert sm0.sm_type == sm_type and sm0.start == 0x1000 and sm0.length == 1
@@ -104,7 +107,7 @@ def test_digital_terminals_are_mailbox_less_like_el1xxx_el2xxx() -> None:
 
 
 def test_di2_is_two_bits() -> None:
-    info = parse_sii(BUILTINS["di2"].sii_image())
+    info = parse_sii(DEVICES["di2"].sii_image())
     assert [p.index for p in info.tx_pdos] == [0x1A00, 0x1A01]
     assert [e.bit_length for p in info.tx_pdos for e in p.entries] == [1, 1]
     assert [(e.index, e.subindex) for p in info.tx_pdos for e in p.entries] == [
@@ -114,7 +117,7 @@ def test_di2_is_two_bits() -> None:
 
 
 def test_ai2_has_standard_mailbox_and_inputs_on_sm3() -> None:
-    info = parse_sii(BUILTINS["ai2"].sii_image())
+    info = parse_sii(DEVICES["ai2"].sii_image())
     assert (info.rx_mailbox_offset, info.rx_mailbox_size) == (0x1000, 128)
     assert (info.tx_mailbox_offset, info.tx_mailbox_size) == (0x1080, 128)
     types = [s.sm_type for s in info.sync_managers]
@@ -135,7 +138,7 @@ def test_ai2_has_standard_mailbox_and_inputs_on_sm3() -> None:
 
 
 def test_strings_are_shared_not_repeated() -> None:
-    info = parse_sii(BUILTINS["di8"].sii_image())
+    info = parse_sii(DEVICES["di8"].sii_image())
     assert info.strings.count(b"Input") == 1
 
 
@@ -153,14 +156,46 @@ class _FakePdi:
         return True
 
 
-def test_make_app_kinds() -> None:
-    assert type(make_app(BUILTINS["di8"], parse_sii(BUILTINS["di8"].sii_image()))) is IoTerminal
-    ai2 = BUILTINS["ai2"]
-    assert isinstance(make_app(ai2, parse_sii(ai2.sii_image())), MailboxErrorApp)
+def test_what_each_kind_runs() -> None:
+    di8 = DEVICES["di8"]
+    assert behaviour(di8, parse_sii(di8.sii_image())).app is None  # plain IO: nothing runs
+    ai2 = DEVICES["ai2"]
+    assert isinstance(behaviour(ai2, parse_sii(ai2.sii_image())).app, MailboxErrorApp)
     # an SII dump with a mailbox gets the mailbox-error responder too
-    assert isinstance(make_app(None, parse_sii(ai2.sii_image())), MailboxErrorApp)
-    for app in (IoTerminal(), MailboxErrorApp()):
-        assert isinstance(app, DeviceApp) and not app.wants_output_events
+    assert isinstance(behaviour(None, parse_sii(ai2.sii_image())).app, MailboxErrorApp)
+    assert not MailboxErrorApp().wants_output_events
+    # CoE kinds: one model per kind and segment, one instance (with its CoE server) per slave
+    coe = DEVICES["coe-io"]
+    models: dict[object, DeviceModel] = {}
+    first = behaviour(coe, parse_sii(coe.sii_image(serial=1)), models)
+    second = behaviour(coe, parse_sii(coe.sii_image(serial=2)), models)
+    assert isinstance(first.model, CoeIoModel) and second.model is first.model
+    assert (first.instance, second.instance) == (0, 1)
+    assert coe_server(second.app).od.value(0x1018, 4) == 2
+
+
+def test_registry_loads_providers_and_entry_points_and_refuses_a_key_twice(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    extra = BuiltinDevice(key="my-di", product_code=0x77, order="MY-DI", name="my di", group="DigIn",
+                          profile="ET1200", ports=DEVICES["di8"].ports, sync_managers=(), fmmus=())
+
+    class EntryPoint:
+        name = "mine"
+
+        @staticmethod
+        def load() -> object:
+            return lambda: [extra]
+
+    monkeypatch.setattr("pyethercat.sim.devices.registry.entry_points",
+                        lambda group: [EntryPoint()] if group == "pyethercat.sim.devices" else [])
+    reg = DeviceRegistry()
+    assert reg.get_kind("my-di") is extra and "coe-io" in reg and "di8" in reg
+    clash = BuiltinDevice(key="di8", product_code=1, order="X", name="x", group="X", profile="ET1200",
+                          ports=extra.ports, sync_managers=(), fmmus=())
+    with pytest.raises(ConfigError, match="'di8' is defined twice"):
+        reg.register(clash)
+    # nothing was added to the shared registry by importing or by this test
+    assert "my-di" not in DEVICES
 
 
 def test_mailbox_error_app_answers_unsupported_protocol() -> None:

@@ -15,11 +15,14 @@ from pyethercat.clock import VirtualClock
 from pyethercat.errors import ConfigError
 from pyethercat.esi import load_esi
 from pyethercat.esi.bundled import bundled_esi
+from pyethercat.esi.sii_from_esi import esi_to_sii
 from pyethercat.link.pair import PairLink
 from pyethercat.master.master import Master
-from pyethercat.sim.devices.esi_device import EsiCoeApp, esi_dictionary
+from pyethercat.sim.coe import coe_server
+from pyethercat.sim.devices.esi_device import EsiCoeModel, EsiSlave, esi_dictionary
 from pyethercat.sim.topology import load_topology, parse_topology
 from pyethercat.wire.al import AlState
+from pyethercat.wire.sii import parse_sii
 
 CASES = [
     # (topology lines, ESI file, product, revision)
@@ -92,8 +95,11 @@ def test_dictionary_consistent_with_the_esi_pdos() -> None:
     assert od.value(0x1018, 4) == 9 and od.value(0x1018, 1) == 0xE4
     assert od.value(0x1C12, 0) == 1 and od.value(0x1C12, 1) == 0x1600
     assert od.value(0x1600, 0) == 2 and od.value(0x1600, 1) == 0x60400010
-    app = EsiCoeApp(od, 0x05, dev)
+    model = EsiCoeModel(EsiSlave(bundled_esi(), esi.vendor.id, dev, b""), 0x05)
+    info = parse_sii(esi_to_sii(dev, vendor_id=esi.vendor.id, serial=9).image)
+    _, app = model.instance_app(info)
     assert app.process_data_sizes() == (3, 7)
+    assert coe_server(app).od.value(0x1018, 4) == 9
 
 
 def test_unknown_product_is_a_config_error(tmp_path: Path) -> None:

@@ -15,6 +15,7 @@ import struct
 import pytest
 from coehelp import MBX_IN, MBX_OUT, MBX_SIZE, CoeSlave, coe_of, sm_bytes
 
+from pyethercat.sim.coe import coe_server
 from pyethercat.wire import registers as R
 from pyethercat.wire.al import AlState
 from pyethercat.wire.mailbox.coe import (
@@ -142,8 +143,8 @@ def test_soem_segmented_upload_with_a_late_sm1_read(slave: CoeSlave) -> None:
 def test_unread_reply_does_not_survive_init(slave: CoeSlave) -> None:
     """Facts 3.13/6.5: stopping the mailbox (INIT) deactivates SM0/SM1, which drops
     their buffer state; the next session starts with an empty SM1."""
-    slave.app.emergency(0x1000, 1)  # type: ignore[attr-defined]
-    slave.app.emergency(0x2000, 2)  # type: ignore[attr-defined]
+    coe_server(slave.app).emergency(0x1000, 1)
+    coe_server(slave.app).emergency(0x2000, 2)
     assert sm1_full(slave)
     assert slave.request_state(AlState.INIT)[0] == int(AlState.INIT)
     # the next master writes the same SM configuration again (no change for the ESC)
@@ -173,7 +174,7 @@ def test_sm1_disabled_by_the_master_drops_the_unread_reply(slave: CoeSlave) -> N
 def test_emergency_then_reply_with_repeat_in_between(slave: CoeSlave) -> None:
     """SOEM files an emergency it reads while waiting for an SDO reply; a repeat
     request after the emergency was read must not skip the reply behind it."""
-    slave.app.emergency(0x8210, 0x10)  # type: ignore[attr-defined]
+    coe_server(slave.app).emergency(0x8210, 0x10)
     slave.send(SdoInitiateUploadRequest(0x1000, 0).encode())
     emcy = slave.fetch()
     assert emcy is not None and isinstance(coe_of(emcy), Emergency)

@@ -1,45 +1,135 @@
-"""The device applications of a segment, called on ESC events.
+"""The device applications and device models of a segment, called on ESC events.
 
-A slave's device application (``sim.device.DeviceApp``) runs on events of its
-ESC. Most events are rare (state changes, mailbox, power) and reach the one
-application directly from its ESC. A completed output buffer happens every
-cycle: :class:`DeviceApps` calls only the applications that asked for it
-(``wants_output_events``), selected with one mask over the slaves whose
-buffers completed in the frame.
+Two kinds of behaviour sit behind a slave (``docs/simulator.md``, "Device
+models"):
+
+- a device model (``sim.model.DeviceModel``): one object per device kind
+  handles all instances of the kind with array operations; it is called
+  once per frame with the instances whose output buffers completed, once per
+  tick with those whose SYNC0 fired, and per instance for state changes;
+- a device application (``sim.device.DeviceApp``): one object per slave for
+  rare events (mailbox, state changes). One that sets ``wants_output_events``
+  is called per slave on completed outputs: simple, and slow at scale.
+
+:class:`DeviceApps` routes the events. The grouping of a frame's completed
+slaves by model is cached by the set of slaves (cyclic frames complete the
+same set every cycle), so a frame costs one dictionary lookup plus the
+models' own work.
 """
 
 from __future__ import annotations
+
+from collections.abc import Sequence
 
 import numpy as np
 import numpy.typing as npt
 
 from pyethercat.sim.device import DeviceApp
+from pyethercat.sim.model import DeviceModel
+from pyethercat.wire.al import AlState
 
 __all__ = ["DeviceApps"]
 
 I64 = npt.NDArray[np.int64]
+#: What completed output buffers of one set of slaves call: models with their
+#: instances, and the slaves whose per-slave applications asked.
+_Groups = tuple[tuple[tuple[DeviceModel, I64], ...], tuple[int, ...]]
 
 
 class DeviceApps:
-    """Applications by slave index (see the module docstring)."""
+    """Applications and models by slave index (see the module docstring)."""
 
     def __init__(self) -> None:
         self.apps: list[DeviceApp | None] = []
+        self.models: list[DeviceModel] = []
+        #: Per slave: index into :attr:`models` (-1: none) and instance number.
+        self.model_id: I64 = np.zeros(0, np.int64)
+        self.instance: I64 = np.zeros(0, np.int64)
         #: Per slave: the application wants :meth:`DeviceApp.on_outputs` calls.
         self.wants_outputs = np.zeros(0, bool)
-        self._any = False
+        self._output_models: list[int] = []
+        self._sync_models: list[int] = []
+        self._groups: dict[bytes, _Groups] = {}
+        self._pulses: dict[int, tuple[list[int], int]] = {}
 
-    def add(self, app: DeviceApp | None) -> None:
+    def add(self, app: DeviceApp | None, model: DeviceModel | None, instance: int) -> None:
         self.apps.append(app)
+        mid = -1
+        if model is not None:
+            if model not in self.models:
+                self.models.append(model)
+                if model.output_events:
+                    self._output_models.append(len(self.models) - 1)
+                if model.sync_events:
+                    self._sync_models.append(len(self.models) - 1)
+            mid = self.models.index(model)
+        self.model_id = np.append(self.model_id, mid)
+        self.instance = np.append(self.instance, instance)
         self.wants_outputs = np.append(self.wants_outputs, bool(app is not None and app.wants_output_events))
-        self._any = bool(self.wants_outputs.any())
+        self._groups.clear()
+
+    def _group(self, slaves: I64) -> _Groups:
+        key = slaves.tobytes()
+        groups = self._groups.get(key)
+        if groups is None:
+            mids = self.model_id[slaves]
+            models = tuple((self.models[m], np.sort(self.instance[slaves[mids == m]]))
+                           for m in self._output_models if (mids == m).any())
+            legacy = tuple(slaves[self.wants_outputs[slaves]].tolist())
+            groups = (models, legacy)
+            if len(self._groups) > 1024:
+                self._groups.clear()
+            self._groups[key] = groups
+        return groups
 
     def outputs_completed(self, slaves: I64) -> None:
         """New complete output buffers of ``slaves`` (one frame's worth)."""
-        if not self._any:
-            return
+        models, legacy = self._group(slaves)
+        for model, instances in models:
+            model.on_outputs(instances)
         apps = self.apps
-        for s in slaves[self.wants_outputs[slaves]].tolist():
+        for s in legacy:
             app = apps[s]
             if app is not None:
                 app.on_outputs()
+
+    def state_changed(self, slave: int, old: AlState, new: AlState) -> None:
+        mid = int(self.model_id[slave])
+        if mid >= 0:
+            self.models[mid].on_state_change(int(self.instance[slave]), old, new)
+
+    def power_on(self, slave: int) -> None:
+        mid = int(self.model_id[slave])
+        if mid >= 0:
+            self.models[mid].on_power_on(int(self.instance[slave]))
+        app = self.apps[slave]
+        if app is not None:
+            app.on_power_on()
+
+    # --- SYNC0 -------------------------------------------------------------------------
+
+    def sync0(self, slave: int, time_ns: int) -> None:
+        """A SYNC0 pulse of ``slave``: its application now, its model with the others at :meth:`flush`."""
+        app = self.apps[slave]
+        if app is not None:
+            app.on_sync0(time_ns)
+        mid = int(self.model_id[slave])
+        if mid >= 0 and self.models[mid].sync_events:
+            pending = self._pulses.get(mid)
+            if pending is None:
+                self._pulses[mid] = ([int(self.instance[slave])], time_ns)
+            else:
+                pending[0].append(int(self.instance[slave]))
+
+    def flush(self) -> None:
+        """Hand the SYNC0 pulses collected since the last flush to their models (one call each)."""
+        if not self._pulses:
+            return
+        pulses, self._pulses = self._pulses, {}
+        for mid, (instances, time_ns) in pulses.items():
+            self.models[mid].on_sync0(np.unique(np.array(instances, np.int64)), time_ns)
+
+    @property
+    def sync_models(self) -> Sequence[int]:
+        """Models that take SYNC0 pulses (indices into :attr:`models`)."""
+        return self._sync_models

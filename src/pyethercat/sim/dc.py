@@ -69,6 +69,8 @@ class DcClocks:
         #: sync_next's slaves and their next pulse times as arrays (None: rebuild).
         self._sync_keys: I64 | None = None
         self._sync_due: npt.NDArray[np.uint64] = np.zeros(0, np.uint64)
+        #: Receives each SYNC0 pulse (slave, system time); None: the slave's application does.
+        self.sync0_sink: Callable[[int, int], None] | None = None
 
     def add_slave(self, index: int, now: int, drift_ppm: float) -> None:
         self.t0 = _grown(self.t0, index + 1, 0)  # type: ignore[assignment]
@@ -205,7 +207,9 @@ class DcClocks:
             if act & R.DcActivation.SYNC0:
                 esc.row[R.DC_SYNC0_STATUS] = 1
                 esc.set_al_event(int(R.AlEvent.SYNC0))
-                if app is not None:
+                if self.sync0_sink is not None:
+                    self.sync0_sink(index, t)
+                elif app is not None:
                     app.on_sync0(t)
             if act & R.DcActivation.SYNC1:
                 esc.row[R.DC_SYNC1_STATUS] = 1

@@ -28,16 +28,22 @@ skipped, without the engine's help. :attr:`MailboxEngine.last_reply` is the
 last reply posted.
 
 :class:`MailboxDevice` is a :class:`~pyethercat.sim.device.DeviceApp` with an
-engine wired to the ESC events; protocol servers (``sim.coe``) register on it.
+engine wired to the ESC events, built from protocol servers: each is an
+object with a mailbox ``type``, ``handle(header, payload)``, ``reset()`` and
+``on_state_change(old, new)`` (:class:`ProtocolServer`: ``sim.coe.CoeServer``,
+the FoE, SoE and EoE servers). Adding a protocol to a device is
+:meth:`MailboxDevice.add_protocol`; nothing is subclassed.
 """
 
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
+from typing import Protocol
 
 from pyethercat.errors import MailboxError, MailboxErrorReply
 from pyethercat.sim.device import DeviceApp, Pdi
+from pyethercat.wire import registers as R
 from pyethercat.wire.al import AlState
 from pyethercat.wire.mailbox.header import (
     MAILBOX_HEADER_SIZE,
@@ -51,10 +57,36 @@ from pyethercat.wire.mailbox.header import (
     next_counter,
 )
 
-__all__ = ["MailboxDevice", "MailboxEngine", "MailboxHandler", "service_error"]
+__all__ = ["MailboxDevice", "MailboxEngine", "MailboxHandler", "ProcessDataLayout", "ProtocolServer",
+           "service_error"]
 
 MailboxHandler = Callable[[MailboxHeader, bytes], None]
 """``handler(header, payload)``: serve one request; raise :func:`service_error` to refuse it."""
+
+
+class ProtocolServer(Protocol):
+    """A mailbox protocol a simulated device serves (CoE, FoE, SoE, EoE ...).
+
+    ``type`` is the mailbox type it takes, ``handle`` serves one request
+    (raising :func:`service_error` refuses it), ``reset`` forgets any
+    transfer when the mailbox stops (INIT, power-on), ``on_state_change``
+    sees AL state changes (a bootloader applies new firmware on BOOT -> INIT).
+    """
+
+    @property
+    def type(self) -> int: ...
+
+    def handle(self, header: MailboxHeader, payload: bytes) -> None: ...
+    def reset(self) -> None: ...
+    def on_state_change(self, old: AlState, new: AlState) -> None: ...
+
+
+class ProcessDataLayout(Protocol):
+    """What decides a device's process-data sizes (a CoE device's PDO mapping)."""
+
+    def sizes(self) -> tuple[int, int]:
+        """(output bytes, input bytes) the SM2/SM3 buffers must have."""
+        ...
 
 #: Replies the engine holds while SM1 is full before it answers "no more memory".
 QUEUE_LIMIT = 256
@@ -170,19 +202,52 @@ class MailboxEngine:
 
 
 class MailboxDevice(DeviceApp):
-    """A device application with a mailbox engine wired to the ESC events.
+    """A device application with a mailbox engine and the protocol servers it serves.
 
-    Subclasses register protocol handlers on :attr:`mailbox` (``sim.coe``
-    registers CoE). Types without a handler get "protocol not supported".
+    Types without a server get "protocol not supported". ``layout`` (a CoE
+    device's PDO mapping) gives the process-data sizes the ESC checks on
+    PREOP -> SAFEOP; without it the SII's PDOs count.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, servers: Iterable[ProtocolServer] = (), *,
+                 layout: ProcessDataLayout | None = None) -> None:
         super().__init__()
         self.mailbox = MailboxEngine()
+        #: Protocol servers by mailbox type.
+        self.protocols: dict[int, ProtocolServer] = {}
+        self.layout = layout
+        for server in servers:
+            self.add_protocol(server)
 
     def attach(self, pdi: Pdi) -> None:
         super().attach(pdi)
         self.mailbox.pdi = pdi
+
+    def add_protocol(self, server: ProtocolServer) -> None:
+        """Serve ``server.type`` with ``server`` (state changes and resets reach it too)."""
+        self.protocols[int(server.type)] = server
+        self.mailbox.register(server.type, server.handle)
+
+    def sender(self, mtype: int) -> Callable[[bytes], None]:
+        """A function that queues a reply of mailbox type ``mtype``."""
+        return lambda payload: self.mailbox.send(mtype, payload)
+
+    def al_state(self) -> AlState:
+        """The current AL state (PREOP before the slave is attached)."""
+        return self.pdi.al_state() if self.pdi is not None else AlState.PREOP
+
+    def mailbox_sizes(self) -> tuple[int, int]:
+        """Lengths of SM0 (receive) and SM1 (send) as configured now (128 when unset)."""
+        if self.pdi is None:
+            return 128, 128
+        sizes = []
+        for sm in (0, 1):
+            raw = self.pdi.read(R.sm_address(sm) + R.SM_LENGTH, 2)
+            sizes.append(int.from_bytes(raw, "little") or 128)
+        return sizes[0], sizes[1]
+
+    def process_data_sizes(self) -> tuple[int, int] | None:
+        return self.layout.sizes() if self.layout is not None else None
 
     def on_mailbox(self, data: bytes) -> None:
         self.mailbox.receive(data)
@@ -192,8 +257,10 @@ class MailboxDevice(DeviceApp):
         self.mailbox.flush()
 
     def on_state_change(self, old: AlState, new: AlState) -> None:
+        for server in self.protocols.values():
+            server.on_state_change(old, new)
         if new == AlState.INIT:
-            self.mailbox.reset()
+            self._reset()
         elif old == AlState.INIT:
             # The mailbox starts: a new master session numbers from 1 again, so the
             # duplicate check must not remember the last session's counter (the slave
@@ -202,4 +269,9 @@ class MailboxDevice(DeviceApp):
             self.mailbox.flush()
 
     def on_power_on(self) -> None:
+        self._reset()
+
+    def _reset(self) -> None:
         self.mailbox.reset()
+        for server in self.protocols.values():
+            server.reset()

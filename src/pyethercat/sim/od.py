@@ -29,6 +29,7 @@ Modelling choices (public sources leave these open):
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
@@ -274,6 +275,19 @@ class OdObject:
         raw = self.entries[0].read()
         return raw[0] if raw else 0
 
+    def copy(self) -> OdObject:
+        """An independent copy (values copied, no hooks: the copy's owner attaches its own)."""
+        entries = {}
+        for sub, e in self.entries.items():
+            c = copy.copy(e)
+            c.raw = bytearray(e.raw)
+            c.on_read = c.on_write = None
+            entries[sub] = c
+        obj = copy.copy(self)
+        obj.entries = entries
+        obj.check = obj.after = None
+        return obj
+
     def ca_entries(self, count: int) -> list[OdEntry]:
         """Entries 1..count that exist, in order (what complete access covers)."""
         return [e for s, e in self.entries.items() if 1 <= s <= count]
@@ -287,6 +301,12 @@ class ObjectDictionary:
         #: (index, subindex) of entries mapped into the active RxPDOs (set by the PDO layer):
         #: SDO downloads to them are refused in SAFEOP and OP with 0x06010006.
         self.rx_mapped: frozenset[tuple[int, int]] = frozenset()
+
+    def copy(self) -> ObjectDictionary:
+        """An independent copy of every object (a device kind builds one template, copies it per slave)."""
+        od = ObjectDictionary()
+        od._objects = {i: o.copy() for i, o in self._objects.items()}
+        return od
 
     # --- building ---------------------------------------------------------------
 

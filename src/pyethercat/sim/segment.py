@@ -43,6 +43,7 @@ from pyethercat.errors import ConfigError
 from pyethercat.sim.apps import DeviceApps
 from pyethercat.sim.clock import Clock, VirtualClock
 from pyethercat.sim.commands import RMW, Commands, station_map
+from pyethercat.sim.datagrams import Head, scan_headers
 from pyethercat.sim.dc import DcClocks
 from pyethercat.sim.device import DeviceApp
 from pyethercat.sim.esc import Esc
@@ -51,6 +52,8 @@ from pyethercat.sim.faults import NEVER, Faults
 from pyethercat.sim.fmmu import LogicalMap
 from pyethercat.sim.host import Dirty
 from pyethercat.sim.memory import EscMemory
+from pyethercat.sim.model import DeviceModel
+from pyethercat.sim.pdio import ProcessIo
 from pyethercat.sim.ports import MASTER, NEXT_PORT, Ports, Route
 from pyethercat.sim.profiles import EscProfile
 from pyethercat.sim.syncman import SmAreas
@@ -60,11 +63,7 @@ from pyethercat.wire import registers as R
 from pyethercat.wire.al import AlState
 from pyethercat.wire.datagram import (
     CIRCULATING_BIT,
-    HEADER,
     HEADER_SIZE,
-    LEN_MASK,
-    MORE_BIT,
-    WKC_SIZE,
     Command,
 )
 from pyethercat.wire.frame import (
@@ -107,8 +106,6 @@ _CLASS: dict[int, int] = {
     int(Command.APRD): 3, int(Command.APWR): 3, int(Command.APRW): 3, int(Command.ARMW): 3,
     int(Command.FPRD): 4, int(Command.FPWR): 4, int(Command.FPRW): 4, int(Command.FRMW): 4,
 }
-#: A parsed datagram header: offset, command, address, length word, IRQ, data length.
-_Head = tuple[int, int, int, int, int, int]
 _DATAGRAMS = int(FrameType.DATAGRAMS)
 _MIN_FRAME = ETH_HEADER_SIZE + ECAT_HEADER_SIZE
 _OR_REDUCE = np.bitwise_or.reduce
@@ -138,6 +135,10 @@ class SlaveSpec:
     forwarding_delay_ns: int | None = None
     initial_inputs: bytes | None = None
     sii_info: SiiInfo | None = None
+    #: The device model of the slave's kind (shared by its instances) and the
+    #: slave's instance number in it (-1: a new instance).
+    model: DeviceModel | None = None
+    instance: int = -1
 
 
 class SimSlave:
@@ -192,6 +193,8 @@ class Segment:
         #: Per slave: a complete output buffer arrived (since it last went below SAFEOP).
         self.outputs_received = np.zeros(0, bool)
         self.apps = DeviceApps()
+        self.pdio = ProcessIo(self.memory, self.escs, self.now_ns, self._host.has_outputs)
+        self.dc.sync0_sink = self.apps.sync0
         #: Slaves with a SAFEOP -> OP request waiting for their first outputs.
         self.pending_op: set[int] = set()
         # dirty flags (see sim.host.Dirty)
@@ -208,7 +211,7 @@ class Segment:
         #: ECAT event bits that may be set in some slave (cleared by vectorised reads).
         self.event_bits = 0xFFFF
         #: Parses of single-datagram frames by bytes 12..25: (end, headers, circulating).
-        self._parsed: dict[bytes, tuple[int, list[_Head], bool]] = {}
+        self._parsed: dict[bytes, tuple[int, list[Head], bool]] = {}
         # Shared with the parts (never rebound there): the frame path reads them directly.
         self._bplan = self.commands.brd_plans
         self._corrupt = self.faults.corrupt
@@ -233,6 +236,10 @@ class Segment:
         # A virtual clock moves by each frame's wire time (see the module docstring);
         # the frame path uses its public ``ns``.
         self._vclock = clock if isinstance(clock, VirtualClock) else None
+
+    def now_ns(self) -> int:
+        """Current segment time."""
+        return self._clock.now_ns()
 
     # --- building --------------------------------------------------------------------
 
@@ -262,11 +269,16 @@ class Segment:
         self.dc.add_slave(index, self.clock.now_ns(), spec.drift_ppm)
         self.watchdogs.add_slave()
         self.outputs_received = np.append(self.outputs_received, False)
-        self.apps.add(spec.app)
+        model, instance = spec.model, spec.instance
+        if model is not None:
+            if instance < 0:
+                instance = model.new_instance()
+            model.placed(instance, index, self.pdio)
+        self.apps.add(spec.app, model, instance)
         esc.power_on()
         if spec.app is not None:
             spec.app.attach(esc.pdi)
-            spec.app.on_power_on()
+        self.apps.power_on(index)
         self._invalidate_all()
         return index
 
@@ -326,9 +338,7 @@ class Segment:
         self.dc.reset(slave, self.clock.now_ns())
         self.escs[slave].power_on()
         self.ports.slave_reset(slave)
-        app = self.slaves[slave].spec.app
-        if app is not None:
-            app.on_power_on()
+        self.apps.power_on(slave)
         self._invalidate_all()
 
     def corrupt_frames(self, slave: int, port: int, count: int = 1) -> None:
@@ -357,6 +367,7 @@ class Segment:
 
     def _refresh_sm_state(self) -> None:
         self.sm.compile(self.escs)
+        self.pdio.invalidate()
         self.commands.invalidate(sm_changed=True)
         self.wiring.invalidate()
         self.sm_dirty = False
@@ -429,6 +440,7 @@ class Segment:
                 self.escs[s].al.watchdog_expired()
         if self._sync:
             self.dc.run_sync(now)
+            self.apps.flush()
 
     # --- frames -------------------------------------------------------------------------------
 
@@ -551,7 +563,7 @@ class Segment:
         buf[6] |= LOCALLY_ADMINISTERED_BIT
         return bytes(buf)
 
-    def _parse(self, buf: bytearray, route: Route) -> tuple[list[_Head], bool] | bytes | None:
+    def _parse(self, buf: bytearray, route: Route) -> tuple[list[Head], bool] | bytes | None:
         """Check and parse a frame: (datagram headers, any circulating bit) to process it,
         else what process() returns (the unchanged non-EtherCAT frame, or None if lost).
         A malformed frame is not processed at all (counted as a processing error)."""
@@ -572,24 +584,11 @@ class Segment:
             self._processing_error(route)
             return None
         # Parse all headers first (a malformed frame is not processed at all).
-        heads: list[_Head] = []
-        off = body
-        any_c = False
-        while True:
-            if off + HEADER_SIZE + WKC_SIZE > end:
-                self._processing_error(route)
-                return None
-            cmd, _idx, address, lw, irq = HEADER.unpack_from(buf, off)
-            n = lw & LEN_MASK
-            if off + HEADER_SIZE + n + WKC_SIZE > end:
-                self._processing_error(route)
-                return None
-            heads.append((off, cmd, address, lw, irq, n))
-            if lw & CIRCULATING_BIT:
-                any_c = True
-            off += HEADER_SIZE + n + WKC_SIZE
-            if not lw & MORE_BIT:
-                break
+        scanned = scan_headers(buf, body, end)
+        if scanned is None:
+            self._processing_error(route)
+            return None
+        heads, any_c = scanned
         if start == ETH_HEADER_SIZE and len(heads) == 1:
             if len(self._parsed) >= 1024:
                 self._parsed.clear()
@@ -693,6 +692,7 @@ class _EscHost:
             seg.outputs_received[index] = False
             seg.watchdogs.stop(index)
             seg.pending_op.discard(index)
+        self._seg.apps.state_changed(index, old, new)
 
     def has_outputs(self, index: int) -> bool:
         return bool(self._seg.outputs_received[index])

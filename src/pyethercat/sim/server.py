@@ -342,13 +342,15 @@ class SimServer:
         if cmd == "outputs":
             return {"data": _pdi(seg.slaves[self._slave(request)]).outputs().hex()}
         if cmd == "emergency":
-            # a CoE device (sim.coe.CoeDevice) sends an emergency through its mailbox
-            app = seg.slaves[self._slave(request)].spec.app
-            send = getattr(app, "emergency", None)
-            if send is None:
-                raise ValueError("that slave has no CoE emergency")
-            sent = send(int(request["code"]), int(request.get("register", 0)),
-                        bytes.fromhex(str(request.get("data", ""))))
+            # a CoE device's server sends an emergency through its mailbox
+            from pyethercat.sim.coe import coe_server
+
+            try:
+                coe = coe_server(seg.slaves[self._slave(request)].spec.app)
+            except ValueError:
+                raise ValueError("that slave has no CoE emergency") from None
+            sent = coe.emergency(int(request["code"]), int(request.get("register", 0)),
+                                 bytes.fromhex(str(request.get("data", ""))))
             return {"sent": bool(sent)}
         raise ValueError(f"unknown command {cmd!r}")
 
@@ -372,13 +374,8 @@ class SimServer:
 
 
 def _pdi(slave: Any) -> Any:
-    """The PDI side of a segment slave (its application's, else a fresh one)."""
-    app = getattr(slave.spec, "app", None)
-    if app is not None and getattr(app, "pdi", None) is not None:
-        return app.pdi
-    from pyethercat.sim.device import Pdi
-
-    return Pdi(slave.esc)
+    """The PDI side of a segment slave."""
+    return slave.esc.pdi
 
 
 # --- links from a command-line spec ---------------------------------------------------

@@ -48,7 +48,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from pyethercat.errors import ConfigError, SiiError
-from pyethercat.sim.devices.builtin import BuiltinDevice, get_builtin
+from pyethercat.sim.devices import get_builtin
+from pyethercat.sim.devices.builtin import BuiltinDevice
 from pyethercat.sim.devices.esi_device import EsiSlave, load_esi_device
 from pyethercat.sim.profiles import DEVICE_PROFILES, PROFILES, EscProfile
 from pyethercat.wire.registers import PortType
@@ -538,24 +539,41 @@ def build_segment(topo: Topology, clock: Clock | None = None) -> Segment:
 
     ``clock``: the segment's time source (a virtual clock by default).
     """
-    from pyethercat.sim.devices import make_app
-    from pyethercat.sim.devices.esi_device import esi_app
+    from pyethercat.sim.devices import Behaviour, behaviour
+    from pyethercat.sim.devices.esi_device import esi_model
+    from pyethercat.sim.model import DeviceModel
     from pyethercat.sim.segment import Segment, SlaveSpec
 
     seg = Segment(clock=clock)
     index: dict[str, int] = {}
+    # One device model per kind (built-in key, or ESI file + device) for this segment.
+    models: dict[object, DeviceModel] = {}
     for s in topo.slaves:
         where = f"{topo.source}: slave {s.name!r}"
+        esi_key = None
+        if s.esi is not None:
+            esi_key = (str(s.esi.path), s.esi.device.product_code, s.esi.device.revision)
+            if esi_key not in models:
+                model = esi_model(s.esi, s.info)
+                if model is not None:
+                    models[esi_key] = model
+        if esi_key is not None and esi_key in models:
+            instance, app = models[esi_key].instance_app(s.info)
+            run = Behaviour(app, models[esi_key], instance)
+        else:
+            run = behaviour(s.builtin, s.info, models)
         spec = SlaveSpec(
             name=s.name,
             sii=s.sii,
             profile=s.profile,
-            app=(esi_app(s.esi, s.info) if s.esi is not None else None)
-            or make_app(s.builtin, s.info),
+            app=run.app,
             alias=s.alias,
             drift_ppm=s.drift_ppm,
             forwarding_delay_ns=s.forwarding_delay_ns,
             initial_inputs=s.inputs,
+            sii_info=s.info,
+            model=run.model,
+            instance=run.instance,
         )
         try:
             if s.parent is None:

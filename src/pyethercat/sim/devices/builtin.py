@@ -21,10 +21,11 @@ it works on every ESC profile; the EL2004 built from its corpus SII dump keeps
 no mailbox protocol yet, so masters read its PDOs from the SII), SM2 for
 outputs (none) and SM3 for its two 16-bit inputs.
 
-Device application. Plain IO terminals need no Python per frame: inputs are
-set by the segment's wiring (:meth:`Segment.wire`) or by test code through the
-PDI, outputs are read from the SM buffer. :class:`IoTerminal` only fills in the
-configured initial inputs at power-on.
+Behaviour. Plain IO terminals need no Python per frame and have no device
+model: inputs are set by the segment's wiring (:meth:`Segment.wire`) or by
+test code through the PDI, outputs are read from the SM buffer. A kind with
+behaviour names a device model (``model``, ``sim.model.DeviceModel``); the
+kinds are found through ``sim.devices.registry``.
 """
 
 from __future__ import annotations
@@ -33,7 +34,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from pyethercat.errors import ConfigError
 from pyethercat.wire import registers as R
 from pyethercat.wire.mailbox.datatypes import DataType
 from pyethercat.wire.sii import (
@@ -59,17 +59,15 @@ from pyethercat.wire.sii import (
 from pyethercat.wire.sii.model import CategoryType
 
 if TYPE_CHECKING:
-    from pyethercat.sim.device import DeviceApp
+    from pyethercat.sim.model import DeviceModel
 
 __all__ = [
-    "BUILTINS",
     "VENDOR_ID",
     "BuiltinDevice",
-    "PdoEntry",
-    "Pdo",
-    "SyncManager",
-    "builtin_names",
-    "get_builtin",
+    "BuiltinPdo",
+    "BuiltinPdoEntry",
+    "BuiltinSm",
+    "io_devices",
 ]
 
 #: Vendor id of every built-in device ("PEC" in ASCII; not an assigned ETG id).
@@ -96,7 +94,7 @@ _PDI_CONTROL_NONE = 0x0C00
 
 
 @dataclass(frozen=True)
-class PdoEntry:
+class BuiltinPdoEntry:
     """One PDO entry: object index/subindex, bit length, name, CoE type code."""
 
     index: int
@@ -107,13 +105,13 @@ class PdoEntry:
 
 
 @dataclass(frozen=True)
-class Pdo:
+class BuiltinPdo:
     """One fixed PDO assigned to sync manager ``sm``."""
 
     index: int
     sm: int
     name: str
-    entries: tuple[PdoEntry, ...]
+    entries: tuple[BuiltinPdoEntry, ...]
 
     @property
     def bits(self) -> int:
@@ -122,7 +120,7 @@ class Pdo:
 
 
 @dataclass(frozen=True)
-class SyncManager:
+class BuiltinSm:
     """One sync manager as the SII describes it (start, length, control, type)."""
 
     start: int
@@ -143,25 +141,27 @@ class BuiltinDevice:
     group: str
     profile: str  # default ESC profile (sim.esc.PROFILES key)
     ports: tuple[SiiPortType, SiiPortType, SiiPortType, SiiPortType]
-    sync_managers: tuple[SyncManager, ...]
+    sync_managers: tuple[BuiltinSm, ...]
     fmmus: tuple[FmmuUsage, ...]
-    tx_pdos: tuple[Pdo, ...] = ()
-    rx_pdos: tuple[Pdo, ...] = ()
+    tx_pdos: tuple[BuiltinPdo, ...] = ()
+    rx_pdos: tuple[BuiltinPdo, ...] = ()
     mailbox: tuple[int, int, int, int] | None = None  # rx offset/size, tx offset/size
     ebus_current_ma: int = 0
     pdi_control: int = _PDI_CONTROL_IO
     description: str = ""
     # Devices with a mailbox protocol (sim.devices.coe_io): SII CoE details and
-    # protocols, their own identity, and the application that serves them.
+    # protocols, their own identity.
     coe_details: int = 0
     mailbox_protocols: int = 0
     vendor_id: int = VENDOR_ID
     revision: int = REVISION
-    app_factory: Callable[[SiiInfo], DeviceApp] | None = None
     # DC op modes in the SII (ESI <Dc><OpMode>): "SM-Synchron" (no SYNC pulses)
     # and "DC-Synchron" (AssignActivate 0x0300, SYNC0), as Beckhoff terminals with
     # a DC mode list them.
     dc_modes: bool = False
+    #: Makes the device model of the kind for one segment (None: no behaviour;
+    #: a kind with a mailbox but no model answers "protocol not supported").
+    model: Callable[[], DeviceModel] | None = None
 
     @property
     def input_bits(self) -> int:
@@ -199,7 +199,7 @@ class BuiltinDevice:
         group_i = intern(self.group)
         name_i = intern(self.name)
 
-        def sii_pdos(ctype: int, pdos: tuple[Pdo, ...]) -> SiiPdos:
+        def sii_pdos(ctype: int, pdos: tuple[BuiltinPdo, ...]) -> SiiPdos:
             out = SiiPdos(type=ctype)
             for pdo in pdos:
                 entries = [
@@ -290,14 +290,14 @@ class BuiltinDevice:
         return build_sii(self.sii_info(serial=serial, alias=alias))
 
 
-def _bits(prefix: int, count: int, name: str, sm: int, obj_base: int) -> tuple[Pdo, ...]:
+def _bits(prefix: int, count: int, name: str, sm: int, obj_base: int) -> tuple[BuiltinPdo, ...]:
     """``count`` one-bit channel PDOs (Beckhoff style: one PDO per channel)."""
     return tuple(
-        Pdo(
+        BuiltinPdo(
             index=prefix + ch,
             sm=sm,
             name=f"Channel {ch + 1}",
-            entries=(PdoEntry(obj_base + 0x10 * ch, 1, 1, name),),
+            entries=(BuiltinPdoEntry(obj_base + 0x10 * ch, 1, 1, name),),
         )
         for ch in range(count)
     )
@@ -330,7 +330,7 @@ DI8 = BuiltinDevice(
     group="DigIn",
     profile="ET1200",
     ports=_EBUS2,
-    sync_managers=(SyncManager(0x1000, 1, _SM_CTRL_INPUTS_IO, SyncManagerType.INPUTS),),
+    sync_managers=(BuiltinSm(0x1000, 1, _SM_CTRL_INPUTS_IO, SyncManagerType.INPUTS),),
     fmmus=(FmmuUsage.INPUTS, FmmuUsage.NOT_USED),
     tx_pdos=_bits(0x1A00, 8, "Input", 0, 0x6000),
     ebus_current_ma=90,
@@ -346,7 +346,7 @@ DO8 = BuiltinDevice(
     group="DigOut",
     profile="ET1200",
     ports=_EBUS2,
-    sync_managers=(SyncManager(0x1000, 1, _SM_CTRL_OUTPUTS_IO, SyncManagerType.OUTPUTS),),
+    sync_managers=(BuiltinSm(0x1000, 1, _SM_CTRL_OUTPUTS_IO, SyncManagerType.OUTPUTS),),
     fmmus=(FmmuUsage.OUTPUTS, FmmuUsage.NOT_USED),
     rx_pdos=_bits(0x1600, 8, "Output", 0, 0x7000),
     ebus_current_ma=110,
@@ -362,7 +362,7 @@ DI2 = BuiltinDevice(
     group="DigIn",
     profile="ET1200",
     ports=_EBUS2,
-    sync_managers=(SyncManager(0x1000, 1, _SM_CTRL_INPUTS_IO, SyncManagerType.INPUTS),),
+    sync_managers=(BuiltinSm(0x1000, 1, _SM_CTRL_INPUTS_IO, SyncManagerType.INPUTS),),
     fmmus=(FmmuUsage.INPUTS, FmmuUsage.NOT_USED),
     tx_pdos=_bits(0x1A00, 2, "Input", 0, 0x6000),
     ebus_current_ma=90,
@@ -379,15 +379,15 @@ AI2 = BuiltinDevice(
     profile="ET1200",
     ports=_EBUS2,
     sync_managers=(
-        SyncManager(0x1000, 128, R.SM_CONTROL_MAILBOX_OUT, SyncManagerType.MAILBOX_OUT),
-        SyncManager(0x1080, 128, R.SM_CONTROL_MAILBOX_IN, SyncManagerType.MAILBOX_IN),
-        SyncManager(0x1100, 0, R.SM_CONTROL_OUTPUTS, SyncManagerType.OUTPUTS, enable=0x00),
-        SyncManager(0x1180, 4, R.SM_CONTROL_INPUTS, SyncManagerType.INPUTS),
+        BuiltinSm(0x1000, 128, R.SM_CONTROL_MAILBOX_OUT, SyncManagerType.MAILBOX_OUT),
+        BuiltinSm(0x1080, 128, R.SM_CONTROL_MAILBOX_IN, SyncManagerType.MAILBOX_IN),
+        BuiltinSm(0x1100, 0, R.SM_CONTROL_OUTPUTS, SyncManagerType.OUTPUTS, enable=0x00),
+        BuiltinSm(0x1180, 4, R.SM_CONTROL_INPUTS, SyncManagerType.INPUTS),
     ),
     fmmus=(FmmuUsage.OUTPUTS, FmmuUsage.INPUTS, FmmuUsage.MAILBOX_STATE),
     tx_pdos=(
-        Pdo(0x1A00, 3, "AI Channel 1", (PdoEntry(0x6000, 0x11, 16, "Value", _INT16),)),
-        Pdo(0x1A01, 3, "AI Channel 2", (PdoEntry(0x6010, 0x11, 16, "Value", _INT16),)),
+        BuiltinPdo(0x1A00, 3, "AI Channel 1", (BuiltinPdoEntry(0x6000, 0x11, 16, "Value", _INT16),)),
+        BuiltinPdo(0x1A01, 3, "AI Channel 2", (BuiltinPdoEntry(0x6010, 0x11, 16, "Value", _INT16),)),
     ),
     mailbox=(0x1000, 128, 0x1080, 128),
     ebus_current_ma=130,
@@ -395,21 +395,6 @@ AI2 = BuiltinDevice(
     description="2 analog inputs, INT16 each (4 bytes), standard mailbox SM0/SM1, inputs on SM3",
 )
 
-#: Every built-in device by its topology name (``device = "builtin:<key>"``).
-BUILTINS: dict[str, BuiltinDevice] = {d.key: d for d in (COUPLER, DI8, DO8, DI2, AI2)}
-
-
-def builtin_names() -> list[str]:
-    """Names accepted after ``builtin:``."""
-    return sorted(BUILTINS)
-
-
-def get_builtin(key: str) -> BuiltinDevice:
-    """The built-in device ``key``; :class:`ConfigError` naming the choices if unknown."""
-    try:
-        return BUILTINS[key]
-    except KeyError:
-        raise ConfigError(
-            f"unknown built-in device {key!r}: choose one of {', '.join(builtin_names())}"
-        ) from None
-
+def io_devices() -> tuple[BuiltinDevice, ...]:
+    """The IO kinds of this module (a provider of ``sim.devices.registry``)."""
+    return (COUPLER, DI8, DO8, DI2, AI2)

@@ -1,4 +1,4 @@
-"""Built-in CoE devices: ``builtin:coe-io`` and the seed 002 drive's communication objects.
+"""Built-in CoE devices: ``builtin:coe-io`` and a servo controller's communication objects.
 
 ``coe-io`` is a test device with everything CoE has: IO in dynamically
 mappable PDOs whose inputs echo the outputs (so loopback tests can check
@@ -8,20 +8,30 @@ objects, 0x1C32/0x1C33, and SII CoE details announcing SDO, SDO information,
 PDO assignment, PDO configuration and complete access. Its objects are
 listed in ``docs/coe.md``.
 
-``seed002-drive`` carries the communication objects of the servo controller
-described in seed 002 (0x1000, 0x1018, 0x1100, 0x1600-0x1603,
-0x1A00-0x1A03, 0x1C00, 0x1C10-0x1C13 with the values of the seed's tables),
-identity vendor 0xE4, product 0x264860d2, revision 0x20000 (issue 6), plus
+``seed002-drive`` carries the communication objects of the item Industrie-
+technik "Servo Positioning Controller C Series" as its EtherCAT manual lists
+them (chapter 6.1.2, "Communication objects": 0x1000, 0x1018, 0x1100,
+0x1600-0x1603, 0x1A00-0x1A03, 0x1C00, 0x1C10-0x1C13 with the values of its
+tables), identity vendor 0xE4, product 0x264860d2, revision 0x20000, plus
 the four CiA 402 objects its default PDOs map. :func:`add_seed002_objects`
 is the reusable builder a CiA 402 drive model starts from.
+
+Both kinds are device models (``sim.coe_model.CoeModel``): their behaviour
+is numpy over the object values of all instances at once.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 
-from pyethercat.sim.coe import (
-    CoeDevice,
+import numpy as np
+import numpy.typing as npt
+
+from pyethercat.sim.coe_model import CoeModel
+from pyethercat.sim.devices.builtin import BuiltinDevice, BuiltinPdo, BuiltinPdoEntry, BuiltinSm
+from pyethercat.sim.mailbox import MailboxDevice
+from pyethercat.sim.od import RO, RW, RW_PREOP, RXPDO, TXPDO, WO, ObjectDictionary, OdEntry
+from pyethercat.sim.std_objects import (
     add_device_info,
     add_identity,
     add_pdo_assignment,
@@ -29,9 +39,6 @@ from pyethercat.sim.coe import (
     add_sync_manager_objects,
     add_sync_parameters,
 )
-from pyethercat.sim.device import Pdi
-from pyethercat.sim.devices.builtin import BuiltinDevice, Pdo, PdoEntry, SyncManager
-from pyethercat.sim.od import RO, RW, RW_PREOP, RXPDO, TXPDO, WO, ObjectDictionary, OdEntry
 from pyethercat.wire import registers as R
 from pyethercat.wire.mailbox.datatypes import DataType
 from pyethercat.wire.mailbox.objects import (
@@ -52,10 +59,10 @@ from pyethercat.wire.sii import (
 __all__ = [
     "COE_IO",
     "SEED002_DRIVE",
-    "CoeIoApp",
-    "Seed002DriveApp",
+    "CoeIoModel",
+    "Seed002Model",
     "add_seed002_objects",
-    "coe_builtins",
+    "coe_devices",
     "coe_io_dictionary",
 ]
 
@@ -63,8 +70,8 @@ _COE_ALL = int(CoeDetails.SDO | CoeDetails.SDO_INFO | CoeDetails.PDO_ASSIGN
                | CoeDetails.PDO_CONFIG | CoeDetails.SDO_COMPLETE_ACCESS)
 _MBX = (0x1000, 128, 0x1080, 128)  # standard mailbox: SM0 0x1000, SM1 0x1080, 128 bytes each
 _SMS_STANDARD = (
-    SyncManager(0x1000, 128, R.SM_CONTROL_MAILBOX_OUT, SyncManagerType.MAILBOX_OUT),
-    SyncManager(0x1080, 128, R.SM_CONTROL_MAILBOX_IN, SyncManagerType.MAILBOX_IN),
+    BuiltinSm(0x1000, 128, R.SM_CONTROL_MAILBOX_OUT, SyncManagerType.MAILBOX_OUT),
+    BuiltinSm(0x1080, 128, R.SM_CONTROL_MAILBOX_IN, SyncManagerType.MAILBOX_IN),
 )
 _PD_CAPACITY = 128  # SM2 at 0x1100 and SM3 at 0x1180: room for 128 bytes each
 _STD = StandardObject
@@ -78,6 +85,10 @@ _MII2 = (SiiPortType.MII, SiiPortType.MII, SiiPortType.NOT_USED, SiiPortType.NOT
 DATA_BLOCK_SIZE = 4096
 #: Size of the octet-string object 0x2003 (segmented-transfer throughput benchmarks).
 LARGE_BLOCK_SIZE = 65536
+# Default contents of 0x2000/0x2003, made once (every instance copies them).
+_DATA_BLOCK = bytes(i & 0xFF for i in range(DATA_BLOCK_SIZE))
+_LARGE_BLOCK = bytes(i * 7 & 0xFF for i in range(LARGE_BLOCK_SIZE))
+I64 = npt.NDArray[np.int64]
 
 
 # --- coe-io ---------------------------------------------------------------------------
@@ -108,10 +119,10 @@ def coe_io_dictionary(vendor: int, product: int, revision: int, serial: int = 0)
     # Inputs are latched when the outputs arrive.
     add_sync_parameters(od, _STD.SM_INPUT_SYNC, mode=SyncMode.SM2_EVENT)
     od.var(0x2000, "Data block", DataType.OCTET_STRING, RW,
-           bytes(i & 0xFF for i in range(DATA_BLOCK_SIZE)), max_length=DATA_BLOCK_SIZE)
+           _DATA_BLOCK, max_length=DATA_BLOCK_SIZE)
     od.var(0x2001, "Command", u32, WO, 0)
     od.var(0x2003, "Large data block", DataType.OCTET_STRING, RW,
-           bytes(i * 7 & 0xFF for i in range(LARGE_BLOCK_SIZE)), max_length=LARGE_BLOCK_SIZE)
+           _LARGE_BLOCK, max_length=LARGE_BLOCK_SIZE)
     od.var(0x2002, "PREOP parameter", u16, RW_PREOP, 100, minimum=1, maximum=1000)
     od.record(0x6000, "Inputs", [
         OdEntry(1, "Digital inputs", u8, RO | TXPDO, 0),
@@ -141,36 +152,32 @@ def coe_io_dictionary(vendor: int, product: int, revision: int, serial: int = 0)
     return od
 
 
-class CoeIoApp(CoeDevice):
+class CoeIoModel(CoeModel):
     """``builtin:coe-io``: inputs echo outputs through the current PDO mapping.
 
     Digital inputs = digital outputs (inverted when 0x8000:03 is set), value 16
     = value 16, value 32 = value 32 + offset 0x8000:02 (mod 2^32), bit input =
-    bit output, cycle counter +1 per output buffer.
+    bit output, cycle counter +1 per output buffer; for all instances at once.
     """
 
-    def __init__(self, info: SiiInfo) -> None:
-        od = coe_io_dictionary(info.vendor_id, info.product_code, info.revision, info.serial)
-        super().__init__(od, details=_COE_ALL, capacity_out=_PD_CAPACITY,
-                         capacity_in=_PD_CAPACITY)
-        e = od.entry
-        self._in = [e(0x6000, s) for s in range(1, 6)]
-        self._out = [e(0x7000, s) for s in range(1, 5)]
-        self._invert = e(0x8000, 3)
-        self._offset = e(0x8000, 2)
+    output_events = True
 
-    def update(self) -> None:
-        di, v16, v32, counter, bit = self._in
-        do, o16, o32, obit = self._out
-        digital = do.raw[0] ^ (0xFF if self._invert.raw[0] else 0)
-        di.raw[:] = bytes([digital])
-        v16.raw[:] = o16.raw
-        offset = int.from_bytes(self._offset.raw, "little", signed=True)
-        value = (int.from_bytes(o32.raw, "little") + offset) & 0xFFFFFFFF
-        v32.raw[:] = value.to_bytes(4, "little")
-        bit.raw[:] = obit.raw
-        count = (int.from_bytes(counter.raw, "little") + 1) & 0xFFFF
-        counter.raw[:] = count.to_bytes(2, "little")
+    def __init__(self) -> None:
+        super().__init__(self._dictionary, details=_COE_ALL, capacity_out=_PD_CAPACITY,
+                         capacity_in=_PD_CAPACITY, fields=((0x8000, 2), (0x8000, 3)))
+
+    @staticmethod
+    def _dictionary(info: SiiInfo, app: MailboxDevice) -> ObjectDictionary:
+        return coe_io_dictionary(info.vendor_id, info.product_code, info.revision, info.serial)
+
+    def compute(self, instances: I64) -> None:
+        f, r = self.field, self.rows(instances)
+        invert = f(0x8000, 3)[r] != 0
+        f(0x6000, 1)[r] = np.where(invert, ~f(0x7000, 1)[r], f(0x7000, 1)[r])
+        f(0x6000, 2)[r] = f(0x7000, 2)[r]
+        f(0x6000, 3)[r] = f(0x7000, 3)[r] + f(0x8000, 2)[r].view(np.uint32)
+        f(0x6000, 5)[r] = f(0x7000, 4)[r]
+        f(0x6000, 4)[r] += 1
 
 
 COE_IO = BuiltinDevice(
@@ -182,19 +189,19 @@ COE_IO = BuiltinDevice(
     profile="ET1100",
     ports=_EBUS2,
     sync_managers=_SMS_STANDARD + (
-        SyncManager(0x1100, 7, R.SM_CONTROL_OUTPUTS, SyncManagerType.OUTPUTS),
-        SyncManager(0x1180, 7, R.SM_CONTROL_INPUTS, SyncManagerType.INPUTS),
+        BuiltinSm(0x1100, 7, R.SM_CONTROL_OUTPUTS, SyncManagerType.OUTPUTS),
+        BuiltinSm(0x1180, 7, R.SM_CONTROL_INPUTS, SyncManagerType.INPUTS),
     ),
     fmmus=(FmmuUsage.OUTPUTS, FmmuUsage.INPUTS, FmmuUsage.MAILBOX_STATE),
     rx_pdos=(
-        Pdo(0x1600, 2, "DO outputs", (PdoEntry(0x7000, 1, 8, "Digital outputs", 0x0005),)),
-        Pdo(0x1601, 2, "Value outputs", (PdoEntry(0x7000, 2, 16, "Value 16", 0x0006),
-                                          PdoEntry(0x7000, 3, 32, "Value 32", 0x0007))),
+        BuiltinPdo(0x1600, 2, "DO outputs", (BuiltinPdoEntry(0x7000, 1, 8, "Digital outputs", 0x0005),)),
+        BuiltinPdo(0x1601, 2, "Value outputs", (BuiltinPdoEntry(0x7000, 2, 16, "Value 16", 0x0006),
+                                          BuiltinPdoEntry(0x7000, 3, 32, "Value 32", 0x0007))),
     ),
     tx_pdos=(
-        Pdo(0x1A00, 3, "DI inputs", (PdoEntry(0x6000, 1, 8, "Digital inputs", 0x0005),)),
-        Pdo(0x1A01, 3, "Value inputs", (PdoEntry(0x6000, 2, 16, "Value 16", 0x0006),
-                                         PdoEntry(0x6000, 3, 32, "Value 32", 0x0007))),
+        BuiltinPdo(0x1A00, 3, "DI inputs", (BuiltinPdoEntry(0x6000, 1, 8, "Digital inputs", 0x0005),)),
+        BuiltinPdo(0x1A01, 3, "Value inputs", (BuiltinPdoEntry(0x6000, 2, 16, "Value 16", 0x0006),
+                                         BuiltinPdoEntry(0x6000, 3, 32, "Value 32", 0x0007))),
     ),
     mailbox=_MBX,
     ebus_current_ma=120,
@@ -203,7 +210,7 @@ COE_IO = BuiltinDevice(
                 "dynamic PDOs, 4 KiB octet string 0x2000, settings 0x8000",
     coe_details=_COE_ALL,
     mailbox_protocols=int(MailboxProtocol.COE),
-    app_factory=CoeIoApp,
+    model=CoeIoModel,
 )
 
 
@@ -280,30 +287,34 @@ def add_seed002_objects(od: ObjectDictionary, *, serial: int = 0,
         tx.entries[n].name = "PDO Mapping object number of assigned TxPDO"
 
 
-class Seed002DriveApp(CoeDevice):
-    """``builtin:seed002-drive``: the seed's communication objects, nothing of CiA 402 yet.
+class Seed002Model(CoeModel):
+    """``builtin:seed002-drive``: the controller's communication objects, nothing of CiA 402 yet.
 
-    The modes-of-operation display follows modes of operation; a CiA 402
-    drive model replaces :meth:`update`.
+    The modes-of-operation display follows modes of operation (for all
+    instances at once); a CiA 402 drive model replaces :meth:`compute`.
     """
 
-    def __init__(self, info: SiiInfo) -> None:
-        od = ObjectDictionary()
-        add_seed002_objects(od, serial=info.serial, station_address=self._station)
-        super().__init__(od, details=_COE_ALL & ~int(CoeDetails.SDO_COMPLETE_ACCESS),
+    output_events = True
+
+    def __init__(self) -> None:
+        super().__init__(self._dictionary, details=_COE_ALL & ~int(CoeDetails.SDO_COMPLETE_ACCESS),
                          capacity_out=_PD_CAPACITY, capacity_in=_PD_CAPACITY)
 
-    def _station(self) -> int:
-        if self.pdi is None:
-            return 0
-        return int.from_bytes(self.pdi.read(R.STATION_ADDRESS, 2), "little")
+    @staticmethod
+    def _dictionary(info: SiiInfo, app: MailboxDevice) -> ObjectDictionary:
+        def station() -> int:
+            if app.pdi is None:
+                return 0
+            return int.from_bytes(app.pdi.read(R.STATION_ADDRESS, 2), "little")
 
-    def on_attach(self, pdi: Pdi) -> None:
-        self.od.set_value(_402.STATUSWORD, 0, 0x0250)  # switch on disabled
+        od = ObjectDictionary()
+        add_seed002_objects(od, serial=info.serial, station_address=station)
+        od.set_value(_402.STATUSWORD, 0, 0x0250)  # switch on disabled
+        return od
 
-    def update(self) -> None:
-        self.od.entry(_402.MODES_OF_OPERATION_DISPLAY, 0).raw[:] = (
-            self.od.entry(_402.MODES_OF_OPERATION, 0).raw)
+    def compute(self, instances: I64) -> None:
+        r = self.rows(instances)
+        self.field(_402.MODES_OF_OPERATION_DISPLAY, 0)[r] = self.field(_402.MODES_OF_OPERATION, 0)[r]
 
 
 SEED002_DRIVE = BuiltinDevice(
@@ -315,16 +326,16 @@ SEED002_DRIVE = BuiltinDevice(
     profile="IPCORE",
     ports=_MII2,
     sync_managers=_SMS_STANDARD + (
-        SyncManager(0x1100, 3, R.SM_CONTROL_OUTPUTS, SyncManagerType.OUTPUTS),
-        SyncManager(0x1180, 3, R.SM_CONTROL_INPUTS, SyncManagerType.INPUTS),
+        BuiltinSm(0x1100, 3, R.SM_CONTROL_OUTPUTS, SyncManagerType.OUTPUTS),
+        BuiltinSm(0x1180, 3, R.SM_CONTROL_INPUTS, SyncManagerType.INPUTS),
     ),
     fmmus=(FmmuUsage.OUTPUTS, FmmuUsage.INPUTS, FmmuUsage.MAILBOX_STATE),
-    rx_pdos=(Pdo(0x1600, 2, "Outputs", (
-        PdoEntry(_402.CONTROLWORD, 0, 16, "Controlword", 0x0006),
-        PdoEntry(_402.MODES_OF_OPERATION, 0, 8, "Mode_Of_Operation", 0x0002))),),
-    tx_pdos=(Pdo(0x1A00, 3, "Inputs", (
-        PdoEntry(_402.STATUSWORD, 0, 16, "Statusword", 0x0006),
-        PdoEntry(_402.MODES_OF_OPERATION_DISPLAY, 0, 8, "Mode_Of_Operation_Display",
+    rx_pdos=(BuiltinPdo(0x1600, 2, "Outputs", (
+        BuiltinPdoEntry(_402.CONTROLWORD, 0, 16, "Controlword", 0x0006),
+        BuiltinPdoEntry(_402.MODES_OF_OPERATION, 0, 8, "Mode_Of_Operation", 0x0002))),),
+    tx_pdos=(BuiltinPdo(0x1A00, 3, "Inputs", (
+        BuiltinPdoEntry(_402.STATUSWORD, 0, 16, "Statusword", 0x0006),
+        BuiltinPdoEntry(_402.MODES_OF_OPERATION_DISPLAY, 0, 8, "Mode_Of_Operation_Display",
                  0x0002))),),
     mailbox=_MBX,
     pdi_control=0x0C05,
@@ -334,10 +345,10 @@ SEED002_DRIVE = BuiltinDevice(
     mailbox_protocols=int(MailboxProtocol.COE),
     vendor_id=SEED002_VENDOR,
     revision=SEED002_REVISION,
-    app_factory=Seed002DriveApp,
+    model=Seed002Model,
 )
 
 
-def coe_builtins() -> dict[str, BuiltinDevice]:
-    """The CoE built-ins by topology name."""
-    return {d.key: d for d in (COE_IO, SEED002_DRIVE)}
+def coe_devices() -> tuple[BuiltinDevice, ...]:
+    """The CoE kinds of this module (a provider of ``sim.devices.registry``)."""
+    return (COE_IO, SEED002_DRIVE)

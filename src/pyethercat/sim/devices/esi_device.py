@@ -2,11 +2,11 @@
 
 :func:`load_esi_device` picks the device (product code / revision) of an ESI
 file and builds its SII image with :mod:`pyethercat.esi.sii_from_esi`;
-:func:`esi_app` gives the device application: an IO terminal for a device
-without mailbox, a :class:`~pyethercat.sim.coe.CoeDevice` serving the ESI's
-object dictionary when the ESI speaks CoE (an ESI without ``Dictionary`` gets
-the objects its PDOs imply), and a mailbox device that answers "protocol not
-supported" for other mailbox protocols.
+:func:`esi_model` gives the device model of a device that speaks CoE
+(:class:`EsiCoeModel`: every instance serves a copy of the ESI's object
+dictionary; an ESI without ``Dictionary`` gets the objects its PDOs imply).
+Devices without CoE run as ``sim.devices.behaviour`` decides (nothing for IO,
+"protocol not supported" for other mailbox protocols).
 
 The dictionary is the ESI's, made consistent with the SII: the identity object
 carries the SII identity, every PDO the ESI declares has its mapping object
@@ -25,14 +25,8 @@ from pyethercat.errors import ConfigError, EtherCATError
 from pyethercat.esi.model import EsiDevice, EsiDictionary, EsiFile, EsiFlags, EsiOdEntry
 from pyethercat.esi.parse import load_esi
 from pyethercat.esi.sii_from_esi import SM_TYPES, esi_to_sii, pick_device
-from pyethercat.sim.coe import (
-    CoeDevice,
-    add_identity,
-    add_pdo_assignment,
-    add_pdo_mapping,
-    add_sync_manager_objects,
-)
-from pyethercat.sim.device import DeviceApp
+from pyethercat.sim.coe_model import CoeModel
+from pyethercat.sim.mailbox import MailboxDevice
 from pyethercat.sim.od import (
     RO,
     RW,
@@ -44,12 +38,18 @@ from pyethercat.sim.od import (
     OdEntry,
     OdObject,
 )
+from pyethercat.sim.std_objects import (
+    add_identity,
+    add_pdo_assignment,
+    add_pdo_mapping,
+    add_sync_manager_objects,
+)
 from pyethercat.wire.mailbox.coe import ObjectCode
 from pyethercat.wire.mailbox.datatypes import DataType
 from pyethercat.wire.mailbox.objects import IdentitySub, StandardObject
 from pyethercat.wire.sii import CoeDetails, SiiInfo, SyncManagerType
 
-__all__ = ["EsiSlave", "esi_app", "esi_dictionary", "load_esi_device"]
+__all__ = ["EsiCoeModel", "EsiSlave", "esi_dictionary", "esi_model", "load_esi_device"]
 
 # Room for process data when the ESI gives no SM sizes (bytes per direction).
 _PD_CAPACITY = 1024
@@ -222,29 +222,38 @@ def _capacity(device: EsiDevice, kind: str) -> int:
     return max([_PD_CAPACITY, *sizes])
 
 
-class EsiCoeApp(CoeDevice):
-    """A CoE slave serving its ESI dictionary; inputs keep their defaults."""
+class EsiCoeModel(CoeModel):
+    """The CoE slaves of one ESI device: a copy of its dictionary each; inputs keep their defaults.
 
-    def __init__(self, od: ObjectDictionary, details: int, device: EsiDevice) -> None:
-        super().__init__(
-            od,
-            details=details,
-            capacity_out=_capacity(device, "Outputs"),
-            capacity_in=_capacity(device, "Inputs"),
-        )
+    There is no behaviour on outputs: nothing runs per frame (an SDO read of
+    an output object takes the value from the output buffer when asked).
+    """
+
+    def __init__(self, slave: EsiSlave, details: int) -> None:
+        self.slave = slave
+        self._template: ObjectDictionary | None = None
+        super().__init__(self._dictionary, details=details,
+                         capacity_out=_capacity(slave.device, "Outputs"),
+                         capacity_in=_capacity(slave.device, "Inputs"))
+
+    def _dictionary(self, info: SiiInfo, app: MailboxDevice) -> ObjectDictionary:
+        if self._template is None:
+            self._template = esi_dictionary(self.slave.device, vendor_id=self.slave.vendor_id)
+        od = self._template.copy()
+        serial = od.get(StandardObject.IDENTITY).entries.get(IdentitySub.SERIAL_NUMBER)
+        if serial is not None and serial.data_type.byte_size == 4:
+            serial.raw[:] = info.serial.to_bytes(4, "little")
+        return od
 
 
-def esi_app(slave: EsiSlave, info: SiiInfo) -> DeviceApp | None:
-    """The device application for an ESI slave; None: the caller's default (IO / no CoE)."""
+def esi_model(slave: EsiSlave, info: SiiInfo) -> EsiCoeModel | None:
+    """The device model of an ESI device that speaks CoE; None for any other."""
     device = slave.device
     mbx = device.mailbox
     if mbx is None or mbx.coe is None:
         return None
-    # Without a Dictionary the device still speaks CoE: it serves the objects
-    # the ESI implies (identity, PDO mapping and assignment, mapped entries).
-    gen = info.general
-    details = int(gen.coe_details) if gen is not None else int(CoeDetails.SDO)
     # The dictionary decides what the mapping objects allow; the server honours
     # SDO information / complete access only where the ESI announces them.
-    od = esi_dictionary(device, vendor_id=slave.vendor_id, serial=info.serial)
-    return EsiCoeApp(od, details, device)
+    gen = info.general
+    details = int(gen.coe_details) if gen is not None else int(CoeDetails.SDO)
+    return EsiCoeModel(slave, details)

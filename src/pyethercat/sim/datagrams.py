@@ -1,0 +1,45 @@
+"""The datagram headers of an EtherCAT frame, as the segment's frame path walks them.
+
+A frame's datagrams follow each other (ETG.1000.4 section 5.3, "EtherCAT
+datagram"): a 10-byte header (command, index, address, length word with the
+circulating and more-follows bits, IRQ), the data, a 2-byte working counter.
+:func:`scan_headers` reads all headers before any datagram is executed,
+because a slave does not process a frame whose datagrams run past its end.
+"""
+
+from __future__ import annotations
+
+from pyethercat.wire.datagram import (
+    CIRCULATING_BIT,
+    HEADER,
+    HEADER_SIZE,
+    LEN_MASK,
+    MORE_BIT,
+    WKC_SIZE,
+)
+
+__all__ = ["Head", "scan_headers"]
+
+#: A parsed datagram header: offset, command, address, length word, IRQ, data length.
+Head = tuple[int, int, int, int, int, int]
+
+
+def scan_headers(buf: bytes | bytearray, body: int, end: int) -> tuple[list[Head], bool] | None:
+    """The headers of the datagrams in ``buf[body:end]`` and whether any has the circulating bit;
+    None when the datagrams do not fit (a malformed frame)."""
+    heads: list[Head] = []
+    off = body
+    any_c = False
+    while True:
+        if off + HEADER_SIZE + WKC_SIZE > end:
+            return None
+        cmd, _idx, address, lw, irq = HEADER.unpack_from(buf, off)
+        n = lw & LEN_MASK
+        if off + HEADER_SIZE + n + WKC_SIZE > end:
+            return None
+        heads.append((off, cmd, address, lw, irq, n))
+        if lw & CIRCULATING_BIT:
+            any_c = True
+        off += HEADER_SIZE + n + WKC_SIZE
+        if not lw & MORE_BIT:
+            return heads, any_c
