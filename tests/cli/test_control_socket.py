@@ -197,3 +197,19 @@ def test_protocol_frames_and_types_round_trip() -> None:
         decode_request({"v": 99, "id": 1, "op": "hello", "args": {}})
     with pytest.raises(ProtocolError, match="too large"):
         Framer().feed(b"\xff\xff\xff\xff")
+
+
+def test_a_master_without_a_usable_runtime_dir_still_opens(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture) -> None:
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    shared.chmod(0o755)  # not private: no socket there
+    monkeypatch.setenv("PYETHERCAT_RUNTIME_DIR", str(shared))
+    link = UdpLink(bind=("127.0.0.1", 0))
+    host, port = link.address
+    try:
+        with caplog.at_level("WARNING"), Master.open(udp=f"{host}:{port}") as m:
+            assert m.control is None
+        assert "no control socket for this master" in caplog.text
+    finally:
+        link.close()

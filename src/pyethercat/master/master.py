@@ -17,6 +17,7 @@ changes) hold the master's lock.
 from __future__ import annotations
 
 import contextlib
+import logging
 import struct
 import threading
 from collections.abc import Callable, Sequence
@@ -97,7 +98,9 @@ class Master(CoeMasterMixin, ProcessDataMixin):
         options go to :class:`Master`. With ``control`` (on an interface or
         UDP peer) the master serves its control socket, so the command line
         reaches it while it runs (:mod:`pyethercat.master.control`); a second
-        master on the same link is refused with :class:`ConfigError`.
+        master on the same link is refused with :class:`ConfigError`. When the
+        socket cannot be made (no writable runtime directory) the master still
+        opens, with a warning logged.
         """
         given = [x for x in (iface, udp, link) if x is not None]
         if len(given) != 1:
@@ -117,10 +120,18 @@ class Master(CoeMasterMixin, ProcessDataMixin):
         master = cls(link, **options)  # type: ignore[arg-type]
         if control and (iface is not None or udp is not None):
             from pyethercat.master.control.endpoint import link_spec
-            from pyethercat.master.control.server import serve
+            from pyethercat.master.control.server import MasterRunningError, serve
 
             try:
                 master.control = serve(master, link_spec(iface=iface, udp=udp))
+            except MasterRunningError:
+                master.close()
+                raise
+            except ConfigError as exc:
+                # No socket (a read-only runtime directory...): the master works, the
+                # command line just cannot reach it.
+                logging.getLogger("pyethercat.master").warning(
+                    "no control socket for this master: %s", exc)
             except BaseException:
                 master.close()
                 raise

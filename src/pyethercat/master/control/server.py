@@ -31,11 +31,15 @@ from pyethercat.master.control.protocol import (
 if TYPE_CHECKING:
     from pyethercat.master.master import Master
 
-__all__ = ["ControlServer", "serve", "HANDLER_MODULES"]
+__all__ = ["ControlServer", "MasterRunningError", "serve", "HANDLER_MODULES"]
 
 #: Modules whose import registers more handlers (one per mailbox protocol, added as they come).
 HANDLER_MODULES: tuple[str, ...] = ()
 _CRED = struct.Struct("3i")
+
+
+class MasterRunningError(ConfigError):
+    """Another master already serves this link: one master per wire."""
 
 
 class ControlServer:
@@ -86,7 +90,7 @@ class ControlServer:
             return
         hello = probe(self.path)
         if hello is not None:
-            raise ConfigError(f"a master already runs on {hello.link} (pid {hello.pid}, "
+            raise MasterRunningError(f"a master already runs on {hello.link} (pid {hello.pid}, "
                               f"control socket {self.path}): one master per wire; send "
                               "commands to it, or stop it first")
         with contextlib.suppress(FileNotFoundError):
