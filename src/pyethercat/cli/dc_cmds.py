@@ -19,7 +19,8 @@ from typing import Any
 
 import click
 
-from pyethercat.cli._connect import Connection, connect
+from pyethercat.cli._connect import Connection
+from pyethercat.cli._session import own_master
 from pyethercat.cli._util import parse_int
 from pyethercat.errors import ConfigError
 from pyethercat.master.clocks import DcStatus
@@ -124,7 +125,8 @@ def register(cli: click.Group) -> None:
     def dc_cmd(obj: dict[str, Any], reference: str | None, static: int, sync0_us: str | None,
                shift_us: str | None, sync1_us: str | None, plot: str | None) -> None:
         """Set up distributed clocks and show each slave's DC state."""
-        with connect(obj) as conn:
+        # DC set-up writes every slave's offsets and delays: not beside a running master.
+        with own_master(obj) as conn:
             wall_clock_for_sim(conn)
             m = conn.master
             m.scan(reset=False)
