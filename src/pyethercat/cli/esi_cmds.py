@@ -17,6 +17,7 @@ from typing import Any
 
 import click
 
+from pyethercat.cli._select import selection_options, single
 from pyethercat.cli._session import own_master
 from pyethercat.cli._util import number, parse_int
 from pyethercat.errors import ConfigError, EtherCATError
@@ -177,23 +178,20 @@ def register(cli: click.Group) -> None:
                 click.echo(f"  {d}")
 
     @cli.command("xml")
-    @click.option("-p", "--position", required=True, metavar="POS", help="Ring position of the slave.")
+    @selection_options
     @click.option("-o", "--output", metavar="FILE", help="Write to this file (default: standard output).")
     @click.pass_context
-    def xml_cmd(ctx: click.Context, position: str, output: str | None) -> None:
+    def xml_cmd(ctx: click.Context, position: str | None, alias: str | None,
+                output: str | None) -> None:
         """Write an ESI file for a live slave (SII, plus its dictionary over CoE)."""
         from pyethercat.esi.from_sii import DictEntry, DictObject, esi_from_sii
         from pyethercat.wire.mailbox.coe import ObjectCode
         from pyethercat.wire.sii import CoeDetails
 
-        pos = _int(position)
-        assert pos is not None
         with own_master(ctx.obj) as conn:
             m = conn.master
             m.scan()
-            if not 0 <= pos < len(m.slaves):
-                raise ConfigError(f"no slave at position {pos} ({len(m.slaves)} slaves)")
-            s = m.slaves[pos]
+            s = m.slaves[single([x.alias for x in m.slaves], position, alias, "xml")]
             if s.sii is None:
                 raise ConfigError(f"{s.describe()}: SII not readable ({s.sii_error})")
             objects: list[DictObject] = []
