@@ -592,6 +592,8 @@ def test_demo_topology_processing_order_and_wiring() -> None:
 
 def test_every_documented_slave_key_takes_effect_on_the_wire() -> None:
     text = """
+[segment]
+drift_ppm = 0.0     # slaves without drift_ppm: exact oscillators
 [[slave]]
 name = "c"
 device = "builtin:coupler"

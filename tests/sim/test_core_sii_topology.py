@@ -223,12 +223,16 @@ def test_receive_time_latch_and_system_time() -> None:
     address_all(seg)
     one(seg, Datagram.device(Command.BWR, 0, R.DC_RECEIVE_TIME_PORT0, bytes(4)))
     t = [struct.unpack("<IIII", fprd(seg, 0x1000 + i, R.DC_RECEIVE_TIME_PORT0, 16).data) for i in range(3)]
-    # port 1 time - port 0 time = round trip through the slaves behind
-    assert t[1][1] - t[1][0] == 500 + 5 + 500 + 5
-    assert t[0][1] - t[0][0] == 500 + 5 + (500 + 5 + 500 + 5) + 500 + 5
+    # port 1 time - port 0 time = round trip through the slaves behind: a pass
+    # through a chip with MII ports takes 700 ns, each cable 5 ns
+    assert t[1][1] - t[1][0] == 700 + 5 + 700 + 5
+    assert t[0][1] - t[0][0] == 700 + 5 + (700 + 5 + 700 + 5) + 700 + 5
     assert t[2][1] == 0  # port 1 of the last slave was not visited
+    # latches count in 10 ns ticks
+    assert all(v % 10 == 0 for v in t[0] + t[1] + t[2])
     epu = [struct.unpack("<q", fprd(seg, 0x1000 + i, R.DC_RECEIVE_TIME_ECAT, 8).data)[0] for i in range(3)]
-    assert epu[1] - epu[0] == 505 and epu[2] - epu[1] == 505
+    # the processing unit is passed half-way through the chip, one link (705 ns) apart
+    assert abs(epu[1] - epu[0] - 705) < 10 and abs(epu[2] - epu[1] - 705) < 10
     # system time = local time + offset
     before = struct.unpack("<q", fprd(seg, 0x1002, R.DC_SYSTEM_TIME, 8).data)[0]
     fpwr(seg, 0x1002, R.DC_SYSTEM_TIME_OFFSET, struct.pack("<q", 1_000_000_000))
@@ -247,6 +251,8 @@ def test_drift_and_frmw_distribution() -> None:
               Datagram.device(Command.FPRD, 0x1001, R.DC_SYSTEM_TIME, 8))
     a, b = (struct.unpack("<q", d.data)[0] for d in ds)
     assert 99_000 < b - a < 101_000  # 100 ppm over one second
+    # no filtering of the difference (resets the loop too), then one FRMW
+    one(seg, Datagram.device(Command.BWR, 0, R.DC_TIME_FILTER_DEPTH, bytes([0, 12])))
     d = one(seg, Datagram.device(Command.FRMW, 0x1000, R.DC_SYSTEM_TIME, 8))
     assert d.wkc == 2
     diff = struct.unpack("<I", fprd(seg, 0x1001, R.DC_SYSTEM_TIME_DIFFERENCE, 4).data)[0]

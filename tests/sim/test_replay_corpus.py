@@ -83,7 +83,8 @@ class Diff:
 TIME_DEPENDENT = {
     "dc-time": (
         "distributed-clock times: receive-time latches of ports a frame passed "
-        "(0x0900-0x0907), system time and processing-unit receive time (0x0910-0x091F), "
+        "(0x0900-0x0907; their port-1 minus port-0 difference must match within "
+        f"{20} ns, it does not depend on the clock's origin), system time and processing-unit receive time (0x0910-0x091F), "
         "system time difference (0x092C), SYNC/latch times (0x0990-0x099F, 0x09B0-0x09CF), "
         "and ARMW/FRMW of the system time: a real chip's clock runs from its power-on "
         "(minutes before the capture), ours from the segment's creation; every other "
@@ -105,10 +106,31 @@ _TIME_BYTES = frozenset(
 # A receive-time word of a port that never latched keeps its power-on value
 # on both sides (Beckhoff ASICs: port 1 "hoff"): then it must be equal.
 _UNLATCHED = (bytes(4), b"hoff")
+#: Largest allowed difference between the real and the simulated port-1 minus
+#: port-0 receive time (the simulated clock has the real 10 ns tick).
+PORT_DIFF_TOLERANCE_NS = 20
+
+
+def _port_diff(data: bytes, ado: int) -> int | None:
+    """Port-1 minus port-0 receive time of a read covering 0x0900-0x0907 (None: not both latched)."""
+    at = 0x0900 - ado
+    if at < 0 or at + 8 > len(data):
+        return None
+    t0, t1 = data[at: at + 4], data[at + 4: at + 8]
+    if t0 in _UNLATCHED or t1 in _UNLATCHED:
+        return None
+    d = (int.from_bytes(t1, "little") - int.from_bytes(t0, "little")) & 0xFFFF_FFFF
+    return d - (1 << 32) if d >= 1 << 31 else d
 
 
 def _dc_time_only(ado: int, real: bytes, sim: bytes) -> bool:
-    """Whether ``real`` and ``sim`` (read at ``ado``) differ only in DC time bytes."""
+    """Whether ``real`` and ``sim`` (read at ``ado``) differ only in DC time bytes.
+
+    Latched receive times may differ in their origin, not in the time the
+    frame spent behind port 1."""
+    dr, ds = _port_diff(real, ado), _port_diff(sim, ado)
+    if dr is not None and (ds is None or abs(dr - ds) > PORT_DIFF_TOLERANCE_NS):
+        return False
     for i, (r, m) in enumerate(zip(real, sim, strict=True)):
         a = ado + i
         if r == m:
@@ -163,6 +185,10 @@ def _pairs(path: Path) -> list[tuple[int, bytes, bytes]]:
     return out
 
 
+#: (capture, station, real port-1 minus port-0, simulated) of every latch read.
+PORT_DIFFS: list[tuple[str, int, int, int | None]] = []
+
+
 def _replay(corpus: Path, capture: str, devices: tuple[str, ...]) -> tuple[int, list[Diff], int]:
     toml = "".join(
         f'[[slave]]\nname = "s{i}"\nsii = "{corpus / "sii" / f"ethercrab_{dev}.bin"}"\n'
@@ -193,6 +219,11 @@ def _replay(corpus: Path, capture: str, devices: tuple[str, ...]) -> tuple[int, 
         for k, (s, r) in enumerate(zip(sent, real, strict=True)):
             total += 1
             m = sim[k] if k < len(sim) else None
+            if Command(s.command) == Command.FPRD and r.wkc:
+                dr = _port_diff(bytes(r.data), s.address >> 16)
+                if dr is not None:
+                    ds = _port_diff(bytes(m.data), s.address >> 16) if m is not None else None
+                    PORT_DIFFS.append((capture, s.address & 0xFFFF, dr, ds))
             if m is not None and m.wkc == r.wkc and bytes(m.data) == bytes(r.data):
                 continue
             diffs.append(Diff(n, k, s, r, m, _classify(s, r, m)))
@@ -247,12 +278,30 @@ def test_replay_99_percent(corpus_dir: Path, capture: str) -> None:
     assert equal >= 0.99 * total, _report(capture, total, diffs)
 
 
+@pytest.mark.parametrize("capture", ["ethercrab_replay-dc.pcapng",
+                                     "ethercrab_replay-ek1100-alias-address.pcapng",
+                                     "ethercrab_replay-ek1100-el2828-el2889.pcapng"])
+def test_replay_port_time_differences(corpus_dir: Path, capture: str) -> None:
+    """The EK1100 (590-600 ns) and EL2828 (310 ns) round trips behind port 1, simulated within 20 ns."""
+    _result(corpus_dir, capture)
+    seen = [(st, dr, ds) for c, st, dr, ds in PORT_DIFFS if c == capture]
+    print(capture, seen)
+    assert {st for st, _, _ in seen} == {0x1000, 0x1001}  # EK1100 and EL2828; the EL2889 ends the line
+    for st, dr, ds in seen:
+        assert ds is not None and abs(dr - ds) <= PORT_DIFF_TOLERANCE_NS, (st, dr, ds)
+    assert {dr for st, dr, _ in seen if st == 0x1001} == {310}
+
+
 def test_dc_time_classification_is_strict() -> None:
     # Latched times may differ; a port that never latched ("hoff"), the unused
     # ports 2/3 and master-written offsets may not.
-    real = bytes.fromhex("520f623caa11623c000000005665726c")
-    assert _dc_time_only(0x0900, real, bytes.fromhex("51e1a30485e4a304000000005665726c"))
-    assert not _dc_time_only(0x0900, real, bytes.fromhex("51e1a30485e4a30400000000" + "00000000"))
+    real = bytes.fromhex("520f623caa11623c000000005665726c")  # port 1 600 ns after port 0
+    sim = (0x04A3E151).to_bytes(4, "little") + (0x04A3E151 + 590).to_bytes(4, "little")
+    assert _dc_time_only(0x0900, real, sim + bytes.fromhex("000000005665726c"))
+    assert not _dc_time_only(0x0900, real, sim + bytes.fromhex("00000000" + "00000000"))
+    # another clock origin is fine, another round trip behind port 1 is not
+    slow = (0x04A3E151).to_bytes(4, "little") + (0x04A3E151 + 630).to_bytes(4, "little")
+    assert not _dc_time_only(0x0900, real, slow + bytes.fromhex("000000005665726c"))
     unlatched = bytes.fromhex("ec65803c686f6666000000005665726c")
     assert not _dc_time_only(0x0900, unlatched, bytes.fromhex("b3e3a30412345678000000005665726c"))
     assert not _dc_time_only(0x0920, bytes(8), bytes([1]) + bytes(7))

@@ -161,6 +161,7 @@ class DcReport:
     master_time_ns: int = 0
     static_sync: int = 0
     static_frames: int = 0
+    #: Master time from the latch to the last request (the driver's clock).
     duration_s: float = 0.0
     warnings: list[str] = field(default_factory=list)
     max_difference_ns: int = MAX_SYNC_DIFF_NS
@@ -235,7 +236,8 @@ class DcSetup:
         self._static_left = max(0, int(self.settings.static_sync))
         self._static_frames = 0
         self._frmw_size = 8
-        self._started: float | None = None
+        self._started: int | None = None
+        self._last_now = 0
         self._trace_at: int | None = None   # FRMW count of a pending trace read
         self._trace_time = 0
         self._next_trace = self.settings.trace_every
@@ -252,7 +254,8 @@ class DcSetup:
         if self._pending is not None:
             raise ConfigError("DcSetup: receive() the replies of the last request first")
         if self._started is None:
-            self._started = time.monotonic()
+            self._started = now_ns
+        self._last_now = now_ns
         stage = self._stage
         if stage is _Stage.DONE:
             return None
@@ -430,7 +433,7 @@ class DcSetup:
         rep.master_time_ns = self._master_time
         rep.static_sync = self.settings.static_sync
         rep.static_frames = self._static_frames
-        rep.duration_s = time.monotonic() - (self._started or time.monotonic())
+        rep.duration_s = (self._last_now - (self._started or self._last_now)) / 1e9
         for r in rep.unsynchronised:
             rep.warnings.append(f"slave {r.position}: system time difference {r.difference_ns} ns "
                                 f"after the compensation (more than {rep.max_difference_ns} ns)")

@@ -51,7 +51,7 @@ _SIDE_EFFECT_RANGES: tuple[tuple[int, int], ...] = (
     (R.SM_BASE, R.SM_BASE + 16 * R.SM_SIZE),
     (R.DC_RECEIVE_TIME_PORT0, R.DC_SYSTEM_TIME + 8),
     (R.DC_SPEED_COUNTER_START, R.DC_SPEED_FILTER_DEPTH + 1),
-    (R.DC_CYCLIC_UNIT_CONTROL, R.DC_SYNC1_CYCLE + 4),
+    (R.DC_CYCLIC_UNIT_CONTROL, R.DC_LATCH1_CONTROL + 1),
 )
 
 _MASK_CACHE: dict[EscProfile, tuple[BoolArray, BoolArray]] = {}

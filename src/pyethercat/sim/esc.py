@@ -264,10 +264,9 @@ class Esc(EscRegisters):
         if hit(R.SM_BASE, 16 * R.SM_SIZE):
             self._sm_registers_written(lo, hi, old)
         if hit(R.DC_RECEIVE_TIME_PORT0, R.DC_SYSTEM_TIME + 8 - R.DC_RECEIVE_TIME_PORT0) or hit(
-                R.DC_CYCLIC_UNIT_CONTROL, R.DC_SYNC1_CYCLE + 4 - R.DC_CYCLIC_UNIT_CONTROL):
+                R.DC_SPEED_COUNTER_START, 6) or hit(
+                R.DC_CYCLIC_UNIT_CONTROL, R.DC_LATCH1_CONTROL + 1 - R.DC_CYCLIC_UNIT_CONTROL):
             host.dc_written(self.index, lo, new.tobytes())
-        if hit(R.DC_SPEED_COUNTER_START, 6):
-            self.set_bytes(R.DC_SYSTEM_TIME_DIFFERENCE, bytes(4))
 
     def _reset_byte(self, value: int) -> None:
         """ESC reset: 'R', 'E', 'S' written in three consecutive writes (ET1100 datasheet, 0x0040)."""

@@ -275,7 +275,9 @@ class Ports:
                 passes.append(s)
                 port0_closed.append(closed[s][0])
                 if epu[s] < 0:
-                    epu[s] = t
+                    # The processing unit sits in the middle of the chip's
+                    # pipeline: half the forwarding delay after the port.
+                    epu[s] = t + self.fwd_delay[s] // 2
                 if sum(port0_closed) >= 2:
                     break  # circulating: destroyed on the second closed-port-0 pass
             q = NEXT_PORT[p]

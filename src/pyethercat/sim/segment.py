@@ -275,6 +275,8 @@ class Segment:
                 instance = model.new_instance()
             model.placed(instance, index, self.pdio)
         self.apps.add(spec.app, model, instance)
+        if model is not None and model.sync_events:
+            self.dc.listen(index)
         esc.power_on()
         if spec.app is not None:
             spec.app.attach(esc.pdi)
@@ -330,6 +332,38 @@ class Segment:
     def power_on(self, slave: int) -> None:
         """Switch a slave on: INIT, station address 0, alias from the SII."""
         self.reset_slave(slave)
+
+    # --- distributed clocks -----------------------------------------------------------
+
+    def set_drift(self, slave: int, drift_ppm: float) -> None:
+        """Change a slave's oscillator from now on (``drift_ppm``: deviation from nominal)."""
+        self.dc.set_drift(slave, drift_ppm, self.clock.now_ns())
+
+    def latch_input(self, slave: int, unit: int, rising: bool, t_ns: int | None = None) -> None:
+        """An edge on DC latch input ``unit`` (0/1) of ``slave`` at segment time ``t_ns`` (now)."""
+        self.dc.latch_input(slave, unit, rising, self.clock.now_ns() if t_ns is None else t_ns)
+
+    def dc_report(self) -> list[dict[str, object]]:
+        """Per slave: oscillator drift, learned correction, |0x092C| and the last SYNC0 pulse.
+
+        ``last_sync0``: (system time, segment time at which it really fired),
+        what tests and benchmarks compare across slaves; ``None`` before any.
+        """
+        dc = self.dc
+        n = len(self.slaves)
+        out = []
+        last = dc.last_sync0()
+        for s in range(n):
+            pulse = last[s]
+            out.append({
+                "index": s, "name": self.slaves[s].name,
+                "drift_ppm": float((dc.rate[s] - 1.0) * 1e6),
+                "correction_ppm": float(dc.trim[s] * 1e6),
+                "difference_ns": float(abs(dc.filtered[s])),
+                "sync0_pulses": int(dc.pulses[s]),
+                "last_sync0": None if pulse is None else [pulse[0], pulse[1]],
+            })
+        return out
 
     def reset_slave(self, slave: int) -> None:
         """Power-on reset of one ESC (also the 'RES' sequence in 0x0040)."""

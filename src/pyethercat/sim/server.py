@@ -20,6 +20,10 @@ line (``{"ok": true, ...}`` or ``{"ok": false, "error": "..."}``)::
     {"cmd": "set_inputs", "slave": "di8", "data": "ff"}
     {"cmd": "outputs", "slave": "do8"}                -> {"data": "hex"}
     {"cmd": "stats"}                                  -> {"frames": n, "replies": n, ...}
+    {"cmd": "dc"}                 -> {"slaves": [{"drift_ppm", "correction_ppm", "difference_ns",
+                                     "sync0_pulses", "last_sync0": [system time, true ns]}]}
+    {"cmd": "set_drift", "slave": "di8", "ppm": 20.0}
+    {"cmd": "latch", "slave": "di8", "unit": 0, "rising": true}
 
 Commands run in the server's thread between two frames, so they never race
 with frame processing.
@@ -341,6 +345,15 @@ class SimServer:
             return {}
         if cmd == "outputs":
             return {"data": _pdi(seg.slaves[self._slave(request)]).outputs().hex()}
+        if cmd == "dc":
+            return {"slaves": seg.dc_report(), "now_ns": seg.clock.now_ns()}
+        if cmd == "set_drift":
+            seg.set_drift(self._slave(request), float(request["ppm"]))
+            return {}
+        if cmd == "latch":
+            seg.latch_input(self._slave(request), int(request.get("unit", 0)),
+                            bool(request.get("rising", True)))
+            return {}
         if cmd == "emergency":
             # a CoE device's server sends an emergency through its mailbox
             from pyethercat.sim.coe import coe_server

@@ -5,6 +5,8 @@ The format (documented with examples in ``docs/simulator.md``)::
     [segment]                       # optional
     drop_probability = 0.0          # frames lost on the wire, 0..1
     seed = 1                        # random seed for the drops
+    drift_ppm = 100.0               # slaves without drift_ppm draw theirs from
+    drift_seed = 0                  #   +-drift_ppm with this seed (0.0: all exact)
 
     [[slave]]
     name = "coupler"                # unique; used by parent/wire/fault
@@ -12,7 +14,7 @@ The format (documented with examples in ``docs/simulator.md``)::
                                     # or esi = "dev.xml" with product/revision
     alias = 0x1234                  # optional, overrides SII word 4
     profile = "ET1100"              # optional ESC profile (sim.esc.PROFILES)
-    drift_ppm = 20.0                # optional DC clock drift
+    drift_ppm = 20.0                # optional DC oscillator drift (default: random)
     forwarding_delay_ns = 500       # optional; default from the port types
     cable_delay_ns = 5              # optional delay of the cable into port 0
     inputs = "00ff"                 # optional initial input image (hex)
@@ -42,6 +44,7 @@ the slave (or wire/fault) it concerns.
 
 from __future__ import annotations
 
+import random
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -90,7 +93,10 @@ _SLAVE_KEYS = {
 _WIRE_KEYS = {"from", "to", "bits"}
 _FAULT_KEYS = {"kind", "slave", "port", "count"}
 _FAULT_KINDS = ("break_link", "power_off", "corrupt")
-_SEGMENT_KEYS = {"drop_probability", "seed"}
+_SEGMENT_KEYS = {"drop_probability", "seed", "drift_ppm", "drift_seed"}
+#: Oscillators of slaves without their own ``drift_ppm`` deviate by up to this
+#: (uniformly drawn with ``drift_seed``): the tolerance of common quartzes.
+DEFAULT_DRIFT_PPM = 100.0
 _TOP_KEYS = {"slave", "wire", "fault", "segment"}
 
 
@@ -106,7 +112,7 @@ class SlaveConfig:
     builtin: BuiltinDevice | None = None
     sii_path: Path | None = None
     alias: int | None = None
-    drift_ppm: float = 0.0
+    drift_ppm: float | None = None
     forwarding_delay_ns: int | None = None
     cable_delay_ns: int = 5
     inputs: bytes | None = None
@@ -162,6 +168,8 @@ class Topology:
     faults: list[FaultConfig] = field(default_factory=list)
     drop_probability: float = 0.0
     seed: int | None = None
+    drift_ppm: float = DEFAULT_DRIFT_PPM
+    drift_seed: int = 0
 
     def index(self, name: str) -> int:
         """Position of slave ``name`` (0 = first slave)."""
@@ -219,6 +227,10 @@ def parse_topology(
         topo.drop_probability = p
     if "seed" in seg:
         topo.seed = _int(seg["seed"], f"{source}: [segment] seed")
+    if "drift_ppm" in seg:
+        topo.drift_ppm = abs(_number(seg["drift_ppm"], f"{source}: [segment] drift_ppm"))
+    if "drift_seed" in seg:
+        topo.drift_seed = _int(seg["drift_seed"], f"{source}: [segment] drift_seed")
 
     slaves = _table_list(doc, "slave", source)
     if not slaves:
@@ -548,7 +560,10 @@ def build_segment(topo: Topology, clock: Clock | None = None) -> Segment:
     index: dict[str, int] = {}
     # One device model per kind (built-in key, or ESI file + device) for this segment.
     models: dict[object, DeviceModel] = {}
+    rng = random.Random(topo.drift_seed)
     for s in topo.slaves:
+        # Drawn for every slave, so one slave's own value leaves the others' as they were.
+        drawn = rng.uniform(-topo.drift_ppm, topo.drift_ppm)
         where = f"{topo.source}: slave {s.name!r}"
         esi_key = None
         if s.esi is not None:
@@ -568,7 +583,7 @@ def build_segment(topo: Topology, clock: Clock | None = None) -> Segment:
             profile=s.profile,
             app=run.app,
             alias=s.alias,
-            drift_ppm=s.drift_ppm,
+            drift_ppm=drawn if s.drift_ppm is None else s.drift_ppm,
             forwarding_delay_ns=s.forwarding_delay_ns,
             initial_inputs=s.inputs,
             sii_info=s.info,

@@ -1,0 +1,218 @@
+"""The simulator's distributed clocks (sim.dc): oscillators, time-control loop, SYNC, latches."""
+
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+import pytest
+from simhelp import address_all, fprd, fpwr, one, spec
+
+from pyethercat.clock import VirtualClock
+from pyethercat.sim.device import DeviceApp
+from pyethercat.sim.profiles import PROFILES
+from pyethercat.sim.segment import Segment
+from pyethercat.sim.topology import parse_topology
+from pyethercat.wire import registers as R
+from pyethercat.wire.datagram import Command, Datagram
+from pyethercat.wire.dc import decode_time_difference
+
+ST = 0x1000
+
+
+def pair(ppm: float, profile: str = "ET1100") -> tuple[Segment, VirtualClock]:
+    clock = VirtualClock(0)
+    seg = Segment(clock)
+    seg.advance_clock = False
+    seg.add_slave(spec("ref", profile))
+    seg.add_slave(spec("follower", profile, drift_ppm=ppm))
+    address_all(seg)
+    return seg, clock
+
+
+def frmw(seg: Segment, size: int = 8) -> Datagram:
+    return one(seg, Datagram.device(Command.FRMW, ST, R.DC_SYSTEM_TIME, size))
+
+
+def systimes(seg: Segment, size: int = 8) -> list[int]:
+    return [int.from_bytes(fprd(seg, ST + i, R.DC_SYSTEM_TIME, size).data, "little")
+            for i in range(len(seg.slaves))]
+
+
+def start_loop(seg: Segment) -> None:
+    # no filtering of the difference, speed filter 12; rewriting 0x0930 resets the loop
+    one(seg, Datagram.device(Command.BWR, 0, R.DC_TIME_FILTER_DEPTH, bytes([0, 12])))
+    one(seg, Datagram.device(Command.BWR, 0, R.DC_SPEED_COUNTER_START, struct.pack("<H", 0x1000)))
+
+
+@pytest.mark.parametrize("ppm", [150.0, -150.0])
+def test_time_control_loop_locks_a_drifting_clock(ppm: float) -> None:
+    seg, clock = pair(ppm)
+    start_loop(seg)
+    for _ in range(3000):  # 3 s of drift compensation at 1 kHz
+        clock.advance(1_000_000)
+        frmw(seg)
+    diff = decode_time_difference(struct.unpack("<I", fprd(seg, ST + 1, R.DC_SYSTEM_TIME_DIFFERENCE, 4).data)[0])
+    assert diff <= 20
+    # the learned speed correction cancels the quartz (0x0932 in 0.1 ppm)
+    learned = struct.unpack("<h", fprd(seg, ST + 1, R.DC_SPEED_COUNTER_DIFF, 2).data)[0]
+    assert learned == pytest.approx(-ppm * 10, abs=3)
+    # left alone for a second, the corrected clock stays with the reference
+    clock.advance(1_000_000_000)
+    a, b = systimes(seg)
+    assert abs(b - a) < 200
+    # writing 0x0930 resets the filters: difference and learned speed gone, the quartz is back
+    fpwr(seg, ST + 1, R.DC_SPEED_COUNTER_START, struct.pack("<H", 0x1000))
+    assert fprd(seg, ST + 1, R.DC_SYSTEM_TIME_DIFFERENCE, 4).data == bytes(4)
+    assert fprd(seg, ST + 1, R.DC_SPEED_COUNTER_DIFF, 2).data == bytes(2)
+    clock.advance(1_000_000_000)
+    a2, b2 = systimes(seg)
+    assert abs((b2 - a2) - (b - a) - ppm * 1000) < 200
+
+
+def test_loop_correction_is_bounded_by_the_speed_counter_start() -> None:
+    seg, clock = pair(150.0)
+    start_loop(seg)
+    # a small start value: at most (0x0400 - 0x7F) * 0.1 ppm = 89.7 ppm of correction
+    fpwr(seg, ST + 1, R.DC_SPEED_COUNTER_START, struct.pack("<H", 0x0400))
+    for _ in range(2000):
+        clock.advance(1_000_000)
+        frmw(seg)
+    learned = struct.unpack("<h", fprd(seg, ST + 1, R.DC_SPEED_COUNTER_DIFF, 2).data)[0]
+    assert learned == -(0x0400 - 0x7F)
+    diff = decode_time_difference(struct.unpack("<I", fprd(seg, ST + 1, R.DC_SYSTEM_TIME_DIFFERENCE, 4).data)[0])
+    assert diff > 10_000  # 60 ppm it cannot follow: the difference keeps growing
+
+
+def test_filter_depth_smooths_the_difference() -> None:
+    seg, clock = pair(0.0)
+    start_loop(seg)
+    fpwr(seg, ST + 1, R.DC_SYSTEM_TIME_OFFSET, struct.pack("<q", 1600))  # 1.6 us ahead
+    # the frame passes the follower 705 ns after the reference: its true delay
+    fpwr(seg, ST + 1, R.DC_SYSTEM_TIME_DELAY, struct.pack("<I", 705))
+    fpwr(seg, ST + 1, R.DC_TIME_FILTER_DEPTH, bytes([4]))  # (resets the loop)
+    frmw(seg)
+    raw = struct.unpack("<I", fprd(seg, ST + 1, R.DC_SYSTEM_TIME_DIFFERENCE, 4).data)[0]
+    assert raw & 0x8000_0000  # local copy ahead: sign bit set
+    assert abs(decode_time_difference(raw) - 100) <= 1  # 1/16 of the way to 1600
+
+
+def test_32bit_follower_compares_low_double_words() -> None:
+    clock = VirtualClock(0)
+    seg = Segment(clock)
+    seg.advance_clock = False
+    seg.add_slave(spec("ref", "ET1100"))
+    seg.add_slave(spec("narrow", PROFILES["ET1100"].replace(features=int(R.Feature.DC_SUPPORTED)),
+                       drift_ppm=80.0))
+    address_all(seg)
+    start_loop(seg)
+    # the reference far beyond 2^32 ns: only the low double word reaches the 32-bit slave
+    fpwr(seg, ST, R.DC_SYSTEM_TIME_OFFSET, struct.pack("<q", 7 << 32))
+    for _ in range(2000):
+        clock.advance(1_000_000)
+        frmw(seg)
+    a, b = systimes(seg, 4)
+    assert abs(((b - a + (1 << 31)) % (1 << 32)) - (1 << 31)) < 50
+
+
+class Listener(DeviceApp):
+    def __init__(self) -> None:
+        super().__init__()
+        self.sync0: list[int] = []
+        self.sync1: list[int] = []
+
+    def on_sync0(self, time_ns: int) -> None:
+        self.sync0.append(time_ns)
+
+    def on_sync1(self, time_ns: int) -> None:
+        self.sync1.append(time_ns)
+
+
+def start_sync(seg: Segment, station: int, start: int, cycle0: int, cycle1: int = 0,
+               act: int = 0x03) -> None:
+    fpwr(seg, station, R.DC_SYNC0_CYCLE, struct.pack("<II", cycle0, cycle1))
+    fpwr(seg, station, R.DC_START_TIME, struct.pack("<Q", start))
+    fpwr(seg, station, R.DC_ACTIVATION, bytes([act]))
+
+
+def test_sync_pulses_are_recorded_with_their_true_time() -> None:
+    seg, clock = pair(100.0)
+    now = systimes(seg)[1]
+    start = now + 1_000_000
+    start_sync(seg, ST + 1, start, 250_000)
+    assert fprd(seg, ST + 1, R.DC_ACTIVATION_STATUS, 1).data == bytes([R.DcActivationStatus.SYNC0_PENDING])
+    clock.advance(2_100_000)
+    seg.tick()
+    sys_, true = seg.dc.recorded_pulses()
+    assert int(seg.dc.pulses[1]) == 5  # start, +250, +500, +750, +1000 us
+    last = seg.dc.last_sync0()[1]
+    assert last is not None and last[0] == start + 1_000_000
+    # 100 ppm fast: the pulse at local +2 ms came 200 ns early in true time
+    t_local_origin = float(seg.dc.t0[1])
+    assert last[1] == pytest.approx(t_local_origin + (last[0] - seg.dc.local0[1]
+                                                      - struct.unpack("<q", fprd(seg, ST + 1, R.DC_SYSTEM_TIME_OFFSET, 8).data)[0])
+                                    / 1.0001, abs=10)
+    assert fprd(seg, ST + 1, R.DC_SYNC0_STATUS, 1).data == b"\x01"
+    assert fprd(seg, ST + 1, R.DC_ACTIVATION_STATUS, 1).data == b"\x00"
+    report = seg.dc_report()[1]
+    assert report["sync0_pulses"] == 5 and report["drift_ppm"] == pytest.approx(100.0)
+    assert np.count_nonzero(~np.isnan(true[1])) == 5 and sys_[1, 0] == start
+
+
+def test_single_shot_sync1_multiple_and_a_start_in_the_past() -> None:
+    clock = VirtualClock(0)
+    seg = Segment(clock)
+    seg.advance_clock = False
+    apps = [Listener(), Listener(), Listener()]
+    for i, app in enumerate(apps):
+        seg.add_slave(spec(f"s{i}", "ET1100", app=app))
+    address_all(seg)
+    now = systimes(seg)
+    start_sync(seg, ST, now[0] + 100_000, 0)  # cycle 0: one pulse
+    # SYNC1 every 3rd SYNC0 cycle, 20 us after it (0x09A4 = 2 cycles + 20 us)
+    start_sync(seg, ST + 1, now[1] + 100_000, 100_000, 220_000, act=0x07)
+    start_sync(seg, ST + 2, now[2] - 1_000, 100_000)  # already past: never reached
+    clock.advance(1_000_000)
+    seg.tick()
+    assert apps[0].sync0 == [now[0] + 100_000] and 0 not in seg.dc.sync_next
+    s0 = apps[1].sync0
+    assert s0 == [now[1] + 100_000 * k for k in range(1, 10)]
+    assert apps[1].sync1 == [s0[k] + 220_000 for k in (0, 3, 6)]
+    assert apps[2].sync0 == []
+    assert fprd(seg, ST + 2, R.DC_ACTIVATION_STATUS, 1).data == bytes([R.DcActivationStatus.SYNC0_PENDING])
+
+
+def test_latch_inputs_stamp_system_time() -> None:
+    seg, clock = pair(0.0)
+    clock.advance(5_000)
+    t = clock.now_ns()
+    st = int(seg.dc.system_time(np.array([1]), t)[0])
+    seg.latch_input(1, 0, True, t)
+    assert fprd(seg, ST + 1, R.DC_LATCH0_STATUS, 1).data[0] & R.DcLatchStatus.POSITIVE_EDGE
+    stamp = struct.unpack("<Q", fprd(seg, ST + 1, R.DC_LATCH0_POSITIVE, 8).data)[0]
+    assert abs(stamp - st) <= 10
+    # single-event mode for falling edges of unit 1: the first edge stays
+    fpwr(seg, ST + 1, R.DC_LATCH1_CONTROL, bytes([R.DC_LATCH_CONTROL_NEGATIVE_SINGLE]))
+    seg.latch_input(1, 1, False, t + 1000)
+    seg.latch_input(1, 1, False, t + 9000)
+    first = struct.unpack("<Q", fprd(seg, ST + 1, R.DC_LATCH1_NEGATIVE, 8).data)[0]
+    assert abs(first - (st + 1000)) <= 10
+    # writing the control again clears the stored event
+    fpwr(seg, ST + 1, R.DC_LATCH1_CONTROL, bytes([R.DC_LATCH_CONTROL_NEGATIVE_SINGLE]))
+    assert fprd(seg, ST + 1, R.DC_LATCH1_STATUS, 1).data[0] & R.DcLatchStatus.NEGATIVE_EDGE == 0
+
+
+def test_topology_drift_defaults_to_random_within_100ppm_with_a_seed() -> None:
+    text = "".join(f'[[slave]]\nname = "s{i}"\ndevice = "builtin:di8"\n' for i in range(30))
+    a = parse_topology(text).build().dc_report()
+    b = parse_topology(text).build().dc_report()
+    drifts = [s["drift_ppm"] for s in a]
+    assert drifts == [s["drift_ppm"] for s in b]  # the same seed, the same oscillators
+    assert all(abs(d) <= 100.0 for d in drifts) and max(drifts) - min(drifts) > 100
+    c = parse_topology("[segment]\ndrift_seed = 3\n" + text).build().dc_report()
+    assert [s["drift_ppm"] for s in c] != drifts
+    exact = parse_topology("[segment]\ndrift_ppm = 0.0\n" + text).build().dc_report()
+    assert {s["drift_ppm"] for s in exact} == {0.0}
+    seg = parse_topology("[segment]\ndrift_ppm = 0.0\n" + text).build()
+    seg.set_drift(4, 20.0)
+    assert seg.dc_report()[4]["drift_ppm"] == pytest.approx(20.0)
