@@ -172,6 +172,6 @@ def test_trace_of_the_compensation() -> None:
     bus = Bus()
     report = run_dc_setup(bus, SLAVES, DcSettings(static_sync=1500, trace_every=592),
                           master_time=lambda: 7)
-    # FRMW go out in chunks of 8 frames (592 datagrams): a snapshot after each
+    # FRMW go out in chunks of 2 frames (148 datagrams): a snapshot after 592, 1184 and at the end
     assert [(t, n) for t, n, _ in report.trace] == [(7, 592), (7, 1184), (7, 1500)]
     assert report.trace[0][2] == (0, 35)

@@ -78,7 +78,7 @@ MAX_SYNC_DIFF_NS = 10_000
 _FILTER_DEPTHS = bytes([0, R.DC_SPEED_FILTER_DEPTH_DEFAULT])
 # Requests hold up to this many frames' worth of datagrams (the scheduler keeps
 # several in flight); static compensation goes out in such chunks.
-_FRAMES_PER_REQUEST = 8
+_FRAMES_PER_REQUEST = 2
 
 
 class DcError(EtherCATError):

@@ -137,6 +137,9 @@ class DcClocks:
         self.sync0_sink: Callable[[int, int], None] | None = None
         #: Segment time at which the current frame entered the first slave.
         self.frame_t0 = 0
+        #: The last time-loop update (write key, difference, filter gain, tau, bound):
+        #: the same write again within a frame takes a short path.
+        self._repeat: tuple[tuple[bytes, int, bytes], F64, F64, F64, F64] | None = None
 
     def add_slave(self, index: int, now: int, drift_ppm: float) -> None:
         n = index + 1
@@ -163,6 +166,7 @@ class DcClocks:
 
     def reset(self, index: int, now: int) -> None:
         """Power-on of one slave: its local clock starts again from 0, no loop state, no pulses."""
+        self._repeat = None
         self.t0[index] = now
         self.local0[index] = 0.0
         self.trim[index] = self.learned[index] = self.filtered[index] = 0.0
@@ -171,6 +175,7 @@ class DcClocks:
 
     def set_drift(self, index: int, drift_ppm: float, now: int) -> None:
         """Change a slave's oscillator from now on (a temperature step, a worse quartz)."""
+        self._repeat = None
         idx = np.array([index], np.int64)
         self._reanchor(idx, now)
         self.rate[index] = 1.0 + drift_ppm * 1e-6
@@ -270,6 +275,21 @@ class DcClocks:
         if not len(slaves) or offset != 0 or len(data) < 4:
             return
         mem = self.memory.mem
+        key = (slaves.tobytes(), self.frame_t0, bytes(data))
+        rep = self._repeat
+        if rep is not None and rep[0] == key:
+            # The same write again in the same frame (the master packs many FRMW
+            # per frame): the same difference at the same instant, so only the
+            # filter moves on; nothing to learn in zero time.
+            _, diff_r, gain, tau_r, bound_r = rep
+            filt = self.filtered[slaves]
+            filt = filt + (diff_r - filt) * gain
+            self.filtered[slaves] = filt
+            mag = np.minimum(np.abs(np.rint(filt)), 0x7FFFFFFF).astype(np.uint32)
+            raw = mag | np.where(filt >= 0, np.uint32(0x80000000), np.uint32(0))
+            _put(mem, slaves, R.DC_SYSTEM_TIME_DIFFERENCE, raw, "<u4")
+            self.trim[slaves] = np.clip(self.learned[slaves] - filt / tau_r, -bound_r, bound_r)
+            return
         t = self.pass_time(slaves)
         own = self.system_time(slaves, t)
         delay = _u32(mem, slaves, R.DC_SYSTEM_TIME_DELAY)
@@ -309,9 +329,11 @@ class DcClocks:
         self.last_update[slaves] = exact
         counts = np.clip(np.rint(learned / _TRIM_PER_COUNT), -0x7FFF, 0x7FFF)
         _put(mem, slaves, R.DC_SPEED_COUNTER_DIFF, counts, "<i2")
+        self._repeat = (key, diff.astype(np.float64), 1.0 / np.exp2(depth_t), tau, bound)
 
     def loop_reset(self, slaves: I64) -> None:
         """0x0930/0x0934/0x0935 written: filters, learned speed and 0x092C/0x0932 back to zero."""
+        self._repeat = None
         if not len(slaves):
             return
         self._reanchor(slaves, self.pass_time(slaves))

@@ -141,7 +141,9 @@ class Esc(EscRegisters):
         lo, hi = ado, ado + length
         if hi > R.ADDRESS_SPACE or length == 0 or not self.impl[lo:hi].any():
             return None
-        sms = self.sms_overlapping(lo, hi) if hi > R.SM_BASE else []
+        # (SM areas lie in process RAM: register accesses, the DC ones of every
+        # cycle among them, need not look)
+        sms = self.sms_overlapping(lo, hi) if hi > R.RAM_START else []
         for s in sms:
             if s.mode == _SM_MODE_MAILBOX and not s.ecat_writes and not (
                     s.status & R.SM_STATUS_MAILBOX_FULL):
@@ -159,7 +161,9 @@ class Esc(EscRegisters):
         lo, hi = ado, ado + len(data)
         if hi > R.ADDRESS_SPACE or not data or not self.impl[lo:hi].any():
             return False
-        sms = self.sms_overlapping(lo, hi) if hi > R.SM_BASE else []
+        # (SM areas lie in process RAM: register accesses, the DC ones of every
+        # cycle among them, need not look)
+        sms = self.sms_overlapping(lo, hi) if hi > R.RAM_START else []
         for s in sms:
             if s.mode == _SM_MODE_MAILBOX and s.ecat_writes and s.status & R.SM_STATUS_MAILBOX_FULL:
                 return False  # full mailbox: refused

@@ -344,7 +344,7 @@ class Segment:
         self.dc.latch_input(slave, unit, rising, self.clock.now_ns() if t_ns is None else t_ns)
 
     def dc_report(self) -> list[dict[str, object]]:
-        """Per slave: oscillator drift, learned correction, |0x092C| and the last SYNC0 pulse.
+        """Per slave: walk time, oscillator drift, learned correction, |0x092C|, last SYNC0 pulse.
 
         ``last_sync0``: (system time, segment time at which it really fired),
         what tests and benchmarks compare across slaves; ``None`` before any.
@@ -353,10 +353,14 @@ class Segment:
         n = len(self.slaves)
         out = []
         last = dc.last_sync0()
+        epu = self.route.epu_ns
         for s in range(n):
             pulse = last[s]
             out.append({
                 "index": s, "name": self.slaves[s].name,
+                # when a frame passes the processing unit, ns after it entered the segment:
+                # the true delays are the differences of these
+                "epu_ns": int(epu[s]),
                 "drift_ppm": float((dc.rate[s] - 1.0) * 1e6),
                 "correction_ppm": float(dc.trim[s] * 1e6),
                 "difference_ns": float(abs(dc.filtered[s])),
