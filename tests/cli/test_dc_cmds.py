@@ -53,7 +53,7 @@ def test_dc_errors_are_one_line() -> None:
     assert code == 1 and "--sync1 1500 us" in err
 
 
-@pytest.mark.parametrize("mode", ["master"])
+@pytest.mark.parametrize("mode", ["master", "reference"])
 def test_run_dc_shows_the_dc_state(mode: str, tmp_path: Path) -> None:
     plot = tmp_path / "run.png"
     code, out, err = run("--sim", str(DEMO), "run", "--dc", "--dc-mode", mode, "--cycle", "2000",
@@ -61,6 +61,25 @@ def test_run_dc_shows_the_dc_state(mode: str, tmp_path: Path) -> None:
     assert code == 0, out + err
     dc_lines = [line for line in out.splitlines() if line.startswith(f"DC {mode}: ")]
     assert dc_lines, out
-    assert dc_lines[-1].endswith("in sync")
+    if mode == "master":
+        # (in reference mode the host's send jitter, large for an in-process
+        # simulator on a busy machine, goes straight into the reference clock)
+        assert dc_lines[-1].endswith("in sync")
     assert "WKC errors: 0" in out
     assert plot.exists()
+
+
+def test_slaves_verbose_shows_dc_as_igh_does(tmp_path: Path, corpus_dir: Path) -> None:
+    topo = tmp_path / "t.toml"
+    topo.write_text("".join(
+        f'[[slave]]\nname = "{n}"\nsii = "{corpus_dir / "sii" / f"ethercrab_{n}.bin"}"\n'
+        for n in ("ek1100", "el2828", "el2889")))
+    code, out, err = run("--sim", str(topo), "slaves", "-v")
+    assert code == 0, out + err
+    records = out.split("=== Slave ")
+    assert "Distributed clocks: yes, 64 bit\nDC system time transmission delay: 0 ns" in records[1]
+    assert "Distributed clocks: yes, delay measurement only" in records[2]  # EL2828
+    # after a set-up the delay shows (as 'dc' writes it): 145 ns behind the EK1100 for the EL2828
+    code, out, err = run("--sim", str(topo), "dc", "--static", "0")
+    assert code == 0, out + err
+    assert [r[6] for r in rows(out)] == ["0", "-", "300"]

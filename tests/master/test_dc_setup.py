@@ -85,7 +85,7 @@ def test_setup_on_the_corpus_slaves() -> None:
     assert [(d.adp, d.ado, len(d.data)) for d in reads] == [
         (0x1000, 0x0900, 16), (0x1000, 0x0918, 8), (0x1001, 0x0900, 16), (0x1001, 0x0918, 8),
         (0x1002, 0x0900, 16), (0x1002, 0x0918, 8)]
-    assert [s.kind for s in report.slaves] == ["64-bit", "latch only", "64-bit"]
+    assert [s.kind for s in report.slaves] == ["64-bit", "latch-only", "64-bit"]
     assert report.reference == 0 and report.slaves[0].reference
     # delays as ethercrab computed them from the same latches: 145 and 300 ns
     assert [s.delay_ns for s in report.slaves] == [0, 145, 300]

@@ -8,7 +8,7 @@ it reads the DC registers back and prints one line per slave::
     # pos  station  dc          ref  entry  parent  delay_ns  offset_ns  diff_ns  sync
     0      0x1001   64-bit      *    0      -       0         -1234...   0        off
 
-``dc`` is ``64-bit``/``32-bit``, ``latch only`` (receive times, no system
+``dc`` is ``64-bit``/``32-bit``, ``latch-only`` (receive times, no system
 time) or ``no``; ``diff_ns`` is |0x092C|; ``sync`` the cyclic unit as read
 back (AssignActivate, SYNC0 cycle and shift, SYNC1 cycle register).
 """

@@ -16,11 +16,12 @@ import click
 
 from pyethercat.cli._select import selection_options
 from pyethercat.cli._session import Session, open_session
-from pyethercat.errors import ConfigError, StateTimeoutError
+from pyethercat.errors import ConfigError, EtherCATError, StateTimeoutError
 from pyethercat.master import diag
 from pyethercat.master.control import messages as msg
 from pyethercat.master.listing import alias_positions, igh_slave_list, slave_record, topology_tree
 from pyethercat.master.slave import Slave
+from pyethercat.wire import registers as R
 from pyethercat.wire.al import AlState, al_status_code_name, state_name
 from pyethercat.wire.registers import AL_ERROR_FLAG, PortType
 
@@ -34,6 +35,18 @@ def _chosen(session: Session, position: str | None, alias: str | None) -> list[S
 
 
 # --- slaves ----------------------------------------------------------------------------------
+
+
+def _dc_delay(session: Session, slave: Slave) -> tuple[int | None, bool]:
+    """(0x0928 as read now, has a system time) of a DC slave, for IgH's delay line."""
+    if not slave.dc_supported:
+        return None, False
+    try:
+        session.call(msg.RegRead(slave.position, R.DC_RECEIVE_TIME_ECAT, 8))
+    except EtherCATError:
+        return None, False  # receive-time latches only (0x0910 on does not answer)
+    raw = session.call(msg.RegRead(slave.position, R.DC_SYSTEM_TIME_DELAY, 4)).data
+    return int.from_bytes(raw, "little"), True
 
 
 @click.command("slaves")
@@ -53,7 +66,7 @@ def slaves_command(obj: dict[str, Any], position: str | None, alias: str | None,
         for n, s in enumerate(chosen):
             if n:
                 click.echo("")
-            click.echo(slave_record(s))
+            click.echo(slave_record(s, *_dc_delay(session, s)))
         if position is None and alias is None and slaves:
             click.echo("")
             click.echo("=== Topology ===")

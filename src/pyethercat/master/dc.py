@@ -144,11 +144,11 @@ class DcSlaveResult:
 
     @property
     def kind(self) -> str:
-        """``64-bit``, ``32-bit``, ``latch only`` or ``no``."""
+        """``64-bit``, ``32-bit``, ``latch-only`` or ``no``."""
         if not self.supported:
             return "no"
         if not self.system_time:
-            return "latch only"
+            return "latch-only"
         return f"{self.bits}-bit"
 
 

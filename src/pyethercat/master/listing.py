@@ -55,8 +55,24 @@ def _peer_text(slave: Slave, port: int) -> str:
     return f"slave {peer.position}" if peer is not None else "-"
 
 
-def slave_record(slave: Slave) -> str:
-    """Everything known about one slave, ``key: value`` lines (``slaves -v``)."""
+def _dc_lines(slave: Slave, dc_delay_ns: int | None, dc_system_time: bool) -> list[str]:
+    """IgH's two DC lines: support and width, and the transmission delay (0x0928)."""
+    esc = slave.esc
+    if not esc.dc_supported:
+        return ["Distributed clocks: no"]
+    if not dc_system_time:
+        return ["Distributed clocks: yes, delay measurement only"]
+    lines = [f"Distributed clocks: yes, {'64' if esc.dc_64bit else '32'} bit"]
+    if dc_delay_ns is not None:
+        lines.append(f"DC system time transmission delay: {dc_delay_ns} ns")
+    return lines
+
+
+def slave_record(slave: Slave, dc_delay_ns: int | None = None, dc_system_time: bool = True) -> str:
+    """Everything known about one slave, ``key: value`` lines (``slaves -v``).
+
+    ``dc_delay_ns``: its system time delay register 0x0928 as read now;
+    ``dc_system_time``: False for a slave with receive-time latches only."""
     ident = slave.identity
     esc = slave.esc
     lines = [
@@ -73,7 +89,7 @@ def slave_record(slave: Slave) -> str:
         f"  Serial number: 0x{(ident.serial or 0):08X}",
         f"ESC: type 0x{esc.type:02X} revision {esc.revision} build 0x{esc.build:04X}, "
         f"{esc.fmmu_count} FMMUs, {esc.sm_count} SMs, {esc.ram_kib} KiB RAM",
-        f"DC: {'yes, ' + ('64' if esc.dc_64bit else '32') + ' bit' if esc.dc_supported else 'no'}",
+        *_dc_lines(slave, dc_delay_ns, dc_system_time),
         f"LRW: {'yes' if slave.lrw_supported else 'no'}",
         "Ports:",
         "  port  type  link  loop    signal  peer",
