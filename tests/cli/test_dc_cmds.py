@@ -79,7 +79,10 @@ def test_slaves_verbose_shows_dc_as_igh_does(tmp_path: Path, corpus_dir: Path) -
     records = out.split("=== Slave ")
     assert "Distributed clocks: yes, 64 bit\nDC system time transmission delay: 0 ns" in records[1]
     assert "Distributed clocks: yes, delay measurement only" in records[2]  # EL2828
-    # after a set-up the delay shows (as 'dc' writes it): 145 ns behind the EK1100 for the EL2828
+    # after a set-up: the EL2889's delay, half the EK1100's round trip behind port 1
+    # (595 ns, read in 10 ns ticks as 590 or 600 depending on the clock's phase,
+    # as on the real slaves); the EL2828 has no delay register
     code, out, err = run("--sim", str(topo), "dc", "--static", "0")
     assert code == 0, out + err
-    assert [r[6] for r in rows(out)] == ["0", "-", "300"]
+    delays = [r[6] for r in rows(out)]
+    assert delays[:2] == ["0", "-"] and delays[2] in ("295", "300")

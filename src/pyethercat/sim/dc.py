@@ -117,6 +117,7 @@ class DcClocks:
         self.filtered: F64 = np.zeros(0, np.float64)   # 0x092C before encoding
         self.learned: F64 = np.zeros(0, np.float64)    # learned speed correction
         self.last_update: F64 = np.zeros(0, np.float64)  # local time of the last update (nan: none)
+        self.period: F64 = np.zeros(0, np.float64)       # spacing of the updates (0: unknown)
         # cyclic unit
         self.next0 = np.zeros(0, np.uint64)     # system time of the next SYNC0 pulse
         self.cycle0: I64 = np.zeros(0, np.int64)
@@ -145,7 +146,7 @@ class DcClocks:
         n = index + 1
         for name, fill in (("t0", 0), ("local0", 0.0), ("rate", 1.0), ("trim", 0.0),
                            ("wide", True), ("filtered", 0.0), ("learned", 0.0),
-                           ("last_update", np.nan), ("next0", 0), ("cycle0", 0), ("cycle1", 0),
+                           ("last_update", np.nan), ("period", 0.0), ("next0", 0), ("cycle0", 0), ("cycle1", 0),
                            ("sync0_on", False), ("sync1_on", False), ("pulses", 0),
                            ("rec_sys", 0), ("rec_true", np.nan)):
             setattr(self, name, _grown(getattr(self, name), n, fill))
@@ -169,7 +170,7 @@ class DcClocks:
         self._repeat = None
         self.t0[index] = now
         self.local0[index] = 0.0
-        self.trim[index] = self.learned[index] = self.filtered[index] = 0.0
+        self.trim[index] = self.learned[index] = self.filtered[index] = self.period[index] = 0.0
         self.last_update[index] = np.nan
         self.sync_drop(index)
 
@@ -267,7 +268,7 @@ class DcClocks:
         words). 0x092C shows d filtered with depth 0x0934 (depth n: the new
         value moves 1/2^n of the way), sign-magnitude. The clock speed is
         then corrected so that the filtered difference would be gone after
-        max(tau, the time since the previous update), tau = 0x0930 x 256 ns,
+        max(tau, the spacing of the updates), tau = 0x0930 x 256 ns,
         plus a learned part that integrates it over 2^(0x0935 - 8) tau; both
         together stay within +-(0x0930 - 0x7F) x 0.1 ppm, and 0x0932 shows the
         learned part in those 0.1 ppm units.
@@ -281,14 +282,14 @@ class DcClocks:
             # The same write again in the same frame (the master packs many FRMW
             # per frame): the same difference at the same instant, so only the
             # filter moves on; nothing to learn in zero time.
-            _, diff_r, gain, tau_r, bound_r = rep
+            _, diff_r, gain, horizon_r, bound_r = rep
             filt = self.filtered[slaves]
             filt = filt + (diff_r - filt) * gain
             self.filtered[slaves] = filt
             mag = np.minimum(np.abs(np.rint(filt)), 0x7FFFFFFF).astype(np.uint32)
             raw = mag | np.where(filt >= 0, np.uint32(0x80000000), np.uint32(0))
             _put(mem, slaves, R.DC_SYSTEM_TIME_DIFFERENCE, raw, "<u4")
-            self.trim[slaves] = np.clip(self.learned[slaves] - filt / tau_r, -bound_r, bound_r)
+            self.trim[slaves] = np.clip(self.learned[slaves] - filt / horizon_r, -bound_r, bound_r)
             return
         t = self.pass_time(slaves)
         own = self.system_time(slaves, t)
@@ -318,9 +319,14 @@ class DcClocks:
         bound = np.maximum(start - 0x7F, 1) * _TRIM_PER_COUNT
         exact = self._exact(slaves, t)
         last = self.last_update[slaves]
-        since = np.where(np.isnan(last), 0.0, exact - last)
-        since = np.clip(since, 0.0, 16 * tau)
-        prop = -filt / np.maximum(tau, since)
+        since = np.maximum(np.where(np.isnan(last), 0.0, exact - last), 0.0)
+        # The time to the next update is guessed from the spacing of the updates;
+        # writes bunched in one frame (static compensation) keep the last guess.
+        period = np.where(since > 0.1 * tau, since, self.period[slaves])
+        since = np.minimum(since, 16 * tau)  # (a long pause teaches the speed no more)
+        self.period[slaves] = period
+        horizon = np.maximum(tau, period)
+        prop = -filt / horizon
         learned = np.clip(self.learned[slaves] + prop * since / (tau * np.exp2(depth_s - 8)),
                           -bound, bound)
         self.learned[slaves] = learned
@@ -329,7 +335,7 @@ class DcClocks:
         self.last_update[slaves] = exact
         counts = np.clip(np.rint(learned / _TRIM_PER_COUNT), -0x7FFF, 0x7FFF)
         _put(mem, slaves, R.DC_SPEED_COUNTER_DIFF, counts, "<i2")
-        self._repeat = (key, diff.astype(np.float64), 1.0 / np.exp2(depth_t), tau, bound)
+        self._repeat = (key, diff.astype(np.float64), 1.0 / np.exp2(depth_t), horizon, bound)
 
     def loop_reset(self, slaves: I64) -> None:
         """0x0930/0x0934/0x0935 written: filters, learned speed and 0x092C/0x0932 back to zero."""
@@ -338,6 +344,7 @@ class DcClocks:
             return
         self._reanchor(slaves, self.pass_time(slaves))
         self.trim[slaves] = self.learned[slaves] = self.filtered[slaves] = 0.0
+        self.period[slaves] = 0.0
         self.last_update[slaves] = np.nan
         mem = self.memory.mem
         mem[slaves, R.DC_SYSTEM_TIME_DIFFERENCE: R.DC_SYSTEM_TIME_DIFFERENCE + 4] = 0
