@@ -32,13 +32,17 @@ $(STAMP): pyproject.toml
 venv: $(STAMP)
 
 # Outside tools some tests use: tshark (interop), xmllint (ESI corpus), ip (veth
-# pairs). Installed with apt-get when missing and we are root; otherwise (or when
+# pairs), ping/curl/chromium/chromedriver (EoE end to end). Installed with apt-get when missing and we are root; otherwise (or when
 # apt-get fails) the tests that need them skip with a reason, and fail under CI=true.
 tools:
 	@missing=""; \
 	command -v tshark >/dev/null 2>&1 || missing="$$missing tshark"; \
 	command -v xmllint >/dev/null 2>&1 || missing="$$missing libxml2-utils"; \
 	command -v ip >/dev/null 2>&1 || missing="$$missing iproute2"; \
+	command -v ping >/dev/null 2>&1 || missing="$$missing iputils-ping"; \
+	command -v curl >/dev/null 2>&1 || missing="$$missing curl"; \
+	command -v chromium >/dev/null 2>&1 || missing="$$missing chromium"; \
+	command -v chromedriver >/dev/null 2>&1 || missing="$$missing chromium-driver"; \
 	if [ -n "$$missing" ]; then \
 	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
 	    echo "installing$$missing with apt-get"; \

@@ -199,11 +199,22 @@ def register(cli: click.Group) -> None:
     @click.option("--plot", "plot", default=None, metavar="FILE.png",
                   help="With --dc: plot the set-up's convergence, the sync monitor, the phase "
                        "lock and (simulator) the SYNC0 spread (matplotlib).")
+    @click.option("--eoe", is_flag=True,
+                  help="Bring up the EoE switch: a TAP interface joining the host's IP stack "
+                       "and every EoE slave (root or CAP_NET_ADMIN).")
+    @click.option("--eoe-tap", default="eoe0", show_default=True, metavar="NAME",
+                  help="Name of the TAP interface (with --eoe-per-slave: the name prefix).")
+    @click.option("--eoe-host-ip", default=None, metavar="ADDR/PREFIX",
+                  help="The host's address on the TAP, e.g. 192.168.100.1/24.")
+    @click.option("--eoe-per-slave", is_flag=True,
+                  help="One TAP per EoE slave, named <prefix>s<position> (IgH's eoe0s1), "
+                       "instead of one switched TAP.")
     @click.pass_obj
     def run_cmd(obj: dict[str, Any], cycle_us: str | None, seconds: float | None,
                 pcap: str | None, layout: str, eni_file: str | None, dc: bool,
                 sync0_us: str | None, sync1_us: str | None, shift_us: str | None,
-                dc_mode: str, plot: str | None) -> None:
+                dc_mode: str, plot: str | None, eoe: bool, eoe_tap: str,
+                eoe_host_ip: str | None, eoe_per_slave: bool) -> None:
         """Bring the segment to OP and run cyclic exchange with a live view."""
         dc = dc or any(x is not None for x in (sync0_us, sync1_us, shift_us))
         eni = None
@@ -244,16 +255,35 @@ def register(cli: click.Group) -> None:
                 configure_sync_from_options(m, int(round(cycle * 1e9)), sync0_us, sync1_us,
                                             shift_us)
             runner = m.start(cycle, dc=dc_mode if dc else None)
+            eoe_run = None
+            extra = None
+            if eoe:
+                from pyethercat.cli.eoe_cmds import eoe_rows, format_eoe
+                from pyethercat.master.eoe_switch import start_eoe
+
+                try:
+                    eoe_run = start_eoe(m, runner, tap=eoe_tap, host_ip=eoe_host_ip,
+                                        per_slave=eoe_per_slave)
+                except BaseException:
+                    runner.stop()
+                    raise
+                run = eoe_run
+
+                def extra() -> list[str]:
+                    return format_eoe(eoe_rows(run.clients, run.bridge.names, True,
+                                               time.monotonic() - run.started))
             end = None if seconds is None else time.monotonic() + seconds
             try:
-                with Live(live_view(m, runner), console=console, refresh_per_second=4,
+                with Live(live_view(m, runner, extra), console=console, refresh_per_second=4,
                           transient=False) as live:
                     while runner.running and (end is None or time.monotonic() < end):
                         time.sleep(0.25)
-                        live.update(live_view(m, runner))
+                        live.update(live_view(m, runner, extra))
             except KeyboardInterrupt:
                 pass
             finally:
+                if eoe_run is not None:
+                    eoe_run.close()
                 runner.stop()
             # The live table's last line has no line end (off a terminal the summary
             # would start on it).
@@ -266,3 +296,5 @@ def register(cli: click.Group) -> None:
                         title=f"run --dc ({dc_mode} mode), {len(m.slaves)} slaves, "
                               f"{cycle * 1e6:g} us cycle")
                 click.echo(f"plot written to {plot}")
+            if eoe_run is not None and extra is not None:
+                click.echo("\n".join(extra()))

@@ -420,6 +420,12 @@ class Mailbox:
         self.stats.fetches += 1
         return self._take_read(req)
 
+    def deliver(self, raw: bytes) -> None:
+        """Dispatch an SM1 image read by someone else (the EoE service's own reads):
+        duplicate check, error replies, handlers, inbox, as a fetch does."""
+        self.stats.fetches += 1
+        self._deliver(raw)
+
     def poll(self) -> bool:
         """Fetch whatever the slave posted, without waiting; True when something came."""
         status, _cyclic = self._status(0.0)

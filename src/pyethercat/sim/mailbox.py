@@ -103,6 +103,10 @@ class MailboxEngine:
     def __init__(self, pdi: Pdi | None = None) -> None:
         self.pdi = pdi
         self.handlers: dict[int, MailboxHandler] = {}
+        #: Called when SM1 is free and nothing is queued: streaming protocols (EoE)
+        #: post their next message then, one at a time.
+        self.idle: list[Callable[[], None]] = []
+        self._in_idle = False
         self.queue: deque[bytes] = deque()
         self.last_reply = b""
         self._last_in = 0
@@ -199,6 +203,13 @@ class MailboxEngine:
                 return
             self.queue.popleft()
             self.last_reply = frame
+        if self.idle and not self._in_idle:
+            self._in_idle = True
+            try:
+                for more in self.idle:
+                    more()
+            finally:
+                self._in_idle = False
 
 
 class MailboxDevice(DeviceApp):

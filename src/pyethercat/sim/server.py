@@ -24,6 +24,7 @@ line (``{"ok": true, ...}`` or ``{"ok": false, "error": "..."}``)::
                                      "sync0_pulses", "last_sync0": [system time, true ns]}]}
     {"cmd": "set_drift", "slave": "di8", "ppm": 20.0}
     {"cmd": "latch", "slave": "di8", "unit": 0, "rising": true}
+    {"cmd": "eoe"}               -> {"slaves": [{"index", "name", "netns", "ip", "mac", ...}]}
 
 Commands run in the server's thread between two frames, so they never race
 with frame processing.
@@ -39,6 +40,7 @@ from __future__ import annotations
 
 import contextlib
 import gc
+import ipaddress
 import json
 import os
 import select
@@ -148,6 +150,11 @@ class SimServer:
         self._control: socket.socket | None = None
         self._clients: dict[int, tuple[socket.socket, bytearray]] = {}
         self._tick = getattr(segment, "tick", None)
+        # EoE slaves whose IP side has descriptors (a TAP in a namespace): watched in
+        # this loop, so their frames enter the segment between two EtherCAT frames.
+        self._eoe = [app.eoe_server for s in getattr(segment, "slaves", ())
+                     if (app := getattr(getattr(s, "spec", None), "app", None)) is not None
+                     and getattr(app, "eoe_server", None) is not None]
         if self._control_path is not None:
             with contextlib.suppress(FileNotFoundError):
                 os.unlink(self._control_path)
@@ -186,17 +193,26 @@ class SimServer:
         next_tick = time.monotonic() + self.tick_s
         try:
             while not self._stop.is_set():
+                readers = self._readers()
                 if fd is None:
                     # No descriptor (in-process pair link): poll in short steps.
                     self._serve_frames(self.link.recv(min(self.tick_s, 0.0005)))
                     self._run_calls()
+                    if readers:
+                        ready, _, _ = select.select(list(readers), [], [], 0)
+                        for r in ready:
+                            readers[r]()
                 else:
                     rlist = [fd, self._wake_r]
                     if self._control is not None:
                         rlist.append(self._control.fileno())
                     rlist.extend(self._clients)
+                    rlist.extend(readers)
                     wait = max(0.0, next_tick - time.monotonic())
                     ready, _, _ = select.select(rlist, [], [], wait)
+                    for r in ready:
+                        if r in readers:
+                            readers[r]()
                     if fd in ready:
                         # Drain every frame that is waiting before anything else.
                         frame = self.link.recv(0)
@@ -217,6 +233,12 @@ class SimServer:
             self._log("link closed by the peer; stopping")
         finally:
             self._close_control()
+
+    def _readers(self) -> dict[int, Callable[[], None]]:
+        """Descriptors of EoE endpoints that have room for frames now."""
+        if not self._eoe:
+            return {}
+        return {fd: cb for server in self._eoe for fd, cb in server.readers()}
 
     def _serve_frames(self, frame: bytes | None) -> None:
         if frame is None:
@@ -325,6 +347,8 @@ class SimServer:
             return {"slaves": [{"index": s.index, "name": s.name} for s in seg.slaves]}
         if cmd == "stats":
             return self.stats.as_dict()
+        if cmd == "eoe":
+            return {"slaves": eoe_status(seg)}
         if cmd in ("break_link", "restore_link"):
             getattr(seg, cmd)(self._slave(request), int(request["port"]))
             return {}
@@ -442,10 +466,14 @@ def serve(
     process may (see :func:`set_realtime`); otherwise it is logged and ignored.
     """
     from pyethercat.sim.clock import WallClock
-    from pyethercat.sim.topology import load_topology
+    from pyethercat.sim.topology import close_eoe, load_topology
 
     segment = load_topology(os.fspath(topology)).build(clock=WallClock())
-    server = SimServer(segment, link, control=control, log=log)
+    try:
+        server = SimServer(segment, link, control=control, log=log)
+    except BaseException:
+        close_eoe(segment)
+        raise
     # Everything built so far lives as long as the server: keep it out of the
     # collector's generations so a collection during serving stays short.
     gc.collect()
@@ -468,12 +496,51 @@ def serve(
                 f"serving {len(segment.slaves)} simulated slaves from {topology} "
                 f"on {link.name}"
             )
+            for line in eoe_lines(segment):
+                log(line)
         server.run()
     finally:
         for signum, handler in previous.items():
             signal.signal(signum, handler)
         server.close()
+        close_eoe(segment)
     return server.stats
+
+
+def eoe_status(segment: Any) -> list[dict[str, Any]]:
+    """The EoE slaves of a segment: namespace, address and frame counters."""
+    out: list[dict[str, Any]] = []
+    for s in segment.slaves:
+        server = s.spec.app.eoe_server if s.spec.app is not None else None
+        if server is None:
+            continue
+        p = server.endpoint.parameters()
+        out.append({"index": s.index, "name": s.name,
+                    "netns": getattr(server.endpoint, "netns", None),
+                    "ip": str(p.ip) if p.ip is not None else None,
+                    "prefix": ipaddress.IPv4Network(f"0.0.0.0/{p.subnet}").prefixlen
+                    if p.subnet is not None else None,
+                    "mac": p.mac.hex(":") if p.mac else None,
+                    "frames_in": server.receiver.stats.frames,
+                    "frames_out": server.sender.stats.frames,
+                    "dropped_in": server.receiver.stats.dropped,
+                    "dropped_out": server.sender.stats.dropped})
+    return out
+
+
+def eoe_lines(segment: Any) -> list[str]:
+    """One line per EoE slave: its name, IP side (namespace) and address."""
+    out: list[str] = []
+    for s in segment.slaves:
+        server = s.spec.app.eoe_server if s.spec.app is not None else None
+        if server is None:
+            continue
+        p = server.endpoint.parameters()
+        where = getattr(server.endpoint, "netns", None)
+        side = f"namespace {where}" if where else "echo stack"
+        addr = f"{p.ip}/{p.subnet}" if p.ip is not None else "no address yet"
+        out.append(f"EoE slave {s.index} {s.name}: {side}, {addr}")
+    return out
 
 
 # --- child process ------------------------------------------------------------------

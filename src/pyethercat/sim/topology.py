@@ -54,13 +54,15 @@ from pyethercat.errors import ConfigError, SiiError
 from pyethercat.sim.devices import get_builtin
 from pyethercat.sim.devices.builtin import BuiltinDevice
 from pyethercat.sim.devices.esi_device import EsiSlave, load_esi_device
+from pyethercat.sim.eoe import EchoEndpoint, EoeSettings
 from pyethercat.sim.profiles import DEVICE_PROFILES, PROFILES, EscProfile
 from pyethercat.wire.registers import PortType
-from pyethercat.wire.sii import SiiInfo, SiiPortType, parse_sii, sii_crc
+from pyethercat.wire.sii import MailboxProtocol, SiiInfo, SiiPortType, parse_sii, sii_crc
 from pyethercat.wire.sii.model import CategoryType
 
 if TYPE_CHECKING:
     from pyethercat.sim.clock import Clock
+    from pyethercat.sim.device import DeviceApp
     from pyethercat.sim.segment import Segment
 
 __all__ = [
@@ -69,6 +71,7 @@ __all__ = [
     "Topology",
     "WireConfig",
     "build_segment",
+    "close_eoe",
     "load_topology",
     "parse_topology",
 ]
@@ -89,7 +92,9 @@ _SLAVE_KEYS = {
     "parent",
     "port",
     "serial",
+    "eoe",
 }
+_EOE_KEYS = {"ip", "gateway", "mac", "netns", "http_port"}
 _WIRE_KEYS = {"from", "to", "bits"}
 _FAULT_KEYS = {"kind", "slave", "port", "count"}
 _FAULT_KINDS = ("break_link", "power_off", "corrupt")
@@ -120,6 +125,8 @@ class SlaveConfig:
     port: int | None = None
     #: The ESI device when the slave was made from ``esi = ...`` (its app serves the OD).
     esi: EsiSlave | None = None
+    #: The IP side of an EoE slave (``eoe = {...}``); None: the Python echo stack.
+    eoe: EoeSettings | None = None
 
     @property
     def input_bits(self) -> int:
@@ -378,6 +385,10 @@ def _parse_slave(raw: dict[str, Any], i: int, topo: Topology, base: Path) -> Sla
         if "parent" not in raw:
             raise ConfigError(f"{where}: port needs a parent")
         cfg.port = _int(raw["port"], f"{where}: port", 1, 3)
+    if "eoe" in raw:
+        cfg.eoe = _eoe_settings(raw["eoe"], f"{where}: eoe")
+        if not info.mailbox_protocols & MailboxProtocol.EOE:
+            raise ConfigError(f"{where}: eoe given, but the device does not speak EoE")
     return cfg
 
 
@@ -431,6 +442,37 @@ def _check_image(image: bytes, info: SiiInfo, profile: EscProfile, where: str) -
             raise ConfigError(f"{where}: {what} at 0x{start:04X} with {size} bytes lies outside "
                               f"0x{low:04X}-0x{end - 1:04X} (process RAM of profile "
                               f"{profile.name})")
+
+
+def _eoe_settings(raw: Any, where: str) -> EoeSettings:
+    """``eoe = { ip = "A/P", gateway = "G", mac = "M", netns = "pyecat-...", http_port = 80 }``."""
+    import ipaddress
+
+    from pyethercat.link.tap import parse_mac
+
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{where}: expected a table like {{ ip = \"192.168.100.10/24\" }}")
+    _check_keys(raw, _EOE_KEYS, where)
+    out = EoeSettings()
+    try:
+        if "ip" in raw:
+            out.ip = ipaddress.IPv4Interface(_str(raw["ip"], f"{where}: ip"))
+        if "gateway" in raw:
+            out.gateway = ipaddress.IPv4Address(_str(raw["gateway"], f"{where}: gateway"))
+    except ValueError as exc:
+        raise ConfigError(f"{where}: {exc}") from None
+    if "mac" in raw:
+        try:
+            out.mac = parse_mac(_str(raw["mac"], f"{where}: mac"))
+        except ConfigError as exc:
+            raise ConfigError(f"{where}: {exc}") from None
+    if "netns" in raw:
+        out.netns = _str(raw["netns"], f"{where}: netns")
+        if not out.netns.startswith("pyecat-"):
+            raise ConfigError(f"{where}: netns {out.netns!r} must start with 'pyecat-'")
+    if "http_port" in raw:
+        out.http_port = _int(raw["http_port"], f"{where}: http_port", 1, 65535)
+    return out
 
 
 def _esi_slave(raw: dict[str, Any], path: Path, where: str, serial: int) -> EsiSlave:
@@ -577,6 +619,8 @@ def build_segment(topo: Topology, clock: Clock | None = None) -> Segment:
             run = Behaviour(app, models[esi_key], instance)
         else:
             run = behaviour(s.builtin, s.info, models)
+        if s.eoe is not None:
+            _eoe_endpoint(run.app, s.eoe, s.name, where)
         spec = SlaveSpec(
             name=s.name,
             sii=s.sii,
@@ -613,6 +657,37 @@ def build_segment(topo: Topology, clock: Clock | None = None) -> Segment:
         else:
             seg.corrupt_frames(i, f.port, f.count)
     return seg
+
+
+def _eoe_endpoint(app: DeviceApp | None, settings: EoeSettings, name: str, where: str) -> None:
+    """Give an EoE slave its IP side: a namespace with the kernel's stack, or the echo stack."""
+    server = app.eoe_server if app is not None else None
+    if server is None:
+        raise ConfigError(f"{where}: eoe given, but its application has no EoE server")
+    if settings.netns is not None:
+        from pyethercat.sim.eoe_netns import NetnsEndpoint
+
+        status = server.status
+        if status is None:
+            raise ConfigError(f"{where}: this device has no diagnostic page for its namespace")
+        if settings.mac is None:
+            settings.mac = server.endpoint.parameters().mac
+        try:
+            server.set_endpoint(NetnsEndpoint(settings, status, name))
+        except ConfigError as exc:
+            raise ConfigError(f"{where}: {exc}") from None
+    else:
+        if settings.mac is None:
+            settings.mac = server.endpoint.parameters().mac
+        server.set_endpoint(EchoEndpoint(settings))
+
+
+def close_eoe(segment: Segment) -> None:
+    """Release the IP sides of a segment's EoE slaves (namespaces, TAPs, web servers)."""
+    for slave in segment.slaves:
+        server = slave.spec.app.eoe_server if slave.spec.app is not None else None
+        if server is not None:
+            server.close()
 
 
 def default_profile(builtin: BuiltinDevice | None, info: SiiInfo) -> str:

@@ -418,3 +418,65 @@ def _rescan(ctx: MasterContext, req: msg.Rescan) -> msg.RescanReply:
     ctx.master.scan(reset=False, progress=ctx.progress)
     ctx.mark_scanned()
     return msg.RescanReply(len(ctx.master.slaves))
+
+
+# --- EoE ------------------------------------------------------------------------------------
+
+
+def _eoe_slave(ctx: MasterContext, position: int) -> Any:
+    from pyethercat.master.eoe import eoe_client
+
+    s = ctx.slave(position)
+    client = eoe_client(s)
+    if s.al_state in (AlState.INIT, AlState.BOOT, AlState.NONE):
+        if not ctx.direct:
+            raise ConfigError(f"{s.describe()} is in {s.al_state_name}: no mailbox there")
+        ctx.master.set_state(AlState.PREOP, [s])
+    return client
+
+
+@handler(msg.EoeList)
+def _eoe_list(ctx: MasterContext, req: msg.EoeList) -> msg.EoeHandlers:
+    from pyethercat.master.eoe import eoe_clients
+    from pyethercat.master.eoe_switch import running_eoe
+
+    run = running_eoe(ctx.master)
+    clients = run.clients if run is not None else eoe_clients(ctx.slaves())
+    names = run.bridge.names if run is not None else {}
+    seconds = time.monotonic() - run.started if run is not None else 0.0
+    rows = []
+    for pos, c in sorted(clients.items()):
+        st = c.stats
+        rows.append(msg.EoeHandler(
+            names.get(pos, "-"), pos, "up" if run is not None else "down", st.rx.bytes,
+            int(st.rx.bytes / seconds) if seconds > 0 else 0, st.tx.bytes,
+            int(st.tx.bytes / seconds) if seconds > 0 else 0,
+            f"{c.sender.queued}/{c.sender.queue_limit}", st.rx.frames, st.tx.frames,
+            st.rx.dropped + st.tx.dropped))
+    return msg.EoeHandlers(rows)
+
+
+@handler(msg.EoeGetIp)
+def _eoe_get_ip(ctx: MasterContext, req: msg.EoeGetIp) -> msg.EoeIp:
+    p = _eoe_slave(ctx, req.position).get_ip()
+    return msg.EoeIp(p.mac, None if p.ip is None else str(p.ip),
+                     None if p.subnet is None else str(p.subnet),
+                     None if p.gateway is None else str(p.gateway),
+                     None if p.dns_server is None else str(p.dns_server), p.dns_name)
+
+
+@handler(msg.EoeSetIp)
+def _eoe_set_ip(ctx: MasterContext, req: msg.EoeSetIp) -> msg.Done:
+    import ipaddress
+
+    from pyethercat.wire.mailbox.eoe import EoeIpParameters
+
+    q = req.params
+
+    def addr(text: str | None) -> ipaddress.IPv4Address | None:
+        return None if text is None else ipaddress.IPv4Address(text)
+
+    params = EoeIpParameters(q.mac, addr(q.ip), addr(q.subnet), addr(q.gateway),
+                             addr(q.dns_server), q.dns_name)
+    _eoe_slave(ctx, req.position).set_ip(params)
+    return msg.Done()

@@ -20,6 +20,7 @@ __all__ = [
     "RequestState", "AckErrors", "Positions", "RegRead", "RegWrite", "SiiRead", "SiiWrite", "SetAlias",
     "SiiWriteResult", "SdoUpload", "SdoDownload", "SdoEntryType", "EntryType", "SdoList",
     "SdoObjectInfo", "SdoEntryInfo", "SdoObjects", "ErrorCounters", "CounterItem",
+    "EoeHandler", "EoeHandlers", "EoeList", "EoeIp", "EoeGetIp", "EoeSetIp",
     "CounterList", "MasterInfoRequest", "RateSet", "MasterInfo", "Domains", "DomainFmmu",
     "DomainInfo", "DomainList", "GetConfig", "StartupSdo", "ConfigReply", "Rescan",
     "RescanReply",
@@ -437,3 +438,59 @@ class RescanReply(Reply):
 @dataclass(frozen=True)
 class Rescan(Request):
     """Scan the segment again (refused while process data are exchanged)."""
+
+
+# --- EoE ------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class EoeHandler:
+    """One EoE handler as ``ethercat eoe`` lists it (rates in byte/s)."""
+
+    interface: str
+    slave: int
+    state: str
+    rx_bytes: int
+    rx_rate: int
+    tx_bytes: int
+    tx_rate: int
+    tx_queue: str
+    rx_frames: int
+    tx_frames: int
+    dropped: int
+
+
+@dataclass(frozen=True)
+class EoeHandlers(Reply):
+    handlers: list[EoeHandler]
+
+
+@request("eoe_list", EoeHandlers)
+@dataclass(frozen=True)
+class EoeList(Request):
+    pass
+
+
+@dataclass(frozen=True)
+class EoeIp(Reply):
+    """IP parameters of an EoE slave (None: not set / not included)."""
+
+    mac: bytes | None = None
+    ip: str | None = None
+    subnet: str | None = None
+    gateway: str | None = None
+    dns_server: str | None = None
+    dns_name: str | None = None
+
+
+@request("eoe_get_ip", EoeIp)
+@dataclass(frozen=True)
+class EoeGetIp(Request):
+    position: int
+
+
+@request("eoe_set_ip", Done)
+@dataclass(frozen=True)
+class EoeSetIp(Request):
+    position: int
+    params: EoeIp

@@ -22,13 +22,17 @@ is numpy over the object values of all instances at once.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
 from pyethercat.sim.coe_model import CoeModel
 from pyethercat.sim.devices.builtin import BuiltinDevice, BuiltinPdo, BuiltinPdoEntry, BuiltinSm
+from pyethercat.sim.devices.eoe_web import device_status
+from pyethercat.sim.eoe import attach_eoe
 from pyethercat.sim.mailbox import MailboxDevice
 from pyethercat.sim.od import RO, RW, RW_PREOP, RXPDO, TXPDO, WO, ObjectDictionary, OdEntry
 from pyethercat.sim.std_objects import (
@@ -316,6 +320,38 @@ class Seed002Model(CoeModel):
         r = self.rows(instances)
         self.field(_402.MODES_OF_OPERATION_DISPLAY, 0)[r] = self.field(_402.MODES_OF_OPERATION, 0)[r]
 
+    def instance_app(self, info: SiiInfo) -> tuple[int, MailboxDevice]:
+        """An instance that also speaks EoE and serves a diagnostic web page.
+
+        As the intelligent drive of the 2003 EtherCAT article ("ein
+        HTTP-Server ... der seine eigene Diagnoseschnittstelle in Form von
+        Web-Seiten mitbringt").
+        """
+        instance, app = super().instance_app(info)
+        started = time.monotonic()
+
+        def status() -> dict[str, Any]:
+            def value(index: int) -> int:
+                return int.from_bytes(self._read(instance, (index, 0)), "little")
+
+            statusword, control = value(_402.STATUSWORD), value(_402.CONTROLWORD)
+
+            def live(t: float) -> list[tuple[str, Any]]:
+                return [("Position actual value", f"{int(t * 4096) & 0x7FFFFFFF} inc"),
+                        ("Uptime", f"{t:.3f} s"),
+                        ("Statusword 0x6041", f"0x{statusword:04X}"),
+                        ("Controlword 0x6040", f"0x{control:04X}"),
+                        ("DC link voltage", "560.0 V")]
+
+            return device_status(app, info, started, kind="Servo positioning controller",
+                                 temperatures=(("Power stage", 46.0, 4.0, 45.0),
+                                               ("Motor", 39.0, 3.0, 90.0),
+                                               ("Controller board", 41.0, 1.5, 30.0)),
+                                 live=live)
+
+        attach_eoe(app, info.tx_mailbox_size or 128, info.serial, status)
+        return instance, app
+
 
 SEED002_DRIVE = BuiltinDevice(
     key="seed002-drive",
@@ -340,9 +376,10 @@ SEED002_DRIVE = BuiltinDevice(
     mailbox=_MBX,
     pdi_control=0x0C05,
     description="seed 002 servo controller: CoE communication objects 0x1000-0x1C13 "
-                "(0x1C12/0x1C13 subindex 0 = 0 until the master assigns PDOs)",
+                "(0x1C12/0x1C13 subindex 0 = 0 until the master assigns PDOs); EoE with a "
+                "diagnostic web page",
     coe_details=_COE_ALL & ~int(CoeDetails.SDO_COMPLETE_ACCESS),
-    mailbox_protocols=int(MailboxProtocol.COE),
+    mailbox_protocols=int(MailboxProtocol.COE | MailboxProtocol.EOE),
     vendor_id=SEED002_VENDOR,
     revision=SEED002_REVISION,
     model=Seed002Model,

@@ -18,14 +18,18 @@ the ESI declares, and the SM lengths it computes match what the ESC checks.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from pyethercat.errors import ConfigError, EtherCATError
 from pyethercat.esi.model import EsiDevice, EsiDictionary, EsiFile, EsiFlags, EsiOdEntry
 from pyethercat.esi.parse import load_esi
 from pyethercat.esi.sii_from_esi import SM_TYPES, esi_to_sii, pick_device
 from pyethercat.sim.coe_model import CoeModel
+from pyethercat.sim.devices.eoe_web import device_status
+from pyethercat.sim.eoe import attach_eoe
 from pyethercat.sim.mailbox import MailboxDevice
 from pyethercat.sim.od import (
     RO,
@@ -47,7 +51,7 @@ from pyethercat.sim.std_objects import (
 from pyethercat.wire.mailbox.coe import ObjectCode
 from pyethercat.wire.mailbox.datatypes import DataType
 from pyethercat.wire.mailbox.objects import IdentitySub, StandardObject
-from pyethercat.wire.sii import CoeDetails, SiiInfo, SyncManagerType
+from pyethercat.wire.sii import CoeDetails, MailboxProtocol, SiiInfo, SyncManagerType
 
 __all__ = ["EsiCoeModel", "EsiSlave", "esi_dictionary", "esi_model", "load_esi_device"]
 
@@ -244,6 +248,21 @@ class EsiCoeModel(CoeModel):
         if serial is not None and serial.data_type.byte_size == 4:
             serial.raw[:] = info.serial.to_bytes(4, "little")
         return od
+
+
+    def instance_app(self, info: SiiInfo) -> tuple[int, MailboxDevice]:
+        """An instance; it speaks EoE too (with a diagnostic page) when its ESI lists EoE."""
+        instance, app = super().instance_app(info)
+        if info.mailbox_protocols & MailboxProtocol.EOE:
+            started = time.monotonic()
+
+            def status() -> dict[str, Any]:
+                return device_status(app, info, started, kind="ESI-described device",
+                                     temperatures=(("Device", 40.0, 2.0, 60.0),),
+                                     live=lambda t: [("Uptime", f"{t:.3f} s")])
+
+            attach_eoe(app, info.tx_mailbox_size or 128, info.serial, status)
+        return instance, app
 
 
 def esi_model(slave: EsiSlave, info: SiiInfo) -> EsiCoeModel | None:

@@ -31,6 +31,7 @@ ENTRY_POINT_GROUP = "pyethercat.sim.devices"
 _BUILTIN_PROVIDERS = (
     "pyethercat.sim.devices.builtin:io_devices",
     "pyethercat.sim.devices.coe_io:coe_devices",
+    "pyethercat.sim.devices.eoe_web:eoe_devices",
 )
 
 

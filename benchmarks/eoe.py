@@ -1,0 +1,150 @@
+"""EoE throughput through our master and the simulator, next to the mailbox-bound limit.
+
+Run as root (veth pair, network namespaces, TAP)::
+
+    .venv/bin/python benchmarks/eoe.py [--seconds S] [--size BYTES]
+
+The simulator (``pyethercat sim``, a child process) serves ``builtin:eoe-web``
+(1024-byte mailboxes) and the seed 002 drive (128-byte mailboxes), each with
+the kernel's IP stack and web server in a ``pyecat-`` namespace; this process
+runs our master on the other end of a veth pair with the EoE switch and a
+TAP. For each cycle rate (1 kHz, 4 kHz) and device it downloads
+``/blob?size=N`` over HTTP from the host and reports:
+
+- the Ethernet bytes the slave sent per second (the frames rebuilt from its
+  fragments, headers included) and the HTTP payload per second;
+- the mailbox-bound limit: SM1 bytes per cycle x cycle rate (one mailbox read
+  per cycle, as IgH's EoE handler does); and the ratios.
+
+A full-size frame (1514 bytes) needs two 1024-byte or sixteen 128-byte
+mailboxes (fragments carry multiples of 32 bytes, 992 or 96 of them), so
+1514 / 2048 = 73.9 % of the limit is the most any master can carry with
+these sizes. The last line is one JSON object of the figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+import urllib.request
+import uuid
+from pathlib import Path
+from typing import Any
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent / "src"))
+
+from pyethercat.master.eoe_switch import start_eoe  # noqa: E402
+from pyethercat.master.master import Master  # noqa: E402
+
+
+def _veth() -> tuple[str, str]:
+    tag = uuid.uuid4().hex[:6]
+    a, b = f"pyecat-{tag}a", f"pyecat-{tag}b"
+    subprocess.run(["ip", "link", "add", a, "type", "veth", "peer", "name", b], check=True)
+    for n in (a, b):
+        subprocess.run(["sysctl", "-qw", f"net.ipv6.conf.{n}.disable_ipv6=1"], check=False)
+        subprocess.run(["ip", "link", "set", n, "up"], check=True)
+    return a, b
+
+
+def _measure(master: Master, cycle: float, targets: list[tuple[str, int, str]], size: int,
+             tap: str, net: str) -> list[dict[str, Any]]:
+    master.configure()
+    runner = master.start(cycle)
+    run = start_eoe(master, runner, tap=tap, host_ip=f"{net}.1/24")
+    rows: list[dict[str, Any]] = []
+    try:
+        for name, pos, ip in targets:
+            client = run.clients[pos]
+            sm1 = client.mailbox.tx_size
+            # warm up: ARP, TCP slow start
+            urllib.request.urlopen(f"http://{ip}/blob?size=65536", timeout=60).read()
+            before = client.stats.rx.bytes
+            frags0, cycles0, skipped0 = (client.stats.rx.fragments, runner.stats.cycles,
+                                         runner.stats.skipped)
+            t0 = time.perf_counter()
+            body = urllib.request.urlopen(f"http://{ip}/blob?size={size}", timeout=600).read()
+            dt = time.perf_counter() - t0
+            eth = client.stats.rx.bytes - before
+            frags = client.stats.rx.fragments - frags0
+            ran = runner.stats.cycles - cycles0
+            ticks = ran + runner.stats.skipped - skipped0  # deadlines, run or skipped
+            limit = sm1 / cycle
+            rows.append({"device": name, "cycle_hz": round(1 / cycle), "mailbox": sm1,
+                         "seconds": round(dt, 2), "ethernet_Bps": round(eth / dt),
+                         "http_Bps": round(len(body) / dt), "limit_Bps": round(limit),
+                         "ethernet_ratio": round(eth / dt / limit, 3),
+                         "http_ratio": round(len(body) / dt / limit, 3),
+                         # fragments per cycle run, and cycles run per deadline: the
+                         # first shows the EoE logic, the second the loop keeping up
+                         "fragments_per_cycle": round(frags / max(1, ran), 3),
+                         "cycles_run_per_deadline": round(ran / max(1, ticks), 3)})
+    finally:
+        run.close()
+        runner.stop()
+    return rows
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--size", type=int, default=1 << 20, help="bytes per download")
+    ap.add_argument("--small", type=int, default=256 << 10,
+                    help="bytes per download from the 128-byte-mailbox drive")
+    args = ap.parse_args()
+    if os.geteuid() != 0:
+        print(json.dumps({"skipped": "needs root (veth, namespaces, TAP)"}))
+        return
+    tag = uuid.uuid4().hex[:4]
+    net = "10.214.9"
+    a, b = _veth()
+    tmp = Path(tempfile.mkdtemp())
+    topo = tmp / "eoe.toml"
+    topo.write_text(f"""
+[[slave]]
+name = "web"
+device = "builtin:eoe-web"
+eoe = {{ ip = "{net}.10/24", netns = "pyecat-b{tag}-web" }}
+[[slave]]
+name = "drive"
+device = "builtin:seed002-drive"
+eoe = {{ ip = "{net}.11/24", netns = "pyecat-b{tag}-drive" }}
+""")
+    control = tmp / "sim.sock"
+    sim = subprocess.Popen([sys.executable, "-m", "pyethercat", "sim", str(topo), "--iface", a,
+                            "-q", "--realtime", "10", "--control", str(control)])
+    rows: list[dict[str, Any]] = []
+    try:
+        end = time.monotonic() + 60
+        while not control.exists() and time.monotonic() < end and sim.poll() is None:
+            time.sleep(0.1)
+        with Master.open(b) as m:
+            m.scan()
+            for cycle in (0.001, 0.00025):
+                rows += _measure(m, cycle, [("eoe-web", 0, f"{net}.10")], args.size,
+                                 f"pyecat-b{tag}t", net)
+                rows += _measure(m, cycle, [("seed002-drive", 1, f"{net}.11")], args.small,
+                                 f"pyecat-b{tag}t", net)
+    finally:
+        sim.send_signal(signal.SIGINT)
+        sim.wait(20)
+        subprocess.run(["ip", "link", "del", a], capture_output=True)
+    print(f"{'device':<14} {'cycle':>6} {'mailbox':>7} {'Ethernet B/s':>12} {'HTTP B/s':>10} "
+          f"{'limit B/s':>10} {'eth/limit':>9} {'http/limit':>10} {'frag/cycle':>10} "
+          f"{'cycles run':>10}")
+    for r in rows:
+        print(f"{r['device']:<14} {r['cycle_hz']:>5}Hz {r['mailbox']:>7} {r['ethernet_Bps']:>12} "
+              f"{r['http_Bps']:>10} {r['limit_Bps']:>10} {r['ethernet_ratio']:>9.3f} "
+              f"{r['http_ratio']:>10.3f} {r['fragments_per_cycle']:>10.3f} "
+              f"{r['cycles_run_per_deadline']:>10.3f}")
+    print(json.dumps({"eoe": rows}))
+
+
+if __name__ == "__main__":
+    main()

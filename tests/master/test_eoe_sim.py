@@ -1,0 +1,172 @@
+"""EoE between our master and the simulator in process (no privileges): the echo IP stack.
+
+Real bytes both ways through SM0/SM1: Set/Get IP parameter with result
+codes, the address filter, ARP and ICMP echo of frames large enough to need
+many fragments (128-byte mailboxes of the seed 002 drive), the time-request
+flag, the learning switch between two slaves and a host port, and the
+service riding in the cyclic frame with the status byte from the FMMU.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import time
+from collections.abc import Callable
+
+import pytest
+from eoe_helpers import TOPOLOGY, arp_request, ping
+
+from pyethercat.link.pair import PairLink
+from pyethercat.master.eoe import EoeClient, EoeError, EoeService, eoe_clients
+from pyethercat.master.eoe_switch import EoeSwitch
+from pyethercat.master.master import Master
+from pyethercat.sim.topology import parse_topology
+from pyethercat.wire.datagram import Command
+from pyethercat.wire.frame import decode_frame
+from pyethercat.wire.mailbox.eoe import EoeIpParameters, EoeResult
+
+
+@pytest.fixture
+def eoe() -> tuple[Master, dict[int, EoeClient], object, list[bytes]]:
+    seg = parse_topology(TOPOLOGY).build()
+    m = Master(PairLink.responder_link(seg.process))
+    m.scan()
+    m.set_state("PREOP")
+    clients = eoe_clients(m.slaves)
+    got: list[bytes] = []
+    for c in clients.values():
+        c.on_frame = got.append
+    return m, clients, seg, got
+
+
+def wait_for(cond: Callable[[], bool], timeout: float = 5.0) -> bool:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if cond():
+            return True
+        time.sleep(0.005)
+    return cond()
+
+
+def test_set_and_get_ip_parameters(eoe: tuple[Master, dict[int, EoeClient], object, list[bytes]]
+                                   ) -> None:
+    _m, clients, _seg, _got = eoe
+    assert set(clients) == {0, 1}
+    params = EoeIpParameters(mac=bytes.fromhex("02aabbccddee"),
+                             ip=ipaddress.IPv4Address("10.9.0.33"),
+                             subnet=ipaddress.IPv4Address("255.255.0.0"),
+                             gateway=ipaddress.IPv4Address("10.9.0.1"),
+                             dns_server=ipaddress.IPv4Address("10.9.0.53"), dns_name="drive-1")
+    clients[1].set_ip(params)
+    assert clients[1].get_ip() == params
+
+
+def test_address_filter_set_get_and_effect(
+        eoe: tuple[Master, dict[int, EoeClient], object, list[bytes]]) -> None:
+    m, clients, seg, got = eoe
+    web = clients[0]
+    own = web.get_ip().mac
+    assert own is not None
+    web.set_address_filter([own], no_broadcast=True)
+    assert web.get_address_filter() == ([own], True)
+    svc = EoeService(m.scheduler, list(clients.values())).start()
+    try:
+        web.send(arp_request(bytes([10, 9, 0, 2])))  # broadcast: filtered out now
+        web.send(ping(own, bytes([10, 9, 0, 2]), 32, 1))  # to its own MAC: passes
+        assert wait_for(lambda: len(got) == 1)
+        server = seg.slaves[0].spec.app.eoe_server  # type: ignore[attr-defined]
+        assert server.stats.filtered == 1
+    finally:
+        svc.stop()
+
+
+def test_arp_and_fragmented_ping_both_ways(
+        eoe: tuple[Master, dict[int, EoeClient], object, list[bytes]]) -> None:
+    m, clients, _seg, got = eoe
+    svc = EoeService(m.scheduler, list(clients.values())).start()
+    try:
+        drive = clients[1]
+        drive.send(arp_request(bytes([10, 9, 0, 3])))
+        assert wait_for(lambda: len(got) == 1)
+        reply = got.pop()
+        assert reply[12:14] == b"\x08\x06" and reply[20:22] == b"\x00\x02"
+        drive_mac = reply[22:28]
+        for seq, size in enumerate((8, 300, 1472), start=1):  # 1472: a full 1514-byte frame
+            frame = ping(drive_mac, bytes([10, 9, 0, 3]), size, seq)
+            drive.send(frame, request_time=True)
+            assert wait_for(lambda: len(got) == 1)
+            echo = got.pop()
+            assert len(echo) == len(frame)
+            assert echo[34] == 0 and echo[42:] == frame[42:]  # ICMP echo reply, same data
+        # 128-byte mailbox: 96 data bytes per fragment, 16 fragments for 1514 bytes
+        assert drive.stats.tx.fragments >= 16 and drive.stats.rx.fragments >= 16
+        assert drive.stats.rx.errors == 0 and drive.stats.timestamps == 3
+        assert drive.last_timestamp is not None
+    finally:
+        svc.stop()
+
+
+def test_set_ip_result_code_raises() -> None:
+    class Refusing:
+        def __call__(self, params: EoeIpParameters) -> int:
+            return EoeResult.NO_IP_SUPPORT
+
+    seg = parse_topology(TOPOLOGY).build()
+    seg.slaves[0].spec.app.eoe_server.endpoint.configure = Refusing()  # type: ignore[union-attr]
+    m = Master(PairLink.responder_link(seg.process))
+    m.scan()
+    m.set_state("PREOP")
+    client = eoe_clients(m.slaves)[0]
+    with pytest.raises(EoeError) as err:
+        client.set_ip(EoeIpParameters(ip=ipaddress.IPv4Address("10.1.1.1")))
+    assert err.value.code == EoeResult.NO_IP_SUPPORT and "no IP support" in str(err.value)
+
+
+def test_switch_learns_floods_and_switches_between_ports() -> None:
+    sw = EoeSwitch()
+    out: dict[int, list[bytes]] = {0: [], 1: [], 2: []}
+    for n in range(3):
+        sw.add_port(f"p{n}", lambda f, n=n: out[n].append(f) is None)
+    a, b, h = (bytes([2, 0, 0, 0, 0, k]) for k in (0xA, 0xB, 0xC))
+    sw.forward(0, b"\xff" * 6 + a + b"\x08\x06" + bytes(28))  # broadcast from a: flooded
+    assert [len(out[n]) for n in range(3)] == [0, 1, 1]
+    sw.forward(1, a + b + b"\x08\x00" + bytes(40))  # b -> a: a is known on port 0
+    assert [len(out[n]) for n in range(3)] == [1, 1, 1]
+    sw.forward(0, b + a + b"\x08\x00" + bytes(40))  # a -> b: only port 1, never the host
+    assert [len(out[n]) for n in range(3)] == [1, 2, 1]
+    sw.forward(2, bytes([2, 9, 9, 9, 9, 9]) + h + b"\x08\x00" + bytes(40))  # unknown: flood
+    assert [len(out[n]) for n in range(3)] == [2, 3, 1]
+    assert sw.lookup(h) == 2 and sw.ports[2].stats.frames_in == 1
+
+
+def test_service_rides_in_the_cyclic_frame_with_the_mapped_status_byte() -> None:
+    seg = parse_topology(TOPOLOGY).build()
+    sent: list[bytes] = []
+    link = PairLink.responder_link(lambda f: (sent.append(f), seg.process(f))[1])
+    m = Master(link)
+    m.scan()
+    m.configure()
+    runner = m.start(cycle=0.001)
+    try:
+        clients = eoe_clients(m.slaves)
+        got: list[bytes] = []
+        for c in clients.values():
+            c.on_frame = got.append
+        svc = EoeService(m.scheduler, list(clients.values()))
+        offsets = {p: (runner.config.slaves[p].group, runner.config.slaves[p].mailbox_status_offset)
+                   for p in clients}
+        assert all(o >= 0 for _g, o in offsets.values())
+        svc.attach(runner, offsets)
+        before = len(sent)
+        clients[0].send(arp_request(bytes([10, 9, 0, 2])))
+        assert wait_for(lambda: len(got) == 1)
+        svc.detach()
+        frames = [decode_frame(f) for f in sent[before:]]
+        # the SM1 status reads come from the cyclic frame's FMMU, never a poll of 0x080D
+        assert not any(d.command == Command.FPRD and d.ado == 0x080D
+                       for f in frames for d in f.datagrams)
+        # the EoE write rode behind the process data (an LRW/LRD) in one frame
+        assert any(any(d.command == Command.FPWR and d.ado == 0x1000 for d in f.datagrams)
+                   and any(d.is_logical for d in f.datagrams) for f in frames)
+    finally:
+        runner.stop()
