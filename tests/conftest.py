@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 import shutil
 import subprocess
+import time
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
@@ -66,6 +67,16 @@ def make_veth_pair() -> tuple[str, str]:
         # No IPv6 autoconf chatter on our test wire.
         subprocess.run(["sysctl", "-qw", f"net.ipv6.conf.{name}.disable_ipv6=1"], check=False)
         subprocess.run(["ip", "link", "set", name, "up"], check=True)
+    # "up" takes effect asynchronously: the kernel activates the transmit queue
+    # from its link-watch work, which it may put off for up to a second while
+    # other interfaces change (a loaded test run creating many pairs). A frame
+    # sent before that is dropped, so wait until both ends say so.
+    limit = time.monotonic() + 5.0
+    while time.monotonic() < limit:
+        states = [Path(f"/sys/class/net/{n}/operstate").read_text().strip() for n in (a, b)]
+        if states == ["up", "up"]:
+            break
+        time.sleep(0.01)
     return a, b
 
 

@@ -12,10 +12,11 @@ from mini_coe import MiniCoe, coe_segment
 from pyethercat.clock import VirtualClock
 from pyethercat.errors import ConfigError, EtherCATError, MailboxError, SdoAbort
 from pyethercat.errors import TimeoutError as EcTimeoutError
-from pyethercat.master.coe import mapping_word, parse_transition, split_mapping_word
-from pyethercat.master.config import Direction
+from pyethercat.master.coe import CoeClient, mapping_word, split_mapping_word
+from pyethercat.master.config import PdoDirection
 from pyethercat.master.master import Master
-from pyethercat.wire.al import AlState
+from pyethercat.master.slave import Slave
+from pyethercat.wire.al import AlState, parse_transition
 from pyethercat.wire.mailbox.coe import (
     SDO_ABORT_CODES,
     SdoAbortCode,
@@ -219,7 +220,7 @@ def test_read_pdo_mapping_lays_out_the_image() -> None:
     assert s.pdo_mapping is not None
     assert [p.index for p in s.pdo_mapping[3]] == [0x1A00]
     assert s.pdo_mapping[3][0].entries[0].index == 0x6000
-    assert s.pdo_mapping[2][0].direction is Direction.OUTPUTS
+    assert s.pdo_mapping[2][0].direction is PdoDirection.OUTPUTS
     sc = cfg.slaves[0]
     assert sc.output_bits == 16 and sc.input_bits == 16
     assert [v.index for v in sc.variables] == [0x7000, 0x6000]
@@ -296,6 +297,11 @@ def test_helpers() -> None:
 def test_no_mailbox_no_coe() -> None:
     m, _apps = _master()
     s = m.slaves[0]
-    s.coe = None
+    m.mailboxes.attach([])  # as for a slave without mailbox
+    assert s.coe is None and s.mbx is None
     with pytest.raises(ConfigError, match="no mailbox"):
         s.sdo_read(0x1000)
+    with pytest.raises(ConfigError, match="no mailbox: no CoeClient"):
+        s.client(CoeClient)
+    with pytest.raises(ConfigError, match="was not scanned by a master"):
+        Slave(0, 0x1001).set_pdo_mapping({2: [0x1600]})

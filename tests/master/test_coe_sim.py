@@ -100,7 +100,7 @@ def test_object_dictionary(sim: tuple[object, Master]) -> None:
 
 def _run_to_op(m: Master) -> CyclicRunner:
     cfg = m.configure()
-    m._bring_up(m.slaves, 2.0)
+    m.pd.bring_up(m.slaves, 2.0)
     r = CyclicRunner(m.scheduler, cfg, m.images, m.slaves, clock=VirtualClock(),
                      check_interval=0)
     r.run(cycles=2)

@@ -11,10 +11,10 @@ from master_sii_helpers import BOOL, INT16, UINT16, coupler, di, do, io_sii
 from pyethercat.errors import ConfigError
 from pyethercat.master.config import (
     DEFAULT_LOGICAL_BASE,
-    Direction,
     GroupSpec,
     Layout,
-    SlaveSpec,
+    PdoDirection,
+    SlaveDescription,
     configure,
 )
 from pyethercat.wire import registers as reg
@@ -24,7 +24,7 @@ from pyethercat.wire.sii.model import FmmuUsage, SiiFmmus
 
 
 def specs(*siis, features=0):
-    return [SlaveSpec(i, 0x1001 + i, s, features=features) for i, s in enumerate(siis)]
+    return [SlaveDescription(i, 0x1001 + i, s, features=features) for i, s in enumerate(siis)]
 
 
 def test_packed_layout_shares_bytes_between_small_terminals():
@@ -81,7 +81,7 @@ def test_bytewise_esc_is_not_packed():
 def test_sync_manager_register_values():
     sii = io_sii("mixed", outputs=[("Out", 16, UINT16)], inputs=[("In", 16, INT16), ("Flag", 1, BOOL)],
                  mailbox=True)
-    cfg = configure([SlaveSpec(0, 0x1001, sii)])
+    cfg = configure([SlaveDescription(0, 0x1001, sii)])
     sc = cfg.slaves[0]
     got = {s.index: (s.start, s.length, s.control, s.activate) for s in sc.sync_managers}
     assert got == {0: (0x1000, 128, 0x26, 1), 1: (0x1080, 128, 0x22, 1),
@@ -103,15 +103,15 @@ def test_sync_manager_register_values():
     # LRW: 2 for the write FMMU, 1 for the reads (inputs and status of one slave)
     assert [(d.command, d.length, d.expected_wkc, d.copy_start, d.copy_end)
             for d in g.datagrams] == [(Command.LRW, 6, 3, 2, 6)]
-    plain = configure([SlaveSpec(0, 0x1001, sii)], mailbox_status=False)
+    plain = configure([SlaveDescription(0, 0x1001, sii)], mailbox_status=False)
     assert plain.groups[0].size == 5 and plain.slaves[0].mailbox_status_offset == -1
 
 
 def test_mailbox_status_bytes_follow_the_inputs():
     mbx_io = io_sii("mbx", outputs=[("Out", 8, UINT16)], inputs=[("In", 8, INT16)], mailbox=True)
     only_mbx = io_sii("mbx-only", mailbox=True)
-    sl = [SlaveSpec(0, 0x1001, di(2)), SlaveSpec(1, 0x1002, mbx_io),
-          SlaveSpec(2, 0x1003, only_mbx), SlaveSpec(3, 0x1004, mbx_io, fmmu_count=2)]
+    sl = [SlaveDescription(0, 0x1001, di(2)), SlaveDescription(1, 0x1002, mbx_io),
+          SlaveDescription(2, 0x1003, only_mbx), SlaveDescription(3, 0x1004, mbx_io, fmmu_count=2)]
     cfg = configure(sl)
     g = cfg.groups[0]
     # outputs: 2 x 1 byte; inputs: di2 bits + 2 x 1 byte; then 2 status bytes
@@ -129,7 +129,7 @@ def test_mailbox_status_bytes_follow_the_inputs():
     sii = io_sii("x", inputs=[("In", 8, INT16)], mailbox=True)
     sii.categories = [SiiFmmus([FmmuUsage.INPUTS]) if isinstance(c, SiiFmmus) else c
                       for c in sii.categories]
-    one = configure([SlaveSpec(0, 0x1001, sii, features=reg.Feature.LRW_NOT_SUPPORTED)])
+    one = configure([SlaveDescription(0, 0x1001, sii, features=reg.Feature.LRW_NOT_SUPPORTED)])
     assert [(f.index, f.physical_start) for f in one.slaves[0].fmmus] == [(0, 0x1180), (1, 0x080D)]
     d = one.groups[0].datagrams
     assert [(x.command, x.offset, x.length, x.expected_wkc) for x in d] == [(Command.LRD, 0, 2, 1)]
@@ -195,13 +195,13 @@ def test_bad_group_specs_raise_config_errors():
 
 
 def test_pdo_mapping_hook_replaces_sii_pdos():
-    from pyethercat.master.config import Pdo, PdoEntry
+    from pyethercat.master.config import MappedPdo, MappedPdoEntry
 
     sl = specs(io_sii("drive", outputs=[("x", 8, 5)], inputs=[("y", 8, 5)]))
-    sl[0].pdo_mapping = {0: [Pdo(0x1601, "RxPDO", (PdoEntry(0x7010, 1, 32, 7, "Target"),),
-                                 Direction.OUTPUTS, 0)],
-                         1: [Pdo(0x1A01, "TxPDO", (PdoEntry(0x6010, 1, 32, 7, "Actual"),
-                                                   PdoEntry(0, 0, 16)), Direction.INPUTS, 1)]}
+    sl[0].pdo_mapping = {0: [MappedPdo(0x1601, "RxPDO", (MappedPdoEntry(0x7010, 1, 32, 7, "Target"),),
+                                 PdoDirection.OUTPUTS, 0)],
+                         1: [MappedPdo(0x1A01, "TxPDO", (MappedPdoEntry(0x6010, 1, 32, 7, "Actual"),
+                                                   MappedPdoEntry(0, 0, 16)), PdoDirection.INPUTS, 1)]}
     cfg = configure(sl)
     assert (cfg.slaves[0].output_bits, cfg.slaves[0].input_bits) == (32, 48)
     assert [v.name for v in cfg.slaves[0].variables] == ["Target", "Actual"]
@@ -242,7 +242,7 @@ def test_el2889_contiguous_sync_managers_share_one_fmmu(corpus_dir: Path):
 def test_every_corpus_sii_configures_without_error(corpus_dir: Path):
     for path in sorted((corpus_dir / "sii").glob("*.bin")):
         sii = parse_sii(path.read_bytes())
-        cfg = configure([SlaveSpec(0, 0x1001, sii)])
+        cfg = configure([SlaveDescription(0, 0x1001, sii)])
         g = cfg.groups[0]
         for d in g.datagrams:
             assert d.length <= MAX_DATA

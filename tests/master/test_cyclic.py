@@ -47,7 +47,7 @@ def test_outputs_loop_back_to_inputs_bit_exactly(layout):
     seg, m = make(layout)
     g = m.process_data.groups[0]
     assert (g.output_bytes, g.input_bytes) == ((2, 2) if layout == "packed" else (3, 3))
-    m._bring_up(m.slaves, 1.0)
+    m.pd.bring_up(m.slaves, 1.0)
     r = runner(m, check_interval=0)
     r.run(cycles=2)
     m.set_state("OP")
@@ -70,7 +70,7 @@ def test_outputs_loop_back_to_inputs_bit_exactly(layout):
 
 def test_statistics_on_a_virtual_clock():
     seg, m = make()
-    m._bring_up(m.slaves, 1.0)
+    m.pd.bring_up(m.slaves, 1.0)
     clock = VirtualClock()
     period = 1_000_000
 
@@ -97,7 +97,7 @@ def test_statistics_on_a_virtual_clock():
 
 def test_wkc_error_and_lost_frame_are_counted():
     seg, m = make()
-    m._bring_up(m.slaves, 1.0)
+    m.pd.bring_up(m.slaves, 1.0)
     r = runner(m, check_interval=0)
     r.run(cycles=3)
     seg.break_after = 2  # slaves 3.. stop answering

@@ -41,7 +41,7 @@ def test_loop_back_through_the_simulator_bit_exactly(layout):
         assert (di2.length, di2.logical_start_bit, di2.logical_stop_bit) == (1, 0, 1)
     else:
         assert (di2.logical_start_bit, di2.logical_stop_bit) == (0, 7)
-    m._bring_up(m.slaves, 2.0)
+    m.pd.bring_up(m.slaves, 2.0)
     r = CyclicRunner(m.scheduler, cfg, m.images, m.slaves, clock=VirtualClock(), check_interval=0)
     r.run(cycles=2)
     m.set_state("OP")

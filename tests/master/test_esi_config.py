@@ -80,7 +80,7 @@ def test_pdo_choice_init_cmds_and_dc_mode_from_esi(tmp_path: Path, corpus_dir: P
             if c.position == 0]  # fmt: skip
     assert ("PS", 0x6060, 0, b"\x03") in cmds
     assert ("PS", 0x1C13, 0, b"\x02") in cmds
-    m._bring_up(m.slaves, 2.0)  # to SAFE-OP: the PS commands ran, no outputs yet
+    m.pd.bring_up(m.slaves, 2.0)  # to SAFE-OP: the PS commands ran, no outputs yet
     assert drive.sdo_read(0x6060, 0) == b"\x03"  # type: ignore[attr-defined]
     assert drive.sdo_read(0x1C13, 0) == b"\x02"  # type: ignore[attr-defined]
     m.run(cycle=0.002, seconds=0.05)
@@ -107,7 +107,7 @@ def test_eni_round_trip_and_start_without_sii(tmp_path: Path, corpus_dir: Path) 
     m2.configure()
     again = eni_from_master(m2, cycle_time_us=2000)
     assert again == eni
-    m2._bring_up(m2.slaves, 2.0)
+    m2.pd.bring_up(m2.slaves, 2.0)
     assert m2.slaves[0].sdo_read(0x6060, 0) == b"\x03"  # type: ignore[attr-defined]
     m2.run(cycle=0.002, seconds=0.05)
     assert all(s.al_state == AlState.OP for s in m2.slaves)

@@ -11,12 +11,12 @@ from hypothesis import strategies as st
 from master_sii_helpers import BOOL, INT16, REAL32, UINT8, UINT16, di, do, io_sii
 
 from pyethercat.errors import ConfigError
-from pyethercat.master.config import SlaveSpec, configure
+from pyethercat.master.config import SlaveDescription, configure
 from pyethercat.master.image import ProcessImage, build_images
 
 
 def image_of(*siis):
-    cfg = configure([SlaveSpec(i, 0x1001 + i, s) for i, s in enumerate(siis)])
+    cfg = configure([SlaveDescription(i, 0x1001 + i, s) for i, s in enumerate(siis)])
     return build_images(cfg)["main"]
 
 
@@ -107,6 +107,6 @@ def test_image_repr_and_slave_bytes():
     img = image_of(do(2), do(2))
     assert isinstance(img, ProcessImage) and "1 output" in repr(img)
     img.slave_outputs(1)["Output 2"] = 1
-    from pyethercat.master.config import Direction
+    from pyethercat.master.config import PdoDirection
 
-    assert img.slave_bytes(1, Direction.OUTPUTS) == b"\x08"
+    assert img.slave_bytes(1, PdoDirection.OUTPUTS) == b"\x08"

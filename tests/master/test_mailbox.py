@@ -12,7 +12,7 @@ from mini_coe import MiniCoe, coe_segment
 from pyethercat.clock import VirtualClock
 from pyethercat.errors import MailboxError, MailboxErrorReply, SdoAbort
 from pyethercat.errors import TimeoutError as EcTimeoutError
-from pyethercat.master.mailbox import Mailbox, MailboxMessage, MailboxPoller
+from pyethercat.master.mailbox import Mailbox, MailboxPoller, ReceivedMessage
 from pyethercat.master.master import Master
 from pyethercat.wire import registers as reg
 from pyethercat.wire.datagram import Command
@@ -123,7 +123,7 @@ def test_duplicate_counter_dropped_and_handlers_first() -> None:
     box._deliver(raw)
     box._deliver(raw)  # same counter: a repetition
     assert box.stats.duplicates == 1
-    taken: list[MailboxMessage] = []
+    taken: list[ReceivedMessage] = []
     box.add_handler(lambda _b, msg: taken.append(msg) or True)
     box._deliver(encode_mailbox(MailboxType.VOE, b"12345678", counter=4, size=box.tx_size))
     assert [t.payload for t in taken] == [b"12345678"]

@@ -19,7 +19,8 @@ from pyethercat.wire.sii import build_sii
 _RAM = 0x1000
 
 
-def _setup(n: int = 2) -> tuple[Scheduler, FakeSegment, list[bytes]]:
+def _setup(n: int = 2, sees_own_frames: bool = False
+           ) -> tuple[Scheduler, FakeSegment, list[bytes]]:
     seg = FakeSegment([FakeSlave(build_sii(io_sii(f"io{i}"))) for i in range(n)])
     sent: list[bytes] = []
 
@@ -27,7 +28,10 @@ def _setup(n: int = 2) -> tuple[Scheduler, FakeSegment, list[bytes]]:
         sent.append(frame)
         return seg.process(frame)
 
-    s = Scheduler(PairLink.responder_link(responder), clock=VirtualClock())
+    link = PairLink.responder_link(responder)
+    # A medium that shows our own frames as received ones (not what a pair does).
+    link.sees_own_frames = sees_own_frames
+    s = Scheduler(link, clock=VirtualClock())
     s.transact([Datagram.positional(Command.APWR, i, reg.STATION_ADDRESS,
                                     struct.pack("<H", 0x1001 + i)) for i in range(n)])
     return s, seg, sent
@@ -82,7 +86,7 @@ def test_queued_acyclic_datagrams_ride_behind_the_template() -> None:
 
 
 def test_lost_duplicated_and_looped_back_replies() -> None:
-    s, seg, sent = _setup(1)
+    s, seg, sent = _setup(1, sees_own_frames=True)
     tpl = s.prepare_cyclic([Datagram.device(Command.BRD, 0, reg.TYPE, 2)])
     seg.faults[seg.frames] = "drop"
     assert s.exchange_prepared(tpl) is None

@@ -72,7 +72,7 @@ def test_two_groups_with_different_cycle_times_exchange_at_their_own_rates() -> 
     cfg = m.configure(groups=[GroupSpec("fast", [1, 2], cycle=0.001),
                               GroupSpec("slow", [3, 4, 5], cycle=0.005)])
     assert cfg.group("fast").logical_base != cfg.group("slow").logical_base
-    m._bring_up(m.slaves, 2.0)
+    m.pd.bring_up(m.slaves, 2.0)
     r = CyclicRunner(m.scheduler, cfg, m.images, m.slaves, cycle=0.001, clock=VirtualClock(),
                      check_interval=0)
     assert r.period_ns == 1_000_000

@@ -71,15 +71,10 @@ def connect(obj: dict[str, Any] | None, *, child: bool = False, pcap: str | None
         except BaseException:
             process.stop()
             raise
-    elif iface is not None:
-        from pyethercat.link.raw import RawLink
-
-        conn = Connection(Master(_capture(RawLink(iface), pcap), **options))
     else:
-        from pyethercat.link.udp import UdpLink
-        from pyethercat.wire.frame import MASTER_MAC, returned_source_mac
+        from pyethercat.link.registry import open_link
 
-        link = UdpLink(peer=udp, rx_src=returned_source_mac(options.get("src", MASTER_MAC)))
+        link = open_link(f"raw:{iface}" if iface is not None else f"udp:{udp}")
         conn = Connection(Master(_capture(link, pcap), **options))
     try:
         yield conn

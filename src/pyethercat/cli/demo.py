@@ -36,7 +36,7 @@ from pyethercat.cli.run_cmds import format_summary, live_view
 from pyethercat.errors import ConfigError
 from pyethercat.master.cyclic import Cycle
 from pyethercat.master.master import Master
-from pyethercat.master.slave import PORT_ORDER, Slave
+from pyethercat.master.slave_info import PORT_ORDER, SlaveInfo
 
 __all__ = ["register", "find_demo_topology", "Loopback", "loopbacks_from_topology"]
 
@@ -206,7 +206,7 @@ def topology_tree(master: Master) -> Tree:
     """Which slave hangs on which port of which parent."""
     root = Tree("master")
 
-    def add(node: Tree, s: Slave, via: str) -> None:
+    def add(node: Tree, s: SlaveInfo, via: str) -> None:
         branch = node.add(f"{via}{s.position}: {s.name or '?'} ({s.topology_kind})")
         for port in PORT_ORDER[1:]:
             child = s.children.get(port)

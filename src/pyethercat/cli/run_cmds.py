@@ -28,7 +28,7 @@ from pyethercat.cli._select import selection_options
 from pyethercat.cli._session import open_session, serving
 from pyethercat.cli._util import parse_int
 from pyethercat.errors import ConfigError
-from pyethercat.master.config import Direction, ProcessDataConfig
+from pyethercat.master.config import PdoDirection, ProcessDataConfig
 from pyethercat.master.control import messages as msg
 from pyethercat.master.cyclic import CyclicRunner
 from pyethercat.master.master import Master
@@ -65,7 +65,7 @@ def format_pdos(slaves: Sequence[Slave], cfg: ProcessDataConfig, positions: list
             lines.append(f"SM{sm.index}: PhysAddr 0x{sm.start:04X}, Size {sm.length:4d}, "
                          f"Control 0x{sm.control:02X}, Enable {sm.activate}, {kind}")
             for pdo in sm.pdos:
-                tag = "RxPDO" if pdo.direction is Direction.OUTPUTS else "TxPDO"
+                tag = "RxPDO" if pdo.direction is PdoDirection.OUTPUTS else "TxPDO"
                 lines.append(f"  {tag} 0x{pdo.index:04X} \"{pdo.name}\"")
                 for e in pdo.entries:
                     if e.index == 0:

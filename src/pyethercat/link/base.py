@@ -9,12 +9,16 @@ never look inside a frame beyond what the medium needs.
 from __future__ import annotations
 
 import abc
+import contextlib
+import select
+import socket
+import time
 from types import TracebackType
 from typing import Self
 
 from pyethercat.errors import LinkClosedError
 
-__all__ = ["Link", "MAX_FRAME", "MIN_FRAME"]
+__all__ = ["Link", "MAX_FRAME", "MIN_FRAME", "SocketLink"]
 
 #: Largest frame any link accepts or returns (Ethernet without FCS, plus a VLAN tag).
 MAX_FRAME = 1518
@@ -37,6 +41,13 @@ class Link(abc.ABC):
 
     #: Human-readable name (interface name, address, ...), used in messages.
     name: str = "link"
+    #: Whether ``recv`` may return frames this link sent itself, unmarked. A link
+    #: that knows the direction of every frame (an AF_PACKET socket drops what the
+    #: kernel marks outgoing; a point-to-point socket or queue only carries the
+    #: peer's frames) says False; the master then takes a frame that carries its
+    #: own source MAC as a reply (some ESC emulators do not set the locally
+    #: administered bit), instead of as its own frame seen again.
+    sees_own_frames: bool = True
 
     def __init__(self, name: str) -> None:
         self.name = name
@@ -81,3 +92,47 @@ class Link(abc.ABC):
     def __repr__(self) -> str:
         state = " closed" if self._closed else ""
         return f"<{type(self).__name__} {self.name}{state}>"
+
+
+class SocketLink(Link):
+    """A link over a socket: ``fileno``, ``close`` and the receive-deadline loop.
+
+    ``recv(timeout)`` calls :meth:`_receive` with the time left until a
+    frame comes or the time is up; a subclass receives one frame there, or
+    waits (at most ``left`` seconds, ``None``: as long as it likes) and
+    returns ``None`` to be asked again.
+    """
+
+    def __init__(self, name: str, sock: socket.socket) -> None:
+        super().__init__(name)
+        self._sock = sock
+
+    def fileno(self) -> int | None:
+        return None if self._closed else self._sock.fileno()
+
+    def recv(self, timeout: float | None = None) -> bytes | None:
+        self._check_open()
+        deadline = None if timeout is None else time.monotonic() + timeout
+        left = timeout
+        while True:
+            frame = self._receive(left)
+            if frame is not None:
+                return frame
+            if deadline is not None:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return None
+
+    @abc.abstractmethod
+    def _receive(self, left: float | None) -> bytes | None:
+        """One frame, or None after waiting up to ``left`` seconds (or none at all)."""
+
+    def _wait_readable(self, left: float | None) -> None:
+        """Wait until the socket is readable or ``left`` seconds passed."""
+        with contextlib.suppress(InterruptedError, ValueError):
+            select.select([self._sock], [], [], left)
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self._sock.close()

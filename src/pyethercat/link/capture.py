@@ -40,6 +40,7 @@ class CaptureLink(Link):
     ) -> None:
         super().__init__(f"capture({inner.name})")
         self.inner = inner
+        self.sees_own_frames = inner.sees_own_frames
         self._clock = clock
         self._flush = flush
         self._lock = threading.Lock()

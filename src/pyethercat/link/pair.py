@@ -34,6 +34,9 @@ Responder = Callable[[bytes], "bytes | bytearray | Iterable[bytes | bytearray] |
 class PairLink(Link):
     """One end of an in-process link pair (create with :meth:`pair`)."""
 
+    #: An end receives only what its peer sent.
+    sees_own_frames = False
+
     def __init__(self, name: str, max_queue: int = 4096) -> None:
         super().__init__(name)
         self._queue: deque[bytes] = deque()

@@ -3,8 +3,12 @@
 Only frames with EtherType 0x88A4 reach the socket: the protocol is set at
 ``bind`` time on the interface, so nothing from other interfaces slips in
 between creating and binding the socket. Frames the kernel loops back to us
-(our own transmissions, packet type ``PACKET_OUTGOING``) are dropped, so
-``recv`` returns only frames that came in from the wire.
+(our own transmissions, packet type ``PACKET_OUTGOING``; ``packet(7)``) are
+dropped, so ``recv`` returns only frames that came in from the wire, whatever
+source MAC they carry: the link tells direction (``sees_own_frames`` is
+False), and a master takes an incoming frame with its own source MAC as a
+reply (KickCAT's ESC emulator returns frames without setting the locally
+administered bit).
 
 Opening the socket needs ``CAP_NET_RAW``; without it
 :class:`pyethercat.errors.PermissionError` says how to get it.
@@ -32,14 +36,13 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
-import select
 import socket
 import struct
 import sys
 import time
 
 from pyethercat.errors import LinkError, PermissionError
-from pyethercat.link.base import MAX_FRAME, Link
+from pyethercat.link.base import MAX_FRAME, SocketLink
 from pyethercat.wire.frame import ETHERTYPE_ETHERCAT
 
 __all__ = ["RawLink"]
@@ -67,8 +70,11 @@ def _permission_message(iface: str) -> str:
     )
 
 
-class RawLink(Link):
+class RawLink(SocketLink):
     """EtherCAT frames on a network interface through an ``AF_PACKET`` raw socket."""
+
+    #: The kernel marks our own transmissions (PACKET_OUTGOING); recv drops them.
+    sees_own_frames = False
 
     def __init__(
         self,
@@ -76,7 +82,6 @@ class RawLink(Link):
         promiscuous: bool = False,
         rcvbuf: int | None = 1 << 20,
     ) -> None:
-        super().__init__(iface)
         if not hasattr(socket, "AF_PACKET"):
             raise LinkError("raw Ethernet links need Linux (AF_PACKET)")
         self.iface = iface
@@ -110,7 +115,7 @@ class RawLink(Link):
             if exc.errno == errno.ENETDOWN:
                 raise LinkError(f"network interface {iface} is down") from exc
             raise LinkError(f"cannot bind a raw socket to {iface}: {exc}") from exc
-        self._sock = sock
+        super().__init__(iface, sock)
         self._ifindex = ifindex
         #: Set once the interface is found deleted: the error every later call raises.
         self._gone: str | None = None
@@ -119,9 +124,6 @@ class RawLink(Link):
         self._rcvtimeo_ms = 0
         #: Frames of ours the kernel looped back and recv dropped.
         self.dropped_outgoing = 0
-
-    def fileno(self) -> int | None:
-        return None if self._closed else self._sock.fileno()
 
     def _check_present(self, now: float | None = None) -> None:
         """Raise LinkError if the bound interface was deleted.
@@ -169,55 +171,46 @@ class RawLink(Link):
         self._check_open()
         if self._gone is not None:
             self._check_present()
-        sock = self._sock
-        deadline = None if timeout is None else time.monotonic() + timeout
-        left = _MAX_BLOCK if timeout is None else timeout
-        while True:
-            block = min(left, _MAX_BLOCK) - _TICK_MARGIN
-            if block >= 0.001:
-                # The coarse part of the wait: block in recvfrom itself (a frame that
-                # is already there is returned at once).
-                ms = int(block * 1000)
-                if ms != self._rcvtimeo_ms:
-                    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO,
-                                    _TIMEVAL.pack(ms // 1000, (ms % 1000) * 1000))
-                    self._rcvtimeo_ms = ms
-                flags = 0
-            else:
-                flags = socket.MSG_DONTWAIT
-            try:
-                data, addr = sock.recvfrom(MAX_FRAME + 64, flags)
-            except BlockingIOError:
-                if self._closed:
-                    self._check_open()
-                now = time.monotonic()
-                if now - self._presence_checked >= _PRESENCE_PERIOD:
-                    self._check_present(now)
-                left = _MAX_BLOCK if deadline is None else deadline - now
-                if flags and left > 0:
-                    with contextlib.suppress(InterruptedError, ValueError):
-                        select.select([sock], [], [], left)
-                    left = 0.0 if deadline is None else max(0.0, deadline - time.monotonic())
-                elif left <= 0:
-                    return None
-                continue
-            except OSError as exc:
-                if self._closed:
-                    self._check_open()
-                if exc.errno in (errno.ENODEV, errno.ENXIO):
-                    self._gone = f"network interface {self.iface} has gone"
-                    raise LinkError(self._gone) from exc
-                if exc.errno == errno.ENETDOWN:
-                    # The kernel says ENETDOWN for a deleted interface too.
-                    self._check_present()
-                    raise LinkError(f"network interface {self.iface} is down") from exc
-                raise LinkError(f"receive on {self.iface} failed: {exc}") from exc
-            if addr[2] == _PACKET_OUTGOING:
-                self.dropped_outgoing += 1
-                continue
-            return data
+        return super().recv(timeout)
 
-    def close(self) -> None:
-        if not self._closed:
-            self._closed = True
-            self._sock.close()
+    def _receive(self, left: float | None) -> bytes | None:
+        sock = self._sock
+        block = min(_MAX_BLOCK if left is None else left, _MAX_BLOCK) - _TICK_MARGIN
+        if block >= 0.001:
+            # The coarse part of the wait: block in recvfrom itself (a frame that
+            # is already there is returned at once).
+            ms = int(block * 1000)
+            if ms != self._rcvtimeo_ms:
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO,
+                                _TIMEVAL.pack(ms // 1000, (ms % 1000) * 1000))
+                self._rcvtimeo_ms = ms
+            flags = 0
+        else:
+            flags = socket.MSG_DONTWAIT
+        try:
+            data, addr = sock.recvfrom(MAX_FRAME + 64, flags)
+        except BlockingIOError:
+            if self._closed:
+                self._check_open()
+            now = time.monotonic()
+            if now - self._presence_checked >= _PRESENCE_PERIOD:
+                self._check_present(now)
+            if flags and left is not None and left > 0:
+                # The last slice: select keeps to the time given (SO_RCVTIMEO counts ticks).
+                self._wait_readable(left)
+            return None
+        except OSError as exc:
+            if self._closed:
+                self._check_open()
+            if exc.errno in (errno.ENODEV, errno.ENXIO):
+                self._gone = f"network interface {self.iface} has gone"
+                raise LinkError(self._gone) from exc
+            if exc.errno == errno.ENETDOWN:
+                # The kernel says ENETDOWN for a deleted interface too.
+                self._check_present()
+                raise LinkError(f"network interface {self.iface} is down") from exc
+            raise LinkError(f"receive on {self.iface} failed: {exc}") from exc
+        if addr[2] == _PACKET_OUTGOING:
+            self.dropped_outgoing += 1
+            return None
+        return data

@@ -19,11 +19,12 @@ Ethernet frames, so this link converts at the edge:
 
 The MAC addresses of sent frames are therefore not transported. The default
 ``rx_src`` depends on the role, so that received frames look as they would on
-a wire: a link with a fixed ``peer`` (a master) receives frames that slaves
-have returned, so their source is the master's MAC with the locally
-administered bit set (``12:10:10:10:10:10``; a master drops frames carrying
-its own, unmodified MAC as looped back); a server link (no peer) receives
-frames a master sent, with source ``10:10:10:10:10:10``.
+a wire (in captures, for decoders): a link with a fixed ``peer`` (a master)
+receives frames that slaves have returned, so their source is the master's
+MAC with the locally administered bit set (``12:10:10:10:10:10``); a server
+link (no peer) receives frames a master sent, with source
+``10:10:10:10:10:10``. Nothing depends on it: every datagram comes from the
+peer, so the link never shows our own frames (``sees_own_frames`` is False).
 
 A master gives ``peer`` (the simulator's or gateway's address) and binds an
 ephemeral port on 127.0.0.1 by default; it then accepts datagrams from that
@@ -34,23 +35,20 @@ sent the last datagram.
 from __future__ import annotations
 
 import logging
-import select
 import socket
 import struct
-import time
 
 from pyethercat.errors import LinkError
-from pyethercat.link.base import Link
+from pyethercat.link.base import SocketLink
 from pyethercat.wire.frame import (
     BROADCAST_MAC,
     ECAT_HEADER_SIZE,
     ECAT_LENGTH_MASK,
     ETH_HEADER_SIZE,
-    ETHERTYPE_ETHERCAT,
-    ETHERTYPE_VLAN,
     MASTER_MAC,
     MAX_FRAME_SIZE,
     UDP_PORT,
+    ecat_offset,
     ethernet_frame,
     returned_source_mac,
 )
@@ -82,12 +80,9 @@ def frame_to_udp_payload(frame: bytes) -> bytes:
     """The EtherCAT part of an Ethernet frame (header + body, padding dropped)."""
     if len(frame) < ETH_HEADER_SIZE + ECAT_HEADER_SIZE:
         raise LinkError(f"frame of {len(frame)} bytes is too short for EtherCAT")
-    start = ETH_HEADER_SIZE
-    ethertype = (frame[12] << 8) | frame[13]
-    if ethertype == ETHERTYPE_VLAN and len(frame) >= start + 4 + ECAT_HEADER_SIZE:
-        ethertype = (frame[16] << 8) | frame[17]
-        start += 4
-    if ethertype != ETHERTYPE_ETHERCAT:
+    start = ecat_offset(frame)
+    if start is None or len(frame) < start + ECAT_HEADER_SIZE:
+        ethertype = (frame[12] << 8) | frame[13]
         raise LinkError(f"EtherType 0x{ethertype:04X} cannot travel as EtherCAT over UDP")
     (word,) = struct.unpack_from("<H", frame, start)
     end = start + ECAT_HEADER_SIZE + (word & ECAT_LENGTH_MASK)
@@ -111,8 +106,12 @@ def _resolve(host: str, port: int) -> tuple[str, int]:
     return str(addr[0]), int(addr[1])
 
 
-class UdpLink(Link):
+class UdpLink(SocketLink):
     """EtherCAT frames over a UDP socket (IPv4)."""
+
+    #: Every datagram received comes from the peer (and a master's link takes
+    #: datagrams from its peer only): never our own frame.
+    sees_own_frames = False
 
     def __init__(
         self,
@@ -146,7 +145,6 @@ class UdpLink(Link):
             sock.close()
             raise LinkError(f"cannot bind UDP {bind_addr[0]}:{bind_addr[1]}: {exc}") from exc
         sock.setblocking(False)
-        self._sock = sock
         #: Received payloads dropped as longer than MAX_UDP_PAYLOAD bytes.
         self.dropped_too_long = 0
         #: Received payloads dropped as shorter than the EtherCAT header.
@@ -154,7 +152,7 @@ class UdpLink(Link):
         # Named by the address the user gave: the peer of a master's link (error
         # messages then say where nothing answered), the bound address of a server's.
         where = self._peer if self._peer is not None else sock.getsockname()
-        super().__init__(name or f"udp:{where[0]}:{where[1]}")
+        super().__init__(name or f"udp:{where[0]}:{where[1]}", sock)
 
     @property
     def address(self) -> tuple[str, int]:
@@ -166,9 +164,6 @@ class UdpLink(Link):
     def peer(self) -> tuple[str, int] | None:
         """Where frames are sent (fixed, or learned from the last received datagram)."""
         return self._peer
-
-    def fileno(self) -> int | None:
-        return None if self._closed else self._sock.fileno()
 
     def send(self, frame: bytes) -> None:
         self._check_open()
@@ -182,34 +177,24 @@ class UdpLink(Link):
         except OSError as exc:
             raise LinkError(f"link {self.name}: send to {self._peer} failed: {exc}") from exc
 
-    def recv(self, timeout: float | None = None) -> bytes | None:
-        self._check_open()
-        deadline = None if timeout is None else time.monotonic() + timeout
-        while True:
-            try:
-                payload, addr = self._sock.recvfrom(_MAX_UDP)
-            except (BlockingIOError, ConnectionRefusedError):
-                # ECONNREFUSED: an ICMP "port unreachable" for an earlier send.
-                pass
-            except OSError as exc:
-                raise LinkError(f"link {self.name}: receive failed: {exc}") from exc
-            else:
-                source = (str(addr[0]), int(addr[1]))
-                if self._fixed_peer and source != self._peer:
-                    continue  # not from our peer: ignore
-                if not ECAT_HEADER_SIZE <= len(payload) <= MAX_UDP_PAYLOAD:
-                    self._drop(payload, source)
-                    continue
-                if not self._fixed_peer:
-                    self._peer = source
-                return udp_payload_to_frame(payload, self.rx_src, self.rx_dst)
-            if deadline is None:
-                select.select([self._sock], [], [])
-            else:
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    return None
-                select.select([self._sock], [], [], left)
+    def _receive(self, left: float | None) -> bytes | None:
+        try:
+            payload, addr = self._sock.recvfrom(_MAX_UDP)
+        except (BlockingIOError, ConnectionRefusedError):
+            # ECONNREFUSED: an ICMP "port unreachable" for an earlier send.
+            self._wait_readable(left)
+            return None
+        except OSError as exc:
+            raise LinkError(f"link {self.name}: receive failed: {exc}") from exc
+        source = (str(addr[0]), int(addr[1]))
+        if self._fixed_peer and source != self._peer:
+            return None  # not from our peer: ignore
+        if not ECAT_HEADER_SIZE <= len(payload) <= MAX_UDP_PAYLOAD:
+            self._drop(payload, source)
+            return None
+        if not self._fixed_peer:
+            self._peer = source
+        return udp_payload_to_frame(payload, self.rx_src, self.rx_dst)
 
     def _drop(self, payload: bytes, source: tuple[str, int]) -> None:
         """Count and log a payload that cannot become an Ethernet frame."""
@@ -228,8 +213,3 @@ class UdpLink(Link):
             "link %s: dropped a %d-byte UDP payload from %s:%d: %s (%d so far)",
             self.name, len(payload), source[0], source[1], why, count,
         )
-
-    def close(self) -> None:
-        if not self._closed:
-            self._closed = True
-            self._sock.close()

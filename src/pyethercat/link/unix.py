@@ -5,29 +5,31 @@ file descriptor to the child (``fork`` keeps it; with ``subprocess`` pass it in
 ``pass_fds`` and rebuild the end there with :meth:`UnixLink.from_fd`).
 ``SOCK_SEQPACKET`` keeps frame boundaries and reports the peer's close, so
 ``recv`` raises :class:`~pyethercat.errors.LinkClosedError` when the other
-process has gone.
+process has gone. :meth:`UnixLink.connect` reaches a segment that listens on
+a ``SOCK_SEQPACKET`` socket path instead (``open_link("unix:PATH")``).
 """
 
 from __future__ import annotations
 
-import select
+import os
 import socket
-import time
 
 from pyethercat.errors import LinkClosedError, LinkError
-from pyethercat.link.base import MAX_FRAME, MIN_FRAME, Link
+from pyethercat.link.base import MAX_FRAME, MIN_FRAME, SocketLink
 
 __all__ = ["UnixLink"]
 
 
-class UnixLink(Link):
-    """One end of a Unix-domain socketpair carrying Ethernet frames."""
+class UnixLink(SocketLink):
+    """One end of a Unix-domain socketpair (or connection) carrying Ethernet frames."""
+
+    #: The socket carries the peer's frames only.
+    sees_own_frames = False
 
     def __init__(self, sock: socket.socket, name: str = "unix") -> None:
-        super().__init__(name)
         if sock.family != socket.AF_UNIX:
             raise LinkError(f"link {name}: socket is not AF_UNIX")
-        self._sock = sock
+        super().__init__(name, sock)
         # Sends block (a socketpair should not lose frames); receives are polled.
         sock.setblocking(True)
 
@@ -43,6 +45,18 @@ class UnixLink(Link):
         return cls(a, name_a), cls(b, name_b)
 
     @classmethod
+    def connect(cls, path: str | os.PathLike[str], name: str | None = None) -> UnixLink:
+        """Connect to a ``SOCK_SEQPACKET`` Unix socket listening at ``path``."""
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+        try:
+            sock.connect(os.fspath(path))
+        except OSError as exc:
+            sock.close()
+            raise LinkError(f"cannot connect to the Unix socket {os.fspath(path)}: "
+                            f"{exc.strerror or exc}") from None
+        return cls(sock, name or f"unix:{os.fspath(path)}")
+
+    @classmethod
     def from_fd(cls, fd: int, name: str = "unix") -> UnixLink:
         """Wrap an inherited socket file descriptor (takes ownership of ``fd``)."""
         try:
@@ -50,9 +64,6 @@ class UnixLink(Link):
         except OSError as exc:
             raise LinkError(f"link {name}: fd {fd} is not a usable socket: {exc}") from exc
         return cls(sock, name)
-
-    def fileno(self) -> int | None:
-        return None if self._closed else self._sock.fileno()
 
     def send(self, frame: bytes) -> None:
         self._check_open()
@@ -67,36 +78,21 @@ class UnixLink(Link):
         except OSError as exc:
             raise LinkError(f"link {self.name}: send failed: {exc}") from exc
 
-    def recv(self, timeout: float | None = None) -> bytes | None:
-        self._check_open()
-        deadline = None if timeout is None else time.monotonic() + timeout
-        while True:
-            try:
-                data = self._sock.recv(MAX_FRAME + 64, socket.MSG_DONTWAIT)
-            except BlockingIOError:
-                pass
-            except ConnectionResetError as exc:
-                raise LinkClosedError(f"peer of link {self.name} has closed") from exc
-            except OSError as exc:
-                raise LinkError(f"link {self.name}: receive failed: {exc}") from exc
-            else:
-                if not data:
-                    raise LinkClosedError(f"peer of link {self.name} has closed")
-                return data
-            if deadline is None:
-                select.select([self._sock], [], [])
-            else:
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    return None
-                select.select([self._sock], [], [], left)
+    def _receive(self, left: float | None) -> bytes | None:
+        try:
+            data = self._sock.recv(MAX_FRAME + 64, socket.MSG_DONTWAIT)
+        except BlockingIOError:
+            self._wait_readable(left)
+            return None
+        except ConnectionResetError as exc:
+            raise LinkClosedError(f"peer of link {self.name} has closed") from exc
+        except OSError as exc:
+            raise LinkError(f"link {self.name}: receive failed: {exc}") from exc
+        if not data:
+            raise LinkClosedError(f"peer of link {self.name} has closed")
+        return data
 
     def detach(self) -> int:
         """Give up the file descriptor (e.g. to pass it to a child); the link is closed."""
         self._closed = True
         return self._sock.detach()
-
-    def close(self) -> None:
-        if not self._closed:
-            self._closed = True
-            self._sock.close()

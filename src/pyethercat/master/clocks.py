@@ -21,7 +21,7 @@ from __future__ import annotations
 import struct
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 from pyethercat.errors import ConfigError, EtherCATError, WorkingCounterError
 from pyethercat.master.dc import (
@@ -38,9 +38,13 @@ from pyethercat.master.dc import (
 from pyethercat.master.dc_loop import DcCycle, DcMode
 from pyethercat.master.slave import Slave
 from pyethercat.wire import registers as R
+from pyethercat.wire.al import AlState
 from pyethercat.wire.datagram import Command, Datagram
 from pyethercat.wire.dc import AssignActivate, decode_time_difference, sync1_cycle_register
 from pyethercat.wire.mailbox.objects import StandardObject, SyncMode, SyncModeSupported, SyncSub
+
+if TYPE_CHECKING:
+    from pyethercat.master.transitions import Step
 
 __all__ = ["DcStatus", "DistributedClocks", "dc_slave_info", "sync_assign_activate"]
 
@@ -60,10 +64,9 @@ def dc_slave_info(slave: Slave) -> DcSlaveInfo:
 def sync_assign_activate(slave: Slave) -> int:
     """The AssignActivate of the slave's DC op mode: the ESI's chosen one, else the first
     SII DC mode that activates the cyclic unit (0: the slave has none)."""
-    eni = getattr(slave, "dc_op_mode", None)
-    value = getattr(eni, "assign_activate", 0)
-    if value:
-        return int(value)
+    eni = slave.dc_op_mode
+    if eni is not None and eni.assign_activate:
+        return int(eni.assign_activate)
     if slave.sii is not None:
         for mode in slave.sii.dc_modes:
             if AssignActivate(mode.assign_activate).active:
@@ -256,6 +259,14 @@ class DistributedClocks:
                 except EtherCATError:
                     if index == StandardObject.SM_OUTPUT_SYNC:
                         raise
+
+    def before_step(self, step: Step) -> None:
+        """As a transition hook: :meth:`before_safeop` before PREOP -> SAFEOP."""
+        if step.target == AlState.SAFEOP:
+            self.before_safeop(step.slaves)
+
+    def after_step(self, step: Step) -> None:
+        """As a transition hook: nothing once a state is reached."""
 
     def before_safeop(self, slaves: Sequence[Slave]) -> None:
         """The PREOP -> SAFEOP hook: sync modes over CoE, then the cyclic unit."""

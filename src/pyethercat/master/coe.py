@@ -31,18 +31,17 @@ this module drives it over the mailbox:
 from __future__ import annotations
 
 import logging
-import queue
 import threading
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TypeVar
+from typing import ClassVar, Self
 
 from pyethercat.errors import ConfigError, EtherCATError, MailboxError, SdoAbort
 from pyethercat.errors import TimeoutError as EcTimeoutError
-from pyethercat.master.config import Direction, Pdo, PdoEntry
-from pyethercat.master.mailbox import Mailbox, MailboxMessage
-from pyethercat.wire.al import AlState
+from pyethercat.master.config import MappedPdo, MappedPdoEntry, PdoDirection
+from pyethercat.master.mailbox import ClientContext, DropOldestQueue, Mailbox, ReceivedMessage
+from pyethercat.wire.al import TRANSITIONS, AlState
 from pyethercat.wire.mailbox.coe import (
     COE_HEADER_SIZE,
     CoeMessage,
@@ -89,9 +88,8 @@ __all__ = [
     "ObjectDictionary",
     "OdObject",
     "OdEntry",
+    "PdoSpec",
     "StartupCommand",
-    "TRANSITIONS",
-    "parse_transition",
     "resolve_dtype",
     "mapping_word",
     "pdo_mapping_writes",
@@ -100,7 +98,6 @@ __all__ = [
 ]
 
 _log = logging.getLogger("pyethercat.coe")
-_T = TypeVar("_T")
 
 #: Seconds one SDO transfer (all its segments) may take by default.
 DEFAULT_SDO_TIMEOUT = 2.0
@@ -109,6 +106,10 @@ _ENTRY_VALUE_INFO = (ValueInfo.UNIT_TYPE | ValueInfo.DEFAULT_VALUE | ValueInfo.M
                      | ValueInfo.MAXIMUM_VALUE)
 #: A data type given by code, enum member or name ("uint16", "REAL32", "0x0007").
 DTypeLike = DataType | int | str
+#: What ``Slave.set_pdo_mapping`` takes per sync manager: PDO indices (keep their
+#: mapping) or (PDO index, entries) pairs whose mapping is rewritten; entries are
+#: (index, subindex, bits).
+PdoSpec = int | tuple[int, Sequence[tuple[int, int, int]]]
 
 
 def resolve_dtype(dtype: DTypeLike) -> DataType:
@@ -132,27 +133,6 @@ _SIGN_MAGNITUDE_NAMES = frozenset({"sm8", "sm16", "sm32", "sm64"})
 
 
 # --- emergencies ----------------------------------------------------------------------
-
-
-class DropOldestQueue(queue.Queue[_T]):
-    """A :class:`queue.Queue` whose ``put`` never blocks: when full, the oldest item goes.
-
-    Emergencies must not stall the thread that read them (a mailbox
-    transaction) and the newest ones matter most.
-    """
-
-    def put(self, item: _T, block: bool = True, timeout: float | None = None) -> None:
-        """Append ``item``, dropping the oldest one first when the queue is full."""
-        with self.not_full:
-            if 0 < self.maxsize <= self._qsize():
-                self._get()
-            self._put(item)
-            self.unfinished_tasks += 1
-            self.not_empty.notify()
-
-    def put_nowait(self, item: _T) -> None:
-        """Same as :meth:`put` (it never blocks)."""
-        self.put(item)
 
 
 @dataclass(frozen=True, slots=True)
@@ -197,18 +177,18 @@ class EmergencyEvent:
 # --- the client ---------------------------------------------------------------------------
 
 
-def _coe_service(msg: MailboxMessage) -> int | None:
+def _coe_service(msg: ReceivedMessage) -> int | None:
     if msg.header.type != MailboxType.COE or len(msg.payload) < COE_HEADER_SIZE:
         return None
     return msg.payload[1] >> 4  # CoE header bits 15:12 (little-endian u16)
 
 
-def _is_sdo(msg: MailboxMessage) -> bool:
+def _is_sdo(msg: ReceivedMessage) -> bool:
     # An abort may travel in service 2 (what SOES sends) or 3.
     return _coe_service(msg) in (CoeService.SDO_REQUEST, CoeService.SDO_RESPONSE)
 
 
-def _is_info(msg: MailboxMessage) -> bool:
+def _is_info(msg: ReceivedMessage) -> bool:
     return _coe_service(msg) == CoeService.SDO_INFORMATION
 
 
@@ -218,6 +198,16 @@ class CoeClient:
     ``label`` names the slave in messages; ``position`` is its ring
     position (carried in emergency events).
     """
+
+    #: The mailbox type this client speaks (the registry key, see ``master.clients``).
+    mailbox_type: ClassVar[MailboxType] = MailboxType.COE
+
+    @classmethod
+    def for_mailbox(cls, mailbox: Mailbox, context: ClientContext) -> Self:
+        """The client a master makes for a slave's mailbox: emergencies go to the master."""
+        client = cls(mailbox, position=context.position, emergencies=context.events)
+        client.on_emergency(context.report)
+        return client
 
     def __init__(self, mailbox: Mailbox, *, position: int = -1,
                  timeout: float = DEFAULT_SDO_TIMEOUT, emergency_queue_size: int = 256,
@@ -240,7 +230,7 @@ class CoeClient:
         """Call ``callback(event)`` for every emergency (in the thread that read it)."""
         self._callbacks.append(callback)
 
-    def _unsolicited(self, mailbox: Mailbox, msg: MailboxMessage) -> bool:
+    def _unsolicited(self, mailbox: Mailbox, msg: ReceivedMessage) -> bool:
         if _coe_service(msg) != CoeService.EMERGENCY:
             return False
         try:
@@ -440,9 +430,9 @@ class CoeClient:
         return [split_mapping_word(int(self.read(pdo_index, k, DataType.UNSIGNED32)))
                 for k in range(1, count + 1)]
 
-    def read_pdos(self, sync_managers: Mapping[int, Direction],
+    def read_pdos(self, sync_managers: Mapping[int, PdoDirection],
                   names: Callable[[int, int, int], tuple[str, int]] | None = None,
-                  pdo_names: Callable[[int], str] | None = None) -> dict[int, list[Pdo]]:
+                  pdo_names: Callable[[int], str] | None = None) -> dict[int, list[MappedPdo]]:
         """The PDOs assigned to each process-data sync manager, read over CoE.
 
         ``sync_managers`` maps SM numbers to their direction. ``names(index,
@@ -450,20 +440,20 @@ class CoeClient:
         ``pdo_names(pdo_index)`` a PDO's name (from the SII or the OD); by
         default entries are named ``0xIIII:SS`` and typed by their size.
         """
-        out: dict[int, list[Pdo]] = {}
+        out: dict[int, list[MappedPdo]] = {}
         for sm, direction in sorted(sync_managers.items()):
-            pdos: list[Pdo] = []
+            pdos: list[MappedPdo] = []
             for pdo_index in self.read_pdo_assignment(sm):
-                entries: list[PdoEntry] = []
+                entries: list[MappedPdoEntry] = []
                 for index, sub, bits in self.read_pdo_mapping(pdo_index):
                     if index == 0 or names is None:
                         name, dtype = "", _type_for_bits(bits)
                     else:
                         name, dtype = names(index, sub, pdo_index)
                         dtype = dtype or _type_for_bits(bits)
-                    entries.append(PdoEntry(index, sub, bits, dtype if index else 0, name))
+                    entries.append(MappedPdoEntry(index, sub, bits, dtype if index else 0, name))
                 pname = pdo_names(pdo_index) if pdo_names is not None else ""
-                pdos.append(Pdo(pdo_index, pname, tuple(entries), direction, sm))
+                pdos.append(MappedPdo(pdo_index, pname, tuple(entries), direction, sm))
             out[sm] = pdos
         return out
 
@@ -689,37 +679,6 @@ class ObjectDictionary(Mapping[int, OdObject]):
 
 # --- start-up commands ------------------------------------------------------------------------
 
-#: Transition names (ESI InitCmd spelling) -> (from state, to state).
-TRANSITIONS: dict[str, tuple[AlState, AlState]] = {
-    "IP": (AlState.INIT, AlState.PREOP),
-    "PI": (AlState.PREOP, AlState.INIT),
-    "PS": (AlState.PREOP, AlState.SAFEOP),
-    "SP": (AlState.SAFEOP, AlState.PREOP),
-    "SO": (AlState.SAFEOP, AlState.OP),
-    "OS": (AlState.OP, AlState.SAFEOP),
-    "SI": (AlState.SAFEOP, AlState.INIT),
-    "OI": (AlState.OP, AlState.INIT),
-    "OP": (AlState.OP, AlState.PREOP),
-    "IB": (AlState.INIT, AlState.BOOT),
-    "BI": (AlState.BOOT, AlState.INIT),
-}
-
-
-def parse_transition(name: str) -> str:
-    """Normalise a transition name ("ps", "P->S", "PREOP_SAFEOP" ...) to "PS"."""
-    text = name.strip().upper().replace("->", "").replace("_", "").replace(" ", "")
-    words = {"INIT": "I", "PREOP": "P", "SAFEOP": "S", "OP": "O", "BOOT": "B"}
-    if text not in TRANSITIONS:
-        for a in words:
-            for b in words:
-                if text == a + b:
-                    text = words[a] + words[b]
-    if text not in TRANSITIONS:
-        raise ConfigError(f"unknown state transition {name!r} "
-                          f"(use one of {', '.join(TRANSITIONS)})")
-    return text
-
-
 @dataclass(frozen=True, slots=True)
 class StartupCommand:
     """An SDO download the master does at a state transition (an ESI ``InitCmd``).
@@ -741,8 +700,8 @@ class StartupCommand:
     @property
     def runs_after(self) -> bool:
         """Whether the command runs after the transition (IP) rather than before it."""
-        return TRANSITIONS[self.transition][1] == AlState.PREOP and \
-            TRANSITIONS[self.transition][0] in (AlState.INIT, AlState.BOOT)
+        origin, target = TRANSITIONS[self.transition]
+        return target == AlState.PREOP and origin in (AlState.INIT, AlState.BOOT)
 
     def describe(self) -> str:
         ca = " CA" if self.complete_access else ""

@@ -1,6 +1,6 @@
 """Process-data configuration computed from each slave's SII (no I/O here).
 
-Input: what the master learned about each slave during the scan (``SlaveSpec``:
+Input: what the master learned about each slave during the scan (``SlaveDescription``:
 position, station address, parsed SII, ESC features). Output
 (``ProcessDataConfig``): for every slave the sync manager and FMMU register
 values to write, and for every process-data group its logical base address,
@@ -39,7 +39,7 @@ Layout decisions (documented in docs/master.md):
   else a free one; a slave with no FMMU left is polled with frames (warning).
   The image is then ``[outputs][inputs][mailbox status]``; the read FMMUs
   count in the expected working counter like any other.
-- CoE PDO mapping: set ``SlaveSpec.pdo_mapping`` (sync manager index ->
+- CoE PDO mapping: set ``SlaveDescription.pdo_mapping`` (sync manager index ->
   PDOs), e.g. read from 0x1C12/0x1C13; it replaces the SII PDOs.
 """
 
@@ -66,17 +66,17 @@ __all__ = [
     "DEFAULT_LOGICAL_BASE",
     "GROUP_ALIGNMENT",
     "CyclicDatagram",
-    "Direction",
+    "PdoDirection",
     "FmmuConfig",
     "GroupConfig",
     "GroupSpec",
     "Layout",
-    "Pdo",
-    "PdoEntry",
+    "MappedPdo",
+    "MappedPdoEntry",
     "PdoVariable",
     "ProcessDataConfig",
     "SlaveConfig",
-    "SlaveSpec",
+    "SlaveDescription",
     "SyncManagerConfig",
     "configure",
     "pdos_from_sii",
@@ -89,7 +89,7 @@ GROUP_ALIGNMENT = 0x0001_0000
 
 
 
-class Direction(enum.Enum):
+class PdoDirection(enum.Enum):
     """Process-data direction as seen from the master."""
 
     OUTPUTS = "outputs"  # master -> slave, RxPDOs, write FMMUs
@@ -107,7 +107,7 @@ class Layout(enum.Enum):
 
 
 @dataclass(frozen=True, slots=True)
-class PdoEntry:
+class MappedPdoEntry:
     """One entry of a PDO: an object (index 0 = padding gap) of ``bit_length`` bits."""
 
     index: int
@@ -118,13 +118,13 @@ class PdoEntry:
 
 
 @dataclass(frozen=True, slots=True)
-class Pdo:
+class MappedPdo:
     """A PDO assigned to a sync manager."""
 
     index: int
     name: str
-    entries: tuple[PdoEntry, ...]
-    direction: Direction
+    entries: tuple[MappedPdoEntry, ...]
+    direction: PdoDirection
     sync_manager: int
 
     @property
@@ -132,21 +132,21 @@ class Pdo:
         return sum(e.bit_length for e in self.entries)
 
 
-def _pdo_from_sii(sii: SiiInfo, pdo: SiiPdo, direction: Direction) -> Pdo:
+def _pdo_from_sii(sii: SiiInfo, pdo: SiiPdo, direction: PdoDirection) -> MappedPdo:
     entries = tuple(
-        PdoEntry(e.index, e.subindex, e.bit_length, e.data_type, sii.pdo_name(e) or "")
+        MappedPdoEntry(e.index, e.subindex, e.bit_length, e.data_type, sii.pdo_name(e) or "")
         for e in pdo.entries
     )
-    return Pdo(pdo.index, sii.pdo_name(pdo) or "", entries, direction, pdo.sync_manager)
+    return MappedPdo(pdo.index, sii.pdo_name(pdo) or "", entries, direction, pdo.sync_manager)
 
 
-def pdos_from_sii(sii: SiiInfo) -> dict[int, list[Pdo]]:
+def pdos_from_sii(sii: SiiInfo) -> dict[int, list[MappedPdo]]:
     """The PDOs the SII assigns to sync managers, keyed by sync manager index.
 
     PDOs with sync manager ``SM_NOT_ASSIGNED`` (0xFF, none by default) are left out.
     """
-    out: dict[int, list[Pdo]] = {}
-    for direction, pdos in ((Direction.OUTPUTS, sii.rx_pdos), (Direction.INPUTS, sii.tx_pdos)):
+    out: dict[int, list[MappedPdo]] = {}
+    for direction, pdos in ((PdoDirection.OUTPUTS, sii.rx_pdos), (PdoDirection.INPUTS, sii.tx_pdos)):
         for p in pdos:
             if p.sync_manager == SM_NOT_ASSIGNED:
                 continue
@@ -158,7 +158,7 @@ def pdos_from_sii(sii: SiiInfo) -> dict[int, list[Pdo]]:
 
 
 @dataclass
-class SlaveSpec(reg.EscFeaturesMixin):
+class SlaveDescription(reg.EscFeaturesMixin):
     """What the configuration needs to know about one scanned slave.
 
     ``lrw_supported``, ``bitwise_fmmu`` ... decode ``features`` (register 0x0008).
@@ -174,7 +174,7 @@ class SlaveSpec(reg.EscFeaturesMixin):
     sm_count: int = 8
     name: str = ""
     #: PDOs per sync manager from another source (CoE 0x1C12/0x1C13); None: use the SII.
-    pdo_mapping: Mapping[int, Sequence[Pdo]] | None = None
+    pdo_mapping: Mapping[int, Sequence[MappedPdo]] | None = None
 
     @property
     def supports_lrw(self) -> bool:
@@ -212,7 +212,7 @@ class SyncManagerConfig:
     control: int
     activate: int
     sm_type: int
-    pdos: tuple[Pdo, ...] = ()
+    pdos: tuple[MappedPdo, ...] = ()
 
     @property
     def address(self) -> int:
@@ -281,7 +281,7 @@ class PdoVariable:
     bit_offset: int
     bit_length: int
     data_type: int
-    direction: Direction
+    direction: PdoDirection
     position: int
 
     @property
@@ -432,7 +432,7 @@ class ProcessDataConfig:
 class _Block:
     """Contiguous sync managers of one direction of one slave, mapped by one FMMU."""
 
-    direction: Direction
+    direction: PdoDirection
     sms: list[SyncManagerConfig]
     bits: int
     # filled when placed
@@ -441,21 +441,21 @@ class _Block:
     mapped_bits: int = 0
 
 
-def _sm_direction(sm_type: int, control: int) -> Direction | None:
+def _sm_direction(sm_type: int, control: int) -> PdoDirection | None:
     if sm_type == SyncManagerType.OUTPUTS:
-        return Direction.OUTPUTS
+        return PdoDirection.OUTPUTS
     if sm_type == SyncManagerType.INPUTS:
-        return Direction.INPUTS
+        return PdoDirection.INPUTS
     if sm_type == SyncManagerType.UNUSED and control & reg.SM_CONTROL_MODE_MASK == reg.SmMode.BUFFERED:
         direction = (control & reg.SM_CONTROL_DIRECTION_MASK) >> reg.SM_CONTROL_DIRECTION_SHIFT
-        return Direction.OUTPUTS if direction == reg.SmDirection.WRITE else Direction.INPUTS
+        return PdoDirection.OUTPUTS if direction == reg.SmDirection.WRITE else PdoDirection.INPUTS
     return None
 
 
-def _slave_sync_managers(spec: SlaveSpec, warnings: list[str]) -> list[SyncManagerConfig]:
+def _slave_sync_managers(spec: SlaveDescription, warnings: list[str]) -> list[SyncManagerConfig]:
     """Sync manager register values for one slave from its SII (and PDO mapping)."""
     sii = spec.sii
-    mapping: Mapping[int, Sequence[Pdo]] = (
+    mapping: Mapping[int, Sequence[MappedPdo]] = (
         spec.pdo_mapping if spec.pdo_mapping is not None else pdos_from_sii(sii))
     sii_sms = sii.sync_managers
     out: list[SyncManagerConfig] = []
@@ -465,17 +465,15 @@ def _slave_sync_managers(spec: SlaveSpec, warnings: list[str]) -> list[SyncManag
         if sm.sm_type in (SyncManagerType.MAILBOX_OUT, SyncManagerType.MAILBOX_IN):
             start, length = sm.start, sm.length
             if length == 0:  # fall back to the fixed-area mailbox words
-                if sm.sm_type == SyncManagerType.MAILBOX_OUT:
-                    start, length = sii.rx_mailbox_offset, sii.rx_mailbox_size
-                else:
-                    start, length = sii.tx_mailbox_offset, sii.tx_mailbox_size
+                rx, tx = sii.mailbox_layout()
+                start, length = rx if sm.sm_type == SyncManagerType.MAILBOX_OUT else tx
             out.append(SyncManagerConfig(n, start, length, sm.control,
                                          reg.SM_ACTIVATE_ENABLE if length else 0, sm.sm_type))
             continue
         direction = _sm_direction(sm.sm_type, sm.control)
         if direction is None:
             continue
-        pdos: list[Pdo] = []
+        pdos: list[MappedPdo] = []
         for p in mapping.get(n, ()):
             if p.direction is not direction:
                 warnings.append(
@@ -485,7 +483,7 @@ def _slave_sync_managers(spec: SlaveSpec, warnings: list[str]) -> list[SyncManag
             pdos.append(p)
         bits = sum(p.bit_length for p in pdos)
         length = (bits + 7) // 8
-        sm_type = (SyncManagerType.OUTPUTS if direction is Direction.OUTPUTS
+        sm_type = (SyncManagerType.OUTPUTS if direction is PdoDirection.OUTPUTS
                    else SyncManagerType.INPUTS)
         out.append(SyncManagerConfig(n, sm.start, length, sm.control,
                                      reg.SM_ACTIVATE_ENABLE if length else 0, sm_type,
@@ -504,10 +502,10 @@ def _sm_bits(sm: SyncManagerConfig) -> int:
     return sum(p.bit_length for p in sm.pdos)
 
 
-def _blocks(spec: SlaveSpec, sms: list[SyncManagerConfig], direction: Direction) -> list[_Block]:
+def _blocks(spec: SlaveDescription, sms: list[SyncManagerConfig], direction: PdoDirection) -> list[_Block]:
     """Group the slave's process-data SMs of one direction into FMMU blocks."""
     blocks: list[_Block] = []
-    want = SyncManagerType.OUTPUTS if direction is Direction.OUTPUTS else SyncManagerType.INPUTS
+    want = SyncManagerType.OUTPUTS if direction is PdoDirection.OUTPUTS else SyncManagerType.INPUTS
     for sm in sms:
         if sm.sm_type != want or sm.length == 0:
             continue
@@ -526,20 +524,20 @@ def _blocks(spec: SlaveSpec, sms: list[SyncManagerConfig], direction: Direction)
 class _FmmuAllocator:
     """Hands out FMMU indices: the SII's choice for a direction first, then free ones."""
 
-    def __init__(self, spec: SlaveSpec) -> None:
+    def __init__(self, spec: SlaveDescription) -> None:
         self.spec = spec
         self.usages = list(spec.sii.fmmus)
         self.used: set[int] = set()
 
-    def take(self, direction: Direction) -> int:
-        want = FmmuUsage.OUTPUTS if direction is Direction.OUTPUTS else FmmuUsage.INPUTS
+    def take(self, direction: PdoDirection) -> int:
+        want = FmmuUsage.OUTPUTS if direction is PdoDirection.OUTPUTS else FmmuUsage.INPUTS
         count = self.spec.fmmu_count
         for n, usage in enumerate(self.usages):
             if usage == want and n not in self.used and n < count:
                 self.used.add(n)
                 return n
         if self.spec.fixed_fmmu_sm:
-            fixed = 0 if direction is Direction.OUTPUTS else 1
+            fixed = 0 if direction is PdoDirection.OUTPUTS else 1
             if fixed not in self.used:
                 self.used.add(fixed)
                 return fixed
@@ -586,7 +584,7 @@ def _mailbox_in(sms: Sequence[SyncManagerConfig]) -> SyncManagerConfig | None:
     return None
 
 
-def _variables(spec: SlaveSpec, block: _Block) -> list[PdoVariable]:
+def _variables(spec: SlaveDescription, block: _Block) -> list[PdoVariable]:
     out: list[PdoVariable] = []
     first = block.sms[0].start
     for sm in block.sms:
@@ -602,7 +600,7 @@ def _variables(spec: SlaveSpec, block: _Block) -> list[PdoVariable]:
     return out
 
 
-def _place(blocks: list[tuple[SlaveSpec, _Block]], layout: Layout, start_bit: int) -> int:
+def _place(blocks: list[tuple[SlaveDescription, _Block]], layout: Layout, start_bit: int) -> int:
     """Give each block its bit offset; return the bit after the last one."""
     cursor = start_bit
     for spec, block in blocks:
@@ -622,7 +620,7 @@ def _fmmu(index: int, base: int, block: _Block) -> FmmuConfig:
     start_bit = block.bit_offset % 8
     last_bit = block.bit_offset + block.mapped_bits - 1
     length = last_bit // 8 - block.bit_offset // 8 + 1
-    ftype = reg.FmmuType.WRITE if block.direction is Direction.OUTPUTS else reg.FmmuType.READ
+    ftype = reg.FmmuType.WRITE if block.direction is PdoDirection.OUTPUTS else reg.FmmuType.READ
     return FmmuConfig(index, base + block.bit_offset // 8, length, start_bit, last_bit % 8,
                       block.sms[0].start, 0, ftype)
 
@@ -660,7 +658,7 @@ def _expected_wkc(command: Command, lo: int, hi: int, fmmus: list[tuple[int, Fmm
 
 
 def _datagrams(base: int, out_bytes: int, in_bytes: int, lrw: bool,
-               blocks: list[tuple[SlaveSpec, _Block]], fmmus: list[tuple[int, FmmuConfig]],
+               blocks: list[tuple[SlaveDescription, _Block]], fmmus: list[tuple[int, FmmuConfig]],
                limit: int) -> list[CyclicDatagram]:
     total = out_bytes + in_bytes
     boundaries = [b.bit_offset // 8 for _, b in blocks] + [out_bytes]
@@ -689,7 +687,7 @@ def _datagrams(base: int, out_bytes: int, in_bytes: int, lrw: bool,
     return out
 
 
-def configure(slaves: Sequence[SlaveSpec], groups: Sequence[GroupSpec] | None = None,
+def configure(slaves: Sequence[SlaveDescription], groups: Sequence[GroupSpec] | None = None,
               max_datagram: int = MAX_DATA, *, mailbox_status: bool = True,
               ) -> ProcessDataConfig:
     """Compute sync managers, FMMUs, group layouts and cyclic datagrams.
@@ -742,15 +740,15 @@ def configure(slaves: Sequence[SlaveSpec], groups: Sequence[GroupSpec] | None = 
         if not 0 <= base <= 0xFFFF_FFFF:
             raise ConfigError(f"group {g.name!r}: logical base 0x{base:X} out of range")
         positions = sorted(members[g.name])
-        out_blocks: list[tuple[SlaveSpec, _Block]] = []
-        in_blocks: list[tuple[SlaveSpec, _Block]] = []
+        out_blocks: list[tuple[SlaveDescription, _Block]] = []
+        in_blocks: list[tuple[SlaveDescription, _Block]] = []
         per_slave: dict[int, tuple[list[SyncManagerConfig], list[_Block], list[_Block], list[str]]] = {}
         for p in positions:
             spec = by_pos[p]
             warnings: list[str] = []
             sms = _slave_sync_managers(spec, warnings)
-            ob = _blocks(spec, sms, Direction.OUTPUTS)
-            ib = _blocks(spec, sms, Direction.INPUTS)
+            ob = _blocks(spec, sms, PdoDirection.OUTPUTS)
+            ib = _blocks(spec, sms, PdoDirection.INPUTS)
             out_blocks += [(spec, b) for b in ob]
             in_blocks += [(spec, b) for b in ib]
             per_slave[p] = (sms, ob, ib, warnings)

@@ -56,7 +56,7 @@ from pyethercat.esi.sii_from_esi import (
     pick_device,
 )
 from pyethercat.master import scan as scanning
-from pyethercat.master.config import Direction, Pdo, PdoEntry
+from pyethercat.master.config import MappedPdo, MappedPdoEntry, PdoDirection
 from pyethercat.master.scan import ExpectedSlave
 from pyethercat.master.slave import Identity, Slave
 from pyethercat.wire.mailbox.datatypes import DataType
@@ -193,14 +193,14 @@ def _entry_type(data_type: str | None, bits: int) -> int:
                 32: DataType.UNSIGNED32}.get(bits, 0))  # fmt: skip
 
 
-def _mapping_from_eni(slave: EniSlave) -> dict[int, list[Pdo]]:
-    """The master's PDO view ({sm: [Pdo]}) of an ENI slave's assignment."""
+def _mapping_from_eni(slave: EniSlave) -> dict[int, list[MappedPdo]]:
+    """The master's PDO view ({sm: [MappedPdo]}) of an ENI slave's assignment."""
     by_index = {p.index: p for p in slave.pdos}
-    out: dict[int, list[Pdo]] = {}
+    out: dict[int, list[MappedPdo]] = {}
     for sm in slave.sms:
         if sm.kind not in ("Outputs", "Inputs"):
             continue
-        direction = Direction.OUTPUTS if sm.kind == "Outputs" else Direction.INPUTS
+        direction = PdoDirection.OUTPUTS if sm.kind == "Outputs" else PdoDirection.INPUTS
         pdos = []
         for idx in sm.pdos:
             p = by_index.get(idx)
@@ -208,12 +208,12 @@ def _mapping_from_eni(slave: EniSlave) -> dict[int, list[Pdo]]:
                 raise ConfigError(f"{slave.name}: SM{sm.index} assigns PDO 0x{idx:04X}, "
                                   "which is not described")  # fmt: skip
             entries = tuple(
-                PdoEntry(
+                MappedPdoEntry(
                     e.index, e.subindex, e.bit_len, _entry_type(e.data_type, e.bit_len), e.name
                 )  # fmt: skip
                 for e in p.entries
             )
-            pdos.append(Pdo(p.index, p.name, entries, direction, sm.index))
+            pdos.append(MappedPdo(p.index, p.name, entries, direction, sm.index))
         out[sm.index] = pdos
     return out
 
@@ -222,7 +222,7 @@ def _configure_slave(master: Master, slave: Slave, eni: EniSlave, pdo_assign: bo
     """PDO assignment, start-up commands and DC op mode of one slave from its ENI view."""
     slave.pdo_mapping = _mapping_from_eni(eni)
     # A configuration built earlier does not know the new mapping.
-    master.process_data = None
+    master.pd.invalidate()
     master.remove_startup_commands(slave)
     if pdo_assign and eni.mailbox is not None:
         for sm, pdos in eni.assignment().items():
@@ -242,7 +242,7 @@ def _configure_slave(master: Master, slave: Slave, eni: EniSlave, pdo_assign: bo
                     slave, t, c.index, c.subindex, c.data, c.complete_access,
                     comment=c.comment,
                 )  # fmt: skip
-    slave.dc_op_mode = eni.dc  # type: ignore[attr-defined]
+    slave.dc_op_mode = eni.dc
 
 
 def apply_esi_config(
@@ -267,7 +267,7 @@ def apply_esi_config(
         mbx = spec.device.mailbox
         pdo_assign = bool(mbx and mbx.coe and mbx.coe.pdo_assign)
         _configure_slave(master, slave, eni, pdo_assign)
-        slave.dc_op_mode_esi = _op_mode(spec.device, spec.op_mode)  # type: ignore[attr-defined]
+        slave.dc_op_mode_esi = _op_mode(spec.device, spec.op_mode)
         out.append(eni)
     return out
 
@@ -313,7 +313,7 @@ def _eni_slave_of(master: Master, slave: Slave) -> EniSlave:
         sms.append(EniSm(index=n, kind=_kind(s.sm_type), start=s.start,  # type: ignore[arg-type]
                          size=c.length if c is not None else s.length, control=s.control,
                          enable=s.enabled, pdos=pdos))  # fmt: skip
-    mapping: Mapping[int, Sequence[Pdo]] = slave.pdo_mapping or {}
+    mapping: Mapping[int, Sequence[MappedPdo]] = slave.pdo_mapping or {}
     pdos_seen: dict[int, EniPdo] = {}
 
     def add(index: int, direction: str, name: str, entries: tuple[EniPdoEntry, ...],
@@ -332,7 +332,7 @@ def _eni_slave_of(master: Master, slave: Slave) -> EniSlave:
     for mapped in mapping.values():
         for q in mapped:
             known = pdos_seen.get(q.index)  # keep the SII's Fixed/Mandatory flags
-            add(q.index, "rx" if q.direction is Direction.OUTPUTS else "tx", q.name, tuple(
+            add(q.index, "rx" if q.direction is PdoDirection.OUTPUTS else "tx", q.name, tuple(
                 EniPdoEntry(index=e.index, subindex=e.subindex, bit_len=e.bit_length,
                             name=e.name, data_type=_dtype_name(e.data_type))
                 for e in q.entries), bool(known and known.fixed), bool(known and known.mandatory))  # fmt: skip
@@ -350,7 +350,7 @@ def _eni_slave_of(master: Master, slave: Slave) -> EniSlave:
                          in_size=m.tx_size, protocols=_protocols(m.protocols),
                          data_link_layer=bool(gen and gen.flags & GeneralFlags.MBOX_DATA_LINK_LAYER),
                          init_cmds=cmds)  # fmt: skip
-    dc = getattr(slave, "dc_op_mode", None)
+    dc = slave.dc_op_mode
     if dc is None and sii.dc_modes:
         mode = sii.dc_modes[0]
         dc = EniDc(op_mode=sii.string(mode.name_index) or "", assign_activate=mode.assign_activate,
@@ -398,7 +398,7 @@ def eni_from_master(master: Master, *, cycle_time_us: int | None = None) -> EniC
                 var = EniVariable(name=f"{v.position}.{v.qualified_name}",
                                   data_type=_dtype_name(v.data_type), bit_size=v.bit_length,
                                   bit_offs=v.bit_offset)  # fmt: skip
-                (outputs if v.direction is Direction.OUTPUTS else inputs).append(var)
+                (outputs if v.direction is PdoDirection.OUTPUTS else inputs).append(var)
             in_bytes += g.input_bytes
             out_bytes += g.output_bytes
     return EniConfig(
@@ -455,7 +455,7 @@ def start_from_eni(master: Master, eni: EniConfig) -> EniStart:
             s.alias = e.alias
         s.name = e.name or s.name
         out.configured.append(e)
-    master._attach_mailboxes(slaves)
+    master.mailboxes.attach(slaves)
     for s, e in zip(slaves, eni.slaves, strict=True):
         # The ENI's InitCmds already hold any PDO assignment writes.
         _configure_slave(master, s, e, pdo_assign=False)

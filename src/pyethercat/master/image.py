@@ -26,7 +26,7 @@ import numpy as np
 import numpy.typing as npt
 
 from pyethercat.errors import ConfigError
-from pyethercat.master.config import Direction, GroupConfig, PdoVariable, ProcessDataConfig
+from pyethercat.master.config import GroupConfig, PdoDirection, PdoVariable, ProcessDataConfig
 from pyethercat.wire.mailbox.datatypes import DATA_TYPE_BITS, DataType
 
 __all__ = ["ProcessImage", "SlaveIO", "Variable", "build_images"]
@@ -189,7 +189,7 @@ class SlaveIO(MutableMapping[str, PdoValue]):
     Writing inputs is refused.
     """
 
-    def __init__(self, position: int, direction: Direction, variables: list[Variable]) -> None:
+    def __init__(self, position: int, direction: PdoDirection, variables: list[Variable]) -> None:
         self.position = position
         self.direction = direction
         self._vars = variables
@@ -228,7 +228,7 @@ class SlaveIO(MutableMapping[str, PdoValue]):
         return self.variable(key).get()
 
     def __setitem__(self, key: str | tuple[int, int], value: PdoValue) -> None:
-        if self.direction is Direction.INPUTS:
+        if self.direction is PdoDirection.INPUTS:
             raise ConfigError(f"slave {self.position}: inputs are read-only ({key!r})")
         self.variable(key).set(value)
 
@@ -266,10 +266,10 @@ class ProcessImage:
         self.inputs = memoryview(self.buffer)[group.output_bytes:group.status_offset]
         self._slave_io: dict[int, tuple[SlaveIO, SlaveIO]] = {}
         for sc in group.slaves:
-            outs = [Variable(v, self.buffer) for v in sc.variables if v.direction is Direction.OUTPUTS]
-            ins = [Variable(v, self.buffer) for v in sc.variables if v.direction is Direction.INPUTS]
-            self._slave_io[sc.position] = (SlaveIO(sc.position, Direction.INPUTS, ins),
-                                           SlaveIO(sc.position, Direction.OUTPUTS, outs))
+            outs = [Variable(v, self.buffer) for v in sc.variables if v.direction is PdoDirection.OUTPUTS]
+            ins = [Variable(v, self.buffer) for v in sc.variables if v.direction is PdoDirection.INPUTS]
+            self._slave_io[sc.position] = (SlaveIO(sc.position, PdoDirection.INPUTS, ins),
+                                           SlaveIO(sc.position, PdoDirection.OUTPUTS, outs))
 
     @property
     def positions(self) -> list[int]:
@@ -303,11 +303,11 @@ class ProcessImage:
         return np.frombuffer(self.buffer, dtype=np.uint8, count=self.group.input_bytes,
                              offset=self.group.output_bytes)
 
-    def slave_bytes(self, position: int, direction: Direction) -> bytes:
+    def slave_bytes(self, position: int, direction: PdoDirection) -> bytes:
         """The bytes covering a slave's outputs or inputs (packed neighbours included)."""
         sc = next(s for s in self.group.slaves if s.position == position)
-        offset = sc.output_bit_offset if direction is Direction.OUTPUTS else sc.input_bit_offset
-        bits = sc.output_bits if direction is Direction.OUTPUTS else sc.input_bits
+        offset = sc.output_bit_offset if direction is PdoDirection.OUTPUTS else sc.input_bit_offset
+        bits = sc.output_bits if direction is PdoDirection.OUTPUTS else sc.input_bits
         if offset < 0:
             return b""
         return bytes(self.buffer[offset // 8:(offset + bits + 7) // 8])

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from pyethercat.master.slave import Slave
+from pyethercat.master.slave_info import SlaveInfo
 from pyethercat.wire.registers import PortType
 from pyethercat.wire.sii.model import CoeDetails, GeneralFlags
 
@@ -23,11 +23,11 @@ _PORT_TYPE = {PortType.NOT_IMPLEMENTED: "-", PortType.NOT_CONFIGURED: "n/c",
               PortType.EBUS: "EBUS", PortType.MII: "MII"}
 
 
-def _address(slave: Slave) -> str:
+def _address(slave: SlaveInfo) -> str:
     return f"0x{slave.station_address:04X}/{slave.alias if slave.alias else '-'}"
 
 
-def slave_line(slave: Slave) -> str:
+def slave_line(slave: SlaveInfo) -> str:
     """``3  0x1004/-  PREOP  +  EL2004``: position, address/alias, state, flag, name.
 
     The flag is ``+`` when the slave shows no error, ``E`` when its AL
@@ -41,21 +41,21 @@ def slave_line(slave: Slave) -> str:
     return text
 
 
-def slave_table(slaves: Sequence[Slave], header: bool = True) -> str:
+def slave_table(slaves: Sequence[SlaveInfo], header: bool = True) -> str:
     """One line per slave (see :func:`slave_line`)."""
     lines = [TABLE_HEADER] if header else []
     lines += [slave_line(s) for s in slaves]
     return "\n".join(lines)
 
 
-def _peer_text(slave: Slave, port: int) -> str:
+def _peer_text(slave: SlaveInfo, port: int) -> str:
     if port == 0 and slave.parent is None:
         return "master" if slave.ports[0].active else "-"
     peer = slave.ports[port].peer
     return f"slave {peer.position}" if peer is not None else "-"
 
 
-def _dc_lines(slave: Slave, dc_delay_ns: int | None, dc_system_time: bool) -> list[str]:
+def _dc_lines(slave: SlaveInfo, dc_delay_ns: int | None, dc_system_time: bool) -> list[str]:
     """IgH's two DC lines: support and width, and the transmission delay (0x0928)."""
     esc = slave.esc
     if not esc.dc_supported:
@@ -68,7 +68,7 @@ def _dc_lines(slave: Slave, dc_delay_ns: int | None, dc_system_time: bool) -> li
     return lines
 
 
-def slave_record(slave: Slave, dc_delay_ns: int | None = None, dc_system_time: bool = True) -> str:
+def slave_record(slave: SlaveInfo, dc_delay_ns: int | None = None, dc_system_time: bool = True) -> str:
     """Everything known about one slave, ``key: value`` lines (``slaves -v``).
 
     ``dc_delay_ns``: its system time delay register 0x0928 as read now;
@@ -148,7 +148,7 @@ def slave_record(slave: Slave, dc_delay_ns: int | None = None, dc_system_time: b
     return "\n".join(lines)
 
 
-def topology_tree(slaves: Sequence[Slave]) -> str:
+def topology_tree(slaves: Sequence[SlaveInfo]) -> str:
     """The segment as a tree: which slave hangs on which port of which parent.
 
     ::
@@ -162,12 +162,12 @@ def topology_tree(slaves: Sequence[Slave]) -> str:
     lines = ["master"]
     roots = [s for s in slaves if s.parent is None]
 
-    def label(s: Slave, port: int | None) -> str:
+    def label(s: SlaveInfo, port: int | None) -> str:
         where = f"port {port}: " if port is not None else ""
         return f"{where}{s.position} {s.name} (0x{s.station_address:04X})"
 
     # Iterative depth-first walk (a line of 1000 slaves must not hit the recursion limit).
-    stack: list[tuple[Slave, int | None, str, bool]] = [
+    stack: list[tuple[SlaveInfo, int | None, str, bool]] = [
         (s, None, "", n == len(roots) - 1) for n, s in reversed(list(enumerate(roots)))]
     while stack:
         slave, port, prefix, last = stack.pop()
@@ -186,7 +186,7 @@ def igh_state(state: int, error: bool) -> str:
     return names.get(state & 0x0F, "???") + ("+ERROR" if error else "")
 
 
-def alias_positions(slaves: Sequence[Slave]) -> dict[int, tuple[int, int]]:
+def alias_positions(slaves: Sequence[SlaveInfo]) -> dict[int, tuple[int, int]]:
     """IgH's ``alias:relative position`` of every slave: the last alias met and the distance."""
     out: dict[int, tuple[int, int]] = {}
     alias, rel = 0, 0
@@ -198,7 +198,7 @@ def alias_positions(slaves: Sequence[Slave]) -> dict[int, tuple[int, int]]:
     return out
 
 
-def igh_slave_list(slaves: Sequence[Slave], positions: Sequence[int] | None = None) -> list[str]:
+def igh_slave_list(slaves: Sequence[SlaveInfo], positions: Sequence[int] | None = None) -> list[str]:
     """``slaves`` lines exactly as IgH's ``ethercat slaves`` prints them.
 
     ``0  0:0  PREOP  +  EK1100 EtherCAT-Koppler (2A E-Bus)``: ring position,

@@ -45,11 +45,13 @@ scheduler packs the datagrams of concurrent transactions into shared frames.
 from __future__ import annotations
 
 import logging
+import queue
 import struct
 import threading
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any, TypeVar
 
 from pyethercat.errors import (
     EtherCATError,
@@ -74,8 +76,10 @@ from pyethercat.wire.mailbox.header import (
 
 __all__ = [
     "DEFAULT_MAILBOX_TIMEOUT",
+    "ClientContext",
+    "DropOldestQueue",
     "Mailbox",
-    "MailboxMessage",
+    "ReceivedMessage",
     "MailboxPoller",
     "MailboxStats",
     "StatusSource",
@@ -93,8 +97,47 @@ _BUSY_POLL = 0.002
 _MAX_POLL_PAUSE = 0.001
 
 
+_T = TypeVar("_T")
+
+
+class DropOldestQueue(queue.Queue[_T]):
+    """A :class:`queue.Queue` whose ``put`` never blocks: when full, the oldest item goes.
+
+    Unsolicited messages (CoE emergencies) must not stall the thread that read
+    them (a mailbox transaction) and the newest ones matter most.
+    """
+
+    def put(self, item: _T, block: bool = True, timeout: float | None = None) -> None:
+        """Append ``item``, dropping the oldest one first when the queue is full."""
+        with self.not_full:
+            if 0 < self.maxsize <= self._qsize():
+                self._get()
+            self._put(item)
+            self.unfinished_tasks += 1
+            self.not_empty.notify()
+
+    def put_nowait(self, item: _T) -> None:
+        """Same as :meth:`put` (it never blocks)."""
+        self.put(item)
+
+
 @dataclass(frozen=True, slots=True)
-class MailboxMessage:
+class ClientContext:
+    """What a mailbox protocol client gets from the master when it is made for a slave.
+
+    ``position`` is the slave's ring position; ``events`` the master's queue
+    for the unsolicited messages of this protocol (shared by the clients of
+    every slave: ``master.emergencies`` for CoE); ``report`` passes such an
+    event to the master's callbacks.
+    """
+
+    position: int
+    events: DropOldestQueue[Any]
+    report: Callable[[Any], None]
+
+
+@dataclass(frozen=True, slots=True)
+class ReceivedMessage:
     """A message read from SM1: its header and payload (exactly ``header.length`` bytes)."""
 
     header: MailboxHeader
@@ -106,9 +149,9 @@ class MailboxMessage:
 
 
 #: Called with every message read from a slave; returns True when it took the message.
-UnsolicitedHandler = Callable[["Mailbox", MailboxMessage], bool]
+UnsolicitedHandler = Callable[["Mailbox", ReceivedMessage], bool]
 #: Decides whether a message answers the transaction in progress.
-Accept = Callable[[MailboxMessage], bool]
+Accept = Callable[[ReceivedMessage], bool]
 #: SM1 status byte from the cyclic image, read by a cycle that began after the call,
 #: waiting up to the given seconds (0: the last one read, no waiting). None: no cyclic
 #: exchange carries it now (or not in time, or its working counter was off): poll.
@@ -233,7 +276,7 @@ class Mailbox:
         self._io = threading.RLock()
         self._counter = 0
         self._last_in = 0
-        self._inbox: deque[MailboxMessage | MailboxErrorReply] = deque(maxlen=64)
+        self._inbox: deque[ReceivedMessage | MailboxErrorReply] = deque(maxlen=64)
         self._handlers: list[UnsolicitedHandler] = []
         # A fetch may have emptied SM1 without its reply reaching us.
         self._lost = False
@@ -371,7 +414,7 @@ class Mailbox:
     # -- receiving ------------------------------------------------------------------------
 
     def receive(self, accept: Accept | None = None, *, what: str = "mailbox reply",
-                timeout: float | None = None) -> MailboxMessage:
+                timeout: float | None = None) -> ReceivedMessage:
         """Wait for a message ``accept`` takes (any message when None).
 
         Messages nobody wants stay in the inbox for other clients; a mailbox
@@ -404,7 +447,7 @@ class Mailbox:
 
     def transact(self, mtype: MailboxType | int, payload: bytes, accept: Accept | None = None,
                  *, what: str = "mailbox request", timeout: float | None = None,
-                 ) -> MailboxMessage:
+                 ) -> ReceivedMessage:
         """Send a request and wait for the message ``accept`` takes as its answer."""
         span = self.timeout if timeout is None else timeout
         limit = self.clock() + span
@@ -436,15 +479,15 @@ class Mailbox:
     def drop(self, accept: Accept) -> int:
         """Throw away queued messages ``accept`` takes (late answers); returns how many."""
         with self._io:
-            stale = [m for m in self._inbox if isinstance(m, MailboxMessage) and accept(m)]
+            stale = [m for m in self._inbox if isinstance(m, ReceivedMessage) and accept(m)]
             for m in stale:
                 self._inbox.remove(m)
             return len(stale)
 
-    def pending(self) -> list[MailboxMessage]:
+    def pending(self) -> list[ReceivedMessage]:
         """Take every queued message (those no transaction asked for)."""
         with self._io:
-            out = [m for m in self._inbox if isinstance(m, MailboxMessage)]
+            out = [m for m in self._inbox if isinstance(m, ReceivedMessage)]
             self._inbox.clear()
             return out
 
@@ -599,7 +642,7 @@ class Mailbox:
                 return
             self._last_in = header.counter
             self.stats.received += 1
-            msg = MailboxMessage(header, raw[MAILBOX_HEADER_SIZE:MAILBOX_HEADER_SIZE +
+            msg = ReceivedMessage(header, raw[MAILBOX_HEADER_SIZE:MAILBOX_HEADER_SIZE +
                                              header.length])
             if header.type == MailboxType.ERR:
                 self.stats.error_replies += 1
@@ -615,7 +658,7 @@ class Mailbox:
                     return
             self._inbox.append(msg)
 
-    def _from_inbox(self, accept: Accept | None, what: str) -> MailboxMessage | None:
+    def _from_inbox(self, accept: Accept | None, what: str) -> ReceivedMessage | None:
         if not self._inbox:
             return None
         with self._io:

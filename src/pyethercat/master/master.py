@@ -20,10 +20,10 @@ import contextlib
 import logging
 import struct
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from types import TracebackType
-from typing import TYPE_CHECKING, Self
+from typing import TYPE_CHECKING, Any, Self, TypeVar
 
 from pyethercat.clock import Clock
 from pyethercat.errors import ConfigError, StateTimeoutError, WorkingCounterError
@@ -31,20 +31,31 @@ from pyethercat.link.base import Link
 from pyethercat.master import diag, states
 from pyethercat.master import scan as scanning
 from pyethercat.master.clocks import DistributedClocks
-from pyethercat.master.coe_setup import CoeMasterMixin
-from pyethercat.master.process import ProcessDataMixin
+from pyethercat.master.coe import CoeClient, DTypeLike, EmergencyEvent, PdoSpec, StartupCommand
+from pyethercat.master.coe_setup import CoeSetup
+from pyethercat.master.config import GroupSpec, Layout, MappedPdo, ProcessDataConfig
+from pyethercat.master.cyclic import Cycle, CycleStats, CyclicRunner
+from pyethercat.master.dc_loop import DcMode
+from pyethercat.master.eeprom import SiiService, SiiTarget
+from pyethercat.master.image import ProcessImage, SlaveIO
+from pyethercat.master.mailbox import DEFAULT_MAILBOX_TIMEOUT, DropOldestQueue, Mailbox
+from pyethercat.master.mailboxes import MailboxService
+from pyethercat.master.process import ProcessData
 from pyethercat.master.scheduler import (
     DEFAULT_MAX_IN_FLIGHT,
     DEFAULT_RETRIES,
     DEFAULT_TIMEOUT,
     Scheduler,
 )
-from pyethercat.master.sii_write import SiiWriteReport, WriteTiming, with_alias, write_sii_image
+from pyethercat.master.sii_write import SiiWriteReport
 from pyethercat.master.slave import Identity, Slave
+from pyethercat.master.slave_info import SlaveInfo
+from pyethercat.master.transitions import TransitionHook, Transitions
 from pyethercat.wire.al import AlState
 from pyethercat.wire.datagram import Command, Datagram
-from pyethercat.wire.frame import MASTER_MAC, returned_source_mac
-from pyethercat.wire.registers import RX_ERROR_COUNTER, SII_CONTROL, STATION_ALIAS, SiiControl
+from pyethercat.wire.frame import MASTER_MAC
+from pyethercat.wire.mailbox.datatypes import Value
+from pyethercat.wire.registers import RX_ERROR_COUNTER
 from pyethercat.wire.sii import SII_DEFAULT_MAX_BYTES
 
 if TYPE_CHECKING:
@@ -54,10 +65,31 @@ __all__ = ["Master", "SlaveRef"]
 
 #: A slave given by object or by ring position.
 SlaveRef = Slave | int
+C = TypeVar("C")
 
 
-class Master(CoeMasterMixin, ProcessDataMixin):
-    """An EtherCAT master on one link.
+class _SlaveServices:
+    """What the slave handles of one master ask for (:class:`~pyethercat.master.slave.SlaveServices`)."""
+
+    def __init__(self, mailboxes: MailboxService, pd: ProcessData, coe: CoeSetup) -> None:
+        self._mailboxes, self._pd, self._coe = mailboxes, pd, coe
+
+    def mailbox_of(self, position: int) -> Mailbox | None:
+        return self._mailboxes.mailbox_of(position)
+
+    def client_of(self, position: int, kind: type[C]) -> C | None:
+        return self._mailboxes.client_of(position, kind)
+
+    def io_of(self, slave: SlaveInfo, outputs: bool) -> SlaveIO:
+        return self._pd.io_of(slave, outputs)
+
+    def map_pdos(self, slave: SlaveInfo,
+                 mapping: Mapping[int, Sequence[PdoSpec]]) -> dict[int, list[MappedPdo]]:
+        return self._coe.set_pdo_mapping(slave, mapping)
+
+
+class Master:
+    """An EtherCAT master on one link: a façade over its services.
 
     ``timeout``/``retries``/``max_in_flight`` configure the scheduler;
     ``clock`` is its time base: a :class:`~pyethercat.clock.VirtualClock` for
@@ -65,12 +97,19 @@ class Master(CoeMasterMixin, ProcessDataMixin):
     with a simulator as responder), where lost frames are known at once and
     waits move the virtual clock instead of sleeping. ``owns_link``:
     ``close`` closes the link too.
+
+    The services, each usable on its own: ``scheduler`` (frames),
+    ``transitions`` (state changes and their hooks), ``mailboxes`` (mailboxes
+    and protocol clients), ``coe_setup`` (start-up commands, CoE PDO
+    mapping), ``pd`` (process data and the cyclic runner), ``dc``
+    (distributed clocks).
     """
 
     def __init__(self, link: Link, *, timeout: float = DEFAULT_TIMEOUT,
                  retries: int = DEFAULT_RETRIES, max_in_flight: int = DEFAULT_MAX_IN_FLIGHT,
                  clock: Clock | None = None, src: bytes = MASTER_MAC,
-                 station_base: int = scanning.DEFAULT_STATION_BASE, owns_link: bool = True) -> None:
+                 station_base: int = scanning.DEFAULT_STATION_BASE, owns_link: bool = True,
+                 mailbox_timeout: float = DEFAULT_MAILBOX_TIMEOUT) -> None:
         self.link = link
         self.scheduler = Scheduler(link, timeout=timeout, retries=retries,
                                    max_in_flight=max_in_flight, src=src, clock=clock)
@@ -82,48 +121,65 @@ class Master(CoeMasterMixin, ProcessDataMixin):
         self.topology_consistent = True
         self._lock = threading.RLock()
         self._closed = False
+        self.transitions = Transitions(self.scheduler)
+        self.mailboxes = MailboxService(self.scheduler, runner=lambda: self.pd.runner,
+                                        timeout=mailbox_timeout)
         #: Distributed clocks: set-up, SYNC pulses, the cyclic plan (:class:`DistributedClocks`).
         self.dc = DistributedClocks(self.scheduler.transact, lambda: self.slaves)
+        self.coe_setup = CoeSetup(self.mailboxes,
+                                  bring_to_preop=self._to_preop,
+                                  mapping_changed=lambda: self.pd.invalidate())
+        self.pd = ProcessData(self.scheduler, self.transitions, lambda: self.slaves, self.dc,
+                              lock=self._lock,
+                              before_configure=self.coe_setup.read_missing_mappings)
+        # Around every state change: mailbox SMs and exchange state, then start-up commands.
+        self.transitions.add_hook(self.mailboxes)
+        self.transitions.add_hook(self.coe_setup)
+        self.sii = SiiService(self.scheduler, self._lock)
+        self._services = _SlaveServices(self.mailboxes, self.pd, self.coe_setup)
         #: The control socket server, while one serves this master (see :meth:`open`).
         self.control: ControlServer | None = None
 
     # -- opening and closing ---------------------------------------------------------
 
     @classmethod
-    def open(cls, iface: str | None = None, *, udp: str | None = None,
-             link: Link | None = None, control: bool = True, **options: object) -> Master:
-        """Open a master on a network interface (raw socket), a UDP peer or a given link.
+    def open(cls, where: str | None = None, *, iface: str | None = None,
+             udp: str | None = None, link: Link | None = None,
+             timeout: float = DEFAULT_TIMEOUT, retries: int = DEFAULT_RETRIES,
+             max_in_flight: int = DEFAULT_MAX_IN_FLIGHT, clock: Clock | None = None,
+             src: bytes = MASTER_MAC, station_base: int = scanning.DEFAULT_STATION_BASE,
+             mailbox_timeout: float = DEFAULT_MAILBOX_TIMEOUT, control: bool = True) -> Master:
+        """Open a master on a link named as :func:`pyethercat.link.open_link` takes it.
 
-        ``udp`` is ``HOST[:PORT]`` (port 34980 by default). Other keyword
-        options go to :class:`Master`. With ``control`` (on an interface or
-        UDP peer) the master serves its control socket, so the command line
-        reaches it while it runs (:mod:`pyethercat.master.control`); a second
-        master on the same link is refused with :class:`ConfigError`. When the
-        socket cannot be made (no writable runtime directory) the master still
-        opens, with a warning logged.
+        ``where`` is ``"raw:eth1"`` (or just ``"eth1"``), ``"udp:HOST[:PORT]"``,
+        ``"unix:PATH"``...; ``iface="eth1"`` and ``udp="HOST[:PORT]"`` are the
+        same as ``raw:`` and ``udp:``; ``link`` is a link made elsewhere.
+        Give exactly one. The other options go to :class:`Master`. With
+        ``control`` (on an interface or UDP peer) the master serves its control
+        socket, so the command line reaches it while it runs
+        (:mod:`pyethercat.master.control`); a second master on the same link
+        is refused with :class:`ConfigError`. When the socket cannot be made (no
+        writable runtime directory) the master still opens, with a warning logged.
         """
-        given = [x for x in (iface, udp, link) if x is not None]
+        from pyethercat.link.registry import open_link
+
+        given = [x for x in (where, iface, udp, link) if x is not None]
         if len(given) != 1:
-            raise ConfigError("give exactly one of iface, udp or link")
+            raise ConfigError("give exactly one of a link name, iface, udp or link")
+        name = None
         if link is None:
-            if iface is not None:
-                from pyethercat.link.raw import RawLink
-
-                link = RawLink(iface)
-            else:
-                from pyethercat.link.udp import UdpLink
-
-                # UDP carries no MACs: make replies look returned (LA bit), as on a wire.
-                src = options.get("src", MASTER_MAC)
-                assert isinstance(src, bytes)
-                link = UdpLink(peer=udp, rx_src=returned_source_mac(src))
-        master = cls(link, **options)  # type: ignore[arg-type]
-        if control and (iface is not None or udp is not None):
-            from pyethercat.master.control.endpoint import link_spec
+            name = where if where is not None else (f"raw:{iface}" if iface is not None
+                                                    else f"udp:{udp}")
+            link = open_link(name)
+        master = cls(link, timeout=timeout, retries=retries, max_in_flight=max_in_flight,
+                     clock=clock, src=src, station_base=station_base,
+                     mailbox_timeout=mailbox_timeout)
+        spec = _control_spec(name) if control and name is not None else None
+        if spec is not None:
             from pyethercat.master.control.server import MasterRunningError, serve
 
             try:
-                master.control = serve(master, link_spec(iface=iface, udp=udp))
+                master.control = serve(master, spec)
             except MasterRunningError:
                 master.close()
                 raise
@@ -166,9 +222,6 @@ class Master(CoeMasterMixin, ProcessDataMixin):
         return f"<Master on {self.link.name}: {len(self.slaves)} slaves>"
 
     # -- helpers ----------------------------------------------------------------------
-
-    def _sleep(self, seconds: float) -> None:
-        self.scheduler.sleep(seconds)
 
     def slave(self, ref: SlaveRef) -> Slave:
         """The scanned slave at a position (or the slave itself)."""
@@ -225,11 +278,11 @@ class Master(CoeMasterMixin, ProcessDataMixin):
         """
         with self._lock:
             base = self.station_base if station_base is None else station_base
-            slaves = scanning.scan(self.scheduler, station_base=base, reset=reset,
-                               read_sii=read_sii, progress=progress,
-                               max_sii_bytes=max_sii_bytes)
+            slaves = scanning.scan(self.scheduler, make=self._make_slave, station_base=base,
+                                   reset=reset, read_sii=read_sii, progress=progress,
+                                   max_sii_bytes=max_sii_bytes)
             self.slaves = slaves
-            self._attach_mailboxes(slaves)
+            self.mailboxes.attach(slaves)
             self.topology_consistent = scanning.build_topology(slaves)
             if reset and slaves:
                 # A chip in device emulation (no firmware: EK1100, EL1004) copies AL
@@ -241,11 +294,16 @@ class Master(CoeMasterMixin, ProcessDataMixin):
                     states.request_state(self.scheduler, echo, AlState.INIT)
                 # Slaves that take longer show up in the listing; set_state() reports them.
                 with contextlib.suppress(StateTimeoutError):
-                    states.wait_for_state(self.scheduler, slaves, AlState.INIT, timeout=2.0,
-                                          sleep=self._sleep)
+                    states.wait_for_state(self.scheduler, slaves, AlState.INIT, timeout=2.0)
             if expected is not None:
                 scanning.check_expected(slaves, expected)
             return slaves
+
+    def _to_preop(self, slaves: Sequence[SlaveInfo]) -> None:
+        self.set_state(AlState.PREOP, [s.position for s in slaves])
+
+    def _make_slave(self, position: int, station_address: int) -> Slave:
+        return Slave(position, station_address, self._services)
 
     def check_expected(self, expected: Sequence[Identity | scanning.ExpectedSlave]) -> None:
         """Compare the scanned slaves with an expected configuration."""
@@ -322,50 +380,32 @@ class Master(CoeMasterMixin, ProcessDataMixin):
     def wait_state(self, state: AlState | int | str, slaves: Sequence[SlaveRef] | None = None,
                    timeout: float = states.DEFAULT_STATE_TIMEOUT) -> None:
         """Wait until the slaves are in ``state`` (AlStatusError / StateTimeoutError otherwise)."""
-        states.wait_for_state(self.scheduler, self._select(slaves), _state(state), timeout,
-                              sleep=self._sleep)
+        states.wait_for_state(self.scheduler, self._select(slaves), _state(state), timeout)
 
     def set_state(self, state: AlState | int | str, slaves: Sequence[SlaveRef] | None = None,
                   timeout: float = states.DEFAULT_STATE_TIMEOUT, *,
-                  ack_errors: bool = True,
-                  prepare: states.PrepareStep | None = states.setup_mailboxes,
+                  ack_errors: bool = True, hooks: Sequence[TransitionHook] | None = None,
                   configure: bool = False, wait: bool = True) -> None:
         """Bring slaves to ``state`` through the standard path and wait for it.
 
         ``timeout`` applies to each step. Refusals raise
         :class:`~pyethercat.errors.AlStatusError` with the AL status code;
         slaves that take too long raise
-        :class:`~pyethercat.errors.StateTimeoutError` naming them. ``prepare``
-        runs before each step (default: mailbox sync managers from the SII
-        before INIT -> PREOP/BOOT). With ``configure`` the process-data sync
-        managers and FMMUs are written before PREOP -> SAFEOP (configuring
-        from SII or CoE first if :meth:`configure` has not run), as a slave
-        refuses SAFEOP without them; OP still needs cyclic process data.
+        :class:`~pyethercat.errors.StateTimeoutError` naming them. The
+        master's transition hooks run around each step (mailbox sync
+        managers before INIT -> PREOP/BOOT, CoE start-up commands); ``hooks``
+        replaces them for this call (``()``: none). With ``configure`` the
+        process-data sync managers and FMMUs (and DC) are written before
+        PREOP -> SAFEOP (configuring from SII or CoE first if :meth:`configure`
+        has not run), as a slave refuses SAFEOP without them; OP still needs
+        cyclic process data. Without ``wait`` the last step is requested and not
+        waited for.
         """
         with self._lock:
-            finish = None
-            if prepare is states.setup_mailboxes:
-                # mailbox SMs plus the CoE start-up commands of each transition
-                prepare, finish = self._prepare_step, self._finish_step
-            if configure:
-                prepare = self._with_process_data_config(prepare)
-            states.set_state(self.scheduler, self._select(slaves), _state(state), timeout,
-                             ack_errors=ack_errors, sleep=self._sleep, prepare=prepare,
-                             finish=finish, wait=wait)
-
-    def _with_process_data_config(self, inner: states.PrepareStep | None) -> states.PrepareStep:
-        """``inner``, then the process-data SMs/FMMUs before the SAFEOP step."""
-
-        def prepare(scheduler: Scheduler, step: AlState, group: Sequence[Slave]) -> None:
-            if inner is not None:
-                inner(scheduler, step, group)
-            if step == AlState.SAFEOP:
-                # Configured here, not earlier: CoE mappings are read in PREOP.
-                self._need_config()
-                self.write_process_data_config(group)
-                self.dc.before_safeop(group)
-
-        return prepare
+            extra = self.pd.bring_up_hooks if configure else ()
+            self.transitions.set_state(self._select(slaves), _state(state), timeout,
+                                       ack_errors=ack_errors, hooks=hooks, extra=extra,
+                                       wait=wait)
 
     def acknowledge_errors(self, slaves: Sequence[SlaveRef] | None = None) -> list[Slave]:
         """Acknowledge error flags; returns the slaves that had one."""
@@ -387,25 +427,140 @@ class Master(CoeMasterMixin, ProcessDataMixin):
         """Clear the error counters (a write to a counter group clears the group)."""
         self.write_many(RX_ERROR_COUNTER, bytes(diag.ERROR_COUNTERS_SIZE), slaves)
 
-    # -- SII ------------------------------------------------------------------------------
+    # -- mailboxes and CoE (the mailbox and CoE services) -------------------------------
 
-    def _sii_access(self, slave: SlaveRef) -> scanning.SiiAccess:
+    @property
+    def emergencies(self) -> DropOldestQueue[EmergencyEvent]:
+        """Emergencies of every slave (oldest dropped when 1024 are waiting)."""
+        return self.mailboxes.emergencies
+
+    def on_emergency(self, callback: Callable[[EmergencyEvent], None]) -> None:
+        """Call ``callback(event)`` for every emergency of every slave."""
+
+        def only_emergencies(event: object) -> None:
+            if isinstance(event, EmergencyEvent):
+                callback(event)
+
+        self.mailboxes.on_event(only_emergencies)
+
+    def poll_mailboxes(self) -> int:
+        """Fetch whatever the slaves posted unasked (emergencies); returns how many came."""
+        return self.mailboxes.poll(self.slaves)
+
+    def coe(self, slave: SlaveRef) -> CoeClient:
+        """The CoE client of a slave; :class:`ConfigError` when it has no mailbox."""
+        return self.coe_setup.client(self.slave(slave))
+
+    @property
+    def startup_commands(self) -> list[StartupCommand]:
+        """Every start-up command, in the order they run within a transition."""
+        return self.coe_setup.startup_commands
+
+    def add_startup_command(self, slave: SlaveRef, transition: str, index: int,
+                            subindex: int, data: bytes | Value, complete_access: bool = False,
+                            *, dtype: DTypeLike | None = None, comment: str = "",
+                            timeout: float | None = None) -> StartupCommand:
+        """Have an SDO download done at a state transition (ESI ``InitCmd``).
+
+        ``transition`` is ``"IP"``, ``"PS"``, ``"SO"``, ``"SP"``, ``"OS"``...;
+        ``data`` raw bytes, or a value encoded as ``dtype``.
+        """
+        return self.coe_setup.add(self.slave(slave), transition, index, subindex, data,
+                                  complete_access, dtype=dtype, comment=comment,
+                                  timeout=timeout)
+
+    def remove_startup_commands(self, slave: SlaveRef | None = None,
+                                predicate: Callable[[StartupCommand], bool] | None = None,
+                                ) -> int:
+        """Remove start-up commands (of one slave, matching ``predicate``); returns how many."""
+        pos = None if slave is None else (slave.position if isinstance(slave, Slave) else slave)
+        return self.coe_setup.remove(pos, predicate)
+
+    def read_coe_pdo_mappings(self, slaves: Sequence[SlaveRef] | None = None, *,
+                              bring_to_preop: bool = True) -> dict[int, dict[int, list[MappedPdo]]]:
+        """Read the PDO assignment and mapping of CoE slaves (see :class:`CoeSetup`)."""
+        return self.coe_setup.read_pdo_mappings(self._select(slaves),
+                                                bring_to_preop=bring_to_preop)
+
+    @property
+    def coe_pdo_config(self) -> bool:
+        """Read PDO mappings over CoE (instead of the SII) for slaves that speak CoE."""
+        return self.coe_setup.pdo_config
+
+    @coe_pdo_config.setter
+    def coe_pdo_config(self, value: bool) -> None:
+        self.coe_setup.pdo_config = value
+
+    # -- process data (the process-data service) ---------------------------------------
+
+    @property
+    def process_data(self) -> ProcessDataConfig | None:
+        """The process-data configuration (None before :meth:`configure`)."""
+        return self.pd.config
+
+    @property
+    def images(self) -> dict[str, ProcessImage]:
+        """The group images of the configuration, by group name."""
+        return self.pd.images
+
+    @property
+    def runner(self) -> CyclicRunner | None:
+        """The cyclic runner of the last :meth:`start`."""
+        return self.pd.runner
+
+    def configure(self, groups: Sequence[GroupSpec] | None = None,
+                  layout: Layout | str = Layout.PACKED) -> ProcessDataConfig:
+        """Compute SM/FMMU values and group images (see :meth:`ProcessData.configure`)."""
+        return self.pd.configure(groups, layout)
+
+    def write_mailbox_config(self, slaves: Sequence[SlaveRef] | None = None) -> None:
+        """Write the mailbox sync managers (needed before PRE-OP), all slaves batched."""
+        self.pd.write_mailbox_config(None if slaves is None else self._select(slaves))
+
+    def write_process_data_config(self, slaves: Sequence[SlaveRef] | None = None) -> None:
+        """Write process-data SMs and FMMUs (needed before SAFE-OP), all slaves batched."""
+        self.pd.write_process_data_config(None if slaves is None else self._select(slaves))
+
+    def start(self, cycle: float = 0.001, *, target: AlState | str = AlState.OP,
+              callback: Callable[[Cycle], None] | None = None, clock: Clock | None = None,
+              check_interval: float = 0.1, recover: bool = True, timeout: float = 5.0,
+              groups: Sequence[str] | None = None, frame_timeout: float | None = None,
+              dc: DcMode | str | None = None, dc_lead: float | None = None) -> CyclicRunner:
+        """Configure (if needed), bring every slave to SAFE-OP, start cycles, go to ``target``.
+
+        See :meth:`ProcessData.start` for the options.
+        """
+        return self.pd.start(cycle, target=target, callback=callback, clock=clock,
+                             check_interval=check_interval, recover=recover, timeout=timeout,
+                             groups=groups, frame_timeout=frame_timeout, dc=dc, dc_lead=dc_lead)
+
+    def run(self, cycle: float = 0.001, seconds: float | None = None, *,
+            callback: Callable[[Cycle], None] | None = None, background: bool = False,
+            **options: Any) -> CycleStats | CyclicRunner:
+        """Bring up and run cycles for ``seconds`` (see :meth:`ProcessData.run`)."""
+        return self.pd.run(cycle, seconds, callback=callback, background=background, **options)
+
+    def cycles(self, cycle: float = 0.001, **options: Any) -> Iterator[Cycle]:
+        """Start cyclic exchange and yield each cycle; closing the iterator stops it."""
+        return self.pd.cycles(cycle, **options)
+
+    def stop(self) -> None:
+        """Stop the cyclic exchange, if it runs."""
+        self.pd.stop()
+
+    # -- SII (the SII service) -------------------------------------------------------------
+
+    def _sii_target(self, slave: SlaveRef) -> SiiTarget:
+        """The scanned slave, or the position of an unscanned one."""
         if isinstance(slave, Slave) or 0 <= slave < len(self.slaves):
-            return scanning.SiiAccess.of(self.slave(slave))
-        access = scanning.SiiAccess.at_position(slave)
-        ctrl = self.read(slave, SII_CONTROL, 2)
-        access.read_8 = bool(struct.unpack("<H", ctrl)[0] & SiiControl.READ_8_BYTES)
-        return access
+            return self.slave(slave)
+        if not 0 <= slave <= 0xFFFF:
+            raise ConfigError(f"slave position {slave} out of range")
+        return slave
 
-    def sii_read(self, slave: SlaveRef, *,
-                 max_bytes: int = SII_DEFAULT_MAX_BYTES) -> bytes:
+    def sii_read(self, slave: SlaveRef, *, max_bytes: int = SII_DEFAULT_MAX_BYTES) -> bytes:
         """Read one slave's SII again, from word 0 to the category end marker."""
-        with self._lock:
-            access = self._sii_access(slave)
-            result = scanning.read_sii_batch(self.scheduler, [access], max_bytes=max_bytes)[0]
-            if isinstance(result, Exception):
-                raise result
-            return result
+        return self.sii.read(self._sii_target(slave), max_bytes=max_bytes)
 
     def sii_write(self, slave: SlaveRef, image: bytes, *, reload: bool = True,
                   only_changed: bool = True, force: bool = False,
@@ -422,14 +577,9 @@ class Master(CoeMasterMixin, ProcessDataMixin):
         afterwards. Raises :class:`~pyethercat.master.sii_write.SiiWriteError`
         naming the failed word.
         """
-        with self._lock:
-            access = self._sii_access(slave)
-            report = write_sii_image(self.scheduler, access, image, force=force,
-                                     only_changed=only_changed, reload=reload, backup=backup,
-                                     timing=self._sii_timing(), sleep=self._sleep,
-                                     now=self.scheduler.now, progress=progress)
-            self._refresh_alias(slave, reload)
-            return report
+        return self.sii.write(self._sii_target(slave), image, reload=reload,
+                              only_changed=only_changed, force=force, backup=backup,
+                              progress=progress)
 
     def set_alias(self, slave: SlaveRef, alias: int, *,
                   backup: Path | Callable[[bytes], Path] | None = None,
@@ -438,27 +588,7 @@ class Master(CoeMasterMixin, ProcessDataMixin):
 
         The rest of the EEPROM stays as it is (only words 4 and 7 change).
         """
-        with self._lock:
-            access = self._sii_access(slave)
-            current = scanning.read_sii_batch(self.scheduler, [access])[0]
-            if isinstance(current, Exception) or len(current) < 16:
-                current = scanning.read_sii_batch(self.scheduler, [access], length=16)[0]
-                if isinstance(current, Exception):
-                    raise current
-            report = write_sii_image(self.scheduler, access, with_alias(current, alias),
-                                     force=force, backup=backup, timing=self._sii_timing(),
-                                     sleep=self._sleep, now=self.scheduler.now)
-            self._refresh_alias(slave, True)
-            return report
-
-    def _sii_timing(self) -> WriteTiming:
-        # In virtual time the simulated EEPROM's clock moves with the frames only.
-        return WriteTiming.for_virtual_time() if self.scheduler.virtual else WriteTiming()
-
-    def _refresh_alias(self, slave: SlaveRef, reloaded: bool) -> None:
-        if reloaded and (isinstance(slave, Slave) or 0 <= slave < len(self.slaves)):
-            s = self.slave(slave)
-            s.alias = self.read_u16(s, STATION_ALIAS)
+        return self.sii.set_alias(self._sii_target(slave), alias, backup=backup, force=force)
 
 
 def _state(state: AlState | int | str) -> AlState:
@@ -472,3 +602,17 @@ def _state(state: AlState | int | str) -> AlState:
     except ValueError:
         raise ConfigError(f"unknown AL state 0x{int(state):02X}") from None
 
+
+
+def _control_spec(link_name: str) -> str | None:
+    """The control socket's link spec for a link opened by name (None: no control socket)."""
+    from pyethercat.master.control.endpoint import link_spec
+
+    scheme, _, rest = link_name.partition(":")
+    if scheme == "raw" and rest:
+        return link_spec(iface=rest, udp=None)
+    if scheme == "udp" and rest:
+        return link_spec(iface=None, udp=rest)
+    if ":" not in link_name:
+        return link_spec(iface=link_name, udp=None)
+    return None

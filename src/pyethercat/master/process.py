@@ -1,8 +1,7 @@
-"""Process data on a ``Master``: configure from SII, bring up to OP, run cycles, recover.
+"""Process data of a master: configure from SII or CoE, bring up to OP, run cycles, recover.
 
-``ProcessDataMixin`` gives :class:`~pyethercat.master.master.Master` its
-process-data methods (it only needs ``scheduler``, ``slaves``, ``_lock``,
-``_sleep`` and ``set_state`` of the master)::
+:class:`ProcessData` is the master's process-data service; the
+:class:`~pyethercat.master.master.Master` passes its calls through::
 
     with Master.open(iface="eth1") as m:
         m.scan()
@@ -14,13 +13,19 @@ process-data methods (it only needs ``scheduler``, ``slaves``, ``_lock``,
 
 or in one call: ``stats = m.run(cycle=0.001, seconds=5, callback=fn)``, or
 ``for cycle in m.cycles(0.001): ...``.
+
+The process-data sync managers and FMMUs are written before PREOP -> SAFEOP
+by the service itself, as a :class:`~pyethercat.master.transitions.TransitionHook`
+that the bring-up (and ``master.set_state(..., configure=True)``) adds to the
+state walk, followed by the hooks given as ``safeop_hooks`` (distributed clocks).
 """
 
 from __future__ import annotations
 
 import struct
+import threading
 from collections.abc import Callable, Iterator, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from pyethercat.clock import Clock, PerfClock
 from pyethercat.errors import ConfigError, EtherCATError, WorkingCounterError
@@ -31,84 +36,115 @@ from pyethercat.master.config import (
     GroupSpec,
     Layout,
     ProcessDataConfig,
-    SlaveSpec,
+    SlaveDescription,
     configure,
 )
 from pyethercat.master.cyclic import Cycle, CycleStats, CyclicRunner
 from pyethercat.master.dc_loop import DcMode
-from pyethercat.master.image import ProcessImage, build_images
+from pyethercat.master.image import ProcessImage, SlaveIO, build_images
+from pyethercat.master.scheduler import Scheduler
 from pyethercat.master.slave import Slave
+from pyethercat.master.slave_info import SlaveInfo
+from pyethercat.master.transitions import Step, TransitionHook, Transitions
 from pyethercat.wire import registers as reg
 from pyethercat.wire.al import AlState
 from pyethercat.wire.datagram import Command, Datagram
 from pyethercat.wire.sii.model import WORD_VENDOR_ID
 
-if TYPE_CHECKING:
-    import threading
-
-    from pyethercat.master.scheduler import Scheduler
-
-__all__ = ["ProcessDataMixin", "slave_spec"]
+__all__ = ["ProcessData", "slave_description"]
 
 
-def slave_spec(slave: Slave) -> SlaveSpec:
+def slave_description(slave: SlaveInfo) -> SlaveDescription:
     """What the configuration needs from a scanned slave."""
     if slave.sii is None:
         raise ConfigError(f"{slave.describe()}: no SII was read, cannot configure process data")
     esc = slave.esc
-    return SlaveSpec(slave.position, slave.station_address, slave.sii, esc.features,
-                     esc.fmmu_count or 8, esc.sm_count or 8, slave.name,
-                     getattr(slave, "pdo_mapping", None))
+    return SlaveDescription(slave.position, slave.station_address, slave.sii, esc.features,
+                            esc.fmmu_count or 8, esc.sm_count or 8, slave.name,
+                            slave.pdo_mapping)
 
 
-class ProcessDataMixin:
-    """Process-data methods of the master (see the module text)."""
+class ProcessData:
+    """Process-data configuration, bring-up and the cyclic runner (see the module text).
 
-    scheduler: Scheduler
-    slaves: list[Slave]
-    _lock: threading.RLock
-    process_data: ProcessDataConfig | None = None
-    images: dict[str, ProcessImage]
-    runner: CyclicRunner | None = None
-    dc: DistributedClocks
+    ``slaves`` returns the master's slaves; ``transitions`` walks them through
+    the states; ``before_configure`` runs first in every :meth:`configure`
+    (reading PDO mappings over CoE); ``dc`` is the distributed-clock service
+    (its hook runs after the SM/FMMU writes before SAFE-OP).
+    """
 
-    def _sleep(self, seconds: float) -> None: ...  # provided by Master
-
-    def _state_hooks(self) -> dict[str, Any]:
-        """Extra keyword arguments for ``states.set_state`` (CoE start-up commands)."""
-        return {}
-
-    def _before_configure(self) -> None:
-        """Runs first in :meth:`configure` (the CoE mixin reads PDO mappings there)."""
+    def __init__(self, scheduler: Scheduler, transitions: Transitions,
+                 slaves: Callable[[], list[Slave]], dc: DistributedClocks, *,
+                 lock: threading.RLock,
+                 before_configure: Callable[[Sequence[SlaveInfo]], None] = lambda _s: None,
+                 ) -> None:
+        self.scheduler = scheduler
+        self.transitions = transitions
+        self.dc = dc
+        self._slaves = slaves
+        self._lock = lock
+        self._before_configure = before_configure
+        #: The configuration of the last :meth:`configure` (None: none, or invalidated).
+        self.config: ProcessDataConfig | None = None
+        #: The group images of that configuration, by group name.
+        self.images: dict[str, ProcessImage] = {}
+        #: The cyclic runner of the last :meth:`start` (None before).
+        self.runner: CyclicRunner | None = None
+        self._io: dict[int, tuple[SlaveIO | None, SlaveIO | None]] = {}
 
     # -- configuration -----------------------------------------------------------------
 
     def configure(self, groups: Sequence[GroupSpec] | None = None,
                   layout: Layout | str = Layout.PACKED) -> ProcessDataConfig:
-        """Compute SM/FMMU values and group images from the slaves' SII.
+        """Compute SM/FMMU values and group images from the slaves' SII (or CoE mapping).
 
-        Attaches ``slave.inputs`` / ``slave.outputs`` (:class:`SlaveIO`) and
-        ``slave.config`` to every slave. Nothing is written yet (see
-        :meth:`start`). ``groups`` default to one group of every slave.
+        Gives every slave its ``config`` and its ``inputs``/``outputs`` views.
+        Nothing is written yet (see :meth:`start`). ``groups`` default to one
+        group of every slave.
         """
         with self._lock:
-            if not self.slaves:
+            slaves = self._slaves()
+            if not slaves:
                 raise ConfigError("no slaves: scan first")
             if groups is None:
                 groups = [GroupSpec("main", None, layout)]
-            self._before_configure()
-            cfg = configure([slave_spec(s) for s in self.slaves], groups)
-            self.process_data = cfg
+            self._before_configure(slaves)
+            cfg = configure([slave_description(s) for s in slaves], groups)
+            self.config = cfg
             self.images = build_images(cfg)
-            for s in self.slaves:
+            self._io.clear()
+            for s in slaves:
                 sc = cfg.slaves[s.position]
-                img = self.images.get(sc.group)
                 s.config = sc
-                s.inputs = img.slave_inputs(s.position) if img is not None else None
-                s.outputs = img.slave_outputs(s.position) if img is not None else None
+                img = self.images.get(sc.group)
+                self._io[s.position] = ((img.slave_inputs(s.position), img.slave_outputs(s.position))
+                                        if img is not None else (None, None))
             return cfg
 
-    def _writes(self, items: list[tuple[Slave, int, bytes]], what: str) -> None:
+    def invalidate(self) -> None:
+        """Forget the configuration (a PDO mapping changed): the next start configures anew."""
+        self.config = None
+
+    def io_of(self, slave: SlaveInfo, outputs: bool) -> SlaveIO:
+        """A slave's view into its group image; :class:`ConfigError` before a configuration."""
+        views = self._io.get(slave.position)
+        if views is None:
+            raise ConfigError(f"slave {slave.position} ({slave.address_text}): no process "
+                              "image yet, call master.configure() first")
+        view = views[1] if outputs else views[0]
+        if view is None:
+            raise ConfigError(f"slave {slave.position} ({slave.address_text}) is in no "
+                              "process-data group")
+        return view
+
+    def need_config(self) -> ProcessDataConfig:
+        """The configuration, made now if there is none."""
+        if self.config is None:
+            self.configure()
+        assert self.config is not None
+        return self.config
+
+    def _writes(self, items: list[tuple[SlaveInfo, int, bytes]], what: str) -> None:
         if not items:
             return
         dgs = [Datagram.device(Command.FPWR, s.station_address, addr, data)
@@ -119,49 +155,44 @@ class ProcessDataMixin:
                 raise WorkingCounterError(f"{s.describe()}: writing {what} at 0x{addr:04X}", 1,
                                           r.wkc)
 
-    def write_mailbox_config(self, slaves: Sequence[Slave] | None = None) -> None:
+    def write_mailbox_config(self, slaves: Sequence[SlaveInfo] | None = None) -> None:
         """Write the mailbox sync managers (needed before PRE-OP), all slaves batched."""
-        cfg = self._need_config()
-        chosen = list(self.slaves) if slaves is None else list(slaves)
+        cfg = self.need_config()
+        chosen = list(self._slaves()) if slaves is None else list(slaves)
         self._writes([(s, a, d) for s in chosen for a, d in cfg.slaves[s.position].mailbox_writes()],
                      "mailbox sync manager")
 
-    def write_process_data_config(self, slaves: Sequence[Slave] | None = None) -> None:
+    def write_process_data_config(self, slaves: Sequence[SlaveInfo] | None = None) -> None:
         """Write process-data SMs and FMMUs (needed before SAFE-OP), all slaves batched."""
-        cfg = self._need_config()
-        chosen = list(self.slaves) if slaves is None else list(slaves)
+        cfg = self.need_config()
+        chosen = list(self._slaves()) if slaves is None else list(slaves)
         self._writes([(s, a, d) for s in chosen
                       for a, d in cfg.slaves[s.position].process_data_writes()],
                      "sync manager/FMMU")
 
-    def _need_config(self) -> ProcessDataConfig:
-        if self.process_data is None:
-            self.configure()
-        assert self.process_data is not None
-        return self.process_data
+    # -- the transition hook (added to the walks that bring process data up) -------------
 
-    def _bring_up(self, slaves: Sequence[Slave], timeout: float) -> None:
-        """INIT -> (mailbox SMs) PREOP -> (SMs, FMMUs) SAFEOP for ``slaves``.
+    def before_step(self, step: Step) -> None:
+        """Before PREOP -> SAFEOP: the process-data SMs and FMMUs (configured now if needed).
 
-        The mailbox sync managers are written by the state machine's prepare
-        step before INIT -> PREOP (``states.setup_mailboxes``, also inside the
-        CoE hook); the process-data SMs and FMMUs in the prepare step before
-        PREOP -> SAFEOP, so PREOP and SAFEOP are one ``set_state`` walk.
+        Configured here, not earlier: CoE mappings are read in PRE-OP.
         """
-        st = self.scheduler
-        hooks = self._state_hooks()
-        states.set_state(st, slaves, AlState.INIT, timeout, sleep=self._sleep, **hooks)
-        before = hooks.pop("prepare", states.setup_mailboxes)
+        if step.target == AlState.SAFEOP:
+            self.need_config()
+            self.write_process_data_config(step.slaves)
 
-        def prepare(scheduler: Scheduler, step: AlState, group: Sequence[Slave]) -> None:
-            if before is not None:
-                before(scheduler, step, group)
-            if step == AlState.SAFEOP:
-                self.write_process_data_config(group)
-                self.dc.before_safeop(group)
+    def after_step(self, step: Step) -> None:
+        """Nothing to do once a state is reached."""
 
-        states.set_state(st, slaves, AlState.SAFEOP, timeout, sleep=self._sleep,
-                         prepare=prepare, **hooks)
+    @property
+    def bring_up_hooks(self) -> list[TransitionHook]:
+        """What a walk to SAFE-OP adds to the master's standing hooks: SMs/FMMUs, then DC."""
+        return [self, self.dc]
+
+    def bring_up(self, slaves: Sequence[Slave], timeout: float) -> None:
+        """INIT -> (mailbox SMs) PREOP -> (SMs, FMMUs, DC) SAFEOP for ``slaves``."""
+        self.transitions.set_state(slaves, AlState.INIT, timeout)
+        self.transitions.set_state(slaves, AlState.SAFEOP, timeout, extra=self.bring_up_hooks)
 
     # -- running --------------------------------------------------------------------------
 
@@ -185,7 +216,8 @@ class ProcessDataMixin:
         with self._lock:
             if self.runner is not None and self.runner.running:
                 raise ConfigError("cyclic exchange is already running")
-            cfg = self._need_config()
+            cfg = self.need_config()
+            slaves = self._slaves()
             clock = clock or PerfClock()
             plan = None
             if dc is not None:
@@ -193,10 +225,10 @@ class ProcessDataMixin:
                     self.dc.setup()
                 lead = None if dc_lead is None else int(round(dc_lead * 1e9))
                 plan = self.dc.cycle(int(round(cycle * 1e9)), dc, clock, lead_ns=lead)
-            self._bring_up(self.slaves, timeout)
-            runner = CyclicRunner(self.scheduler, cfg, self.images, self.slaves, cycle=cycle,
+            self.bring_up(slaves, timeout)
+            runner = CyclicRunner(self.scheduler, cfg, self.images, slaves, cycle=cycle,
                                   clock=clock, callback=callback, check_interval=check_interval,
-                                  target=want, recover=self._recover if recover else None,
+                                  target=want, recover=self.recover if recover else None,
                                   groups=groups, frame_timeout=frame_timeout, dc=plan)
             self.runner = runner
             # Supervision starts once the slaves are where they were asked to be: the
@@ -205,8 +237,7 @@ class ProcessDataMixin:
             runner.start()
             try:
                 if want == AlState.OP:
-                    states.set_state(self.scheduler, self.slaves, AlState.OP, timeout,
-                                     sleep=self._sleep, **self._state_hooks())
+                    self.transitions.set_state(slaves, AlState.OP, timeout)
             except BaseException:
                 runner.stop()
                 raise
@@ -243,17 +274,18 @@ class ProcessDataMixin:
 
     # -- recovery (called from the runner's recovery thread) -----------------------------------
 
-    def _recover(self, positions: list[int]) -> None:
+    def recover(self, positions: list[int]) -> None:
         """Bring slaves that dropped out or vanished back to the requested state."""
         runner = self.runner
         target = runner.target if runner is not None else AlState.OP
+        slaves = self._slaves()
         count = scanning.count_slaves(self.scheduler)
-        if count < len(self.slaves):
-            raise WorkingCounterError("segment still incomplete", len(self.slaves), count)
+        if count < len(slaves):
+            raise WorkingCounterError("segment still incomplete", len(slaves), count)
         full: list[Slave] = []
         resume: list[Slave] = []
         for p in positions:
-            s = self.slaves[p]
+            s = slaves[p]
             reply = self.scheduler.transact_one(
                 Datagram.device(Command.FPRD, s.station_address, reg.AL_STATUS, 2))
             if reply.wkc == 1:
@@ -272,14 +304,13 @@ class ProcessDataMixin:
             self._check_identity(s)
             full.append(s)
         if full:
-            self._bring_up(full, 5.0)
+            self.bring_up(full, 5.0)
             resume += full
         if resume:
             states.acknowledge_errors(self.scheduler, resume)
-            states.set_state(self.scheduler, resume, target, 5.0, sleep=self._sleep,
-                             **self._state_hooks())
+            self.transitions.set_state(resume, target, 5.0)
 
-    def _check_identity(self, slave: Slave) -> None:
+    def _check_identity(self, slave: SlaveInfo) -> None:
         """After a power cycle: is it still the same device (SII words 8-0xB)?"""
         try:
             image = scanning.read_sii_batch(self.scheduler, [scanning.SiiAccess.of(slave)],

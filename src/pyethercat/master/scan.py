@@ -21,6 +21,7 @@ from __future__ import annotations
 import struct
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import Any, TypeVar, overload
 
 from pyethercat.errors import (
     EtherCATError,
@@ -29,7 +30,7 @@ from pyethercat.errors import (
     WorkingCounterError,
 )
 from pyethercat.master.scheduler import Scheduler
-from pyethercat.master.slave import EscInfo, Identity, MailboxInfo, Port, Slave
+from pyethercat.master.slave_info import EscInfo, Identity, MailboxInfo, Port, SlaveInfo
 from pyethercat.wire.al import AlState
 from pyethercat.wire.datagram import Command, Datagram
 from pyethercat.wire.registers import (
@@ -55,6 +56,8 @@ from pyethercat.wire.sii.model import (
     WORD_ALIAS,
     WORD_CHECKSUM,
 )
+
+S = TypeVar("S", bound=SlaveInfo)
 
 __all__ = [
     "DEFAULT_STATION_BASE",
@@ -163,7 +166,7 @@ def assign_addresses(scheduler: Scheduler, count: int, base: int = DEFAULT_STATI
     return stations
 
 
-def read_esc_info(scheduler: Scheduler, slaves: Sequence[Slave]) -> None:
+def read_esc_info(scheduler: Scheduler, slaves: Sequence[SlaveInfo]) -> None:
     """Read ESC identification, alias, DL status, AL status, SII control and ESC configuration."""
     reads = []
     for s in slaves:
@@ -207,7 +210,7 @@ class SiiAccess:
     label: str = ""
 
     @classmethod
-    def of(cls, slave: Slave) -> SiiAccess:
+    def of(cls, slave: SlaveInfo) -> SiiAccess:
         return cls(slave.station_address, False, slave.sii_read_8, slave.describe())
 
     @classmethod
@@ -409,7 +412,7 @@ def _fail(r: _Reader, why: str) -> None:
 # --- slave objects from SII ------------------------------------------------------------
 
 
-def apply_sii(slave: Slave, image: bytes) -> None:
+def apply_sii(slave: SlaveInfo, image: bytes) -> None:
     """Parse ``image`` and fill the slave's identity, name, mailbox and SII fields."""
     slave.sii_image = image
     try:
@@ -434,7 +437,7 @@ def apply_sii(slave: Slave, image: bytes) -> None:
 # --- topology --------------------------------------------------------------------------
 
 
-def build_topology(slaves: Sequence[Slave]) -> bool:
+def build_topology(slaves: Sequence[SlaveInfo]) -> bool:
     """Set ``parent``, ``parent_port``, ``children`` and port peers from the open ports.
 
     Returns True when the walk accounts for exactly the slaves found; False
@@ -450,7 +453,7 @@ def build_topology(slaves: Sequence[Slave]) -> bool:
     next_pos = 1
     consistent = True
     order = (3, 1, 2)
-    stack: list[tuple[Slave, list[int]]] = [
+    stack: list[tuple[SlaveInfo, list[int]]] = [
         (slaves[0], [p for p in order if slaves[0].ports[p].active])]
     while stack:
         slave, ports = stack[-1]
@@ -475,7 +478,7 @@ def build_topology(slaves: Sequence[Slave]) -> bool:
     return consistent
 
 
-def _attach(parent: Slave, port: int, child: Slave) -> None:
+def _attach(parent: SlaveInfo, port: int, child: SlaveInfo) -> None:
     child.parent = parent
     child.parent_port = port
     parent.children[port] = child
@@ -486,7 +489,7 @@ def _attach(parent: Slave, port: int, child: Slave) -> None:
 # --- expected configuration ------------------------------------------------------------
 
 
-def check_expected(slaves: Sequence[Slave],
+def check_expected(slaves: Sequence[SlaveInfo],
                    expected: Sequence[Identity | ExpectedSlave]) -> None:
     """Raise :class:`TopologyMismatchError` unless the slaves match ``expected`` position by position."""
     for pos, item in enumerate(expected):
@@ -514,12 +517,29 @@ def check_expected(slaves: Sequence[Slave],
 # --- the whole scan --------------------------------------------------------------------
 
 
-def scan(scheduler: Scheduler, *, station_base: int = DEFAULT_STATION_BASE, reset: bool = True,
+@overload
+def scan(scheduler: Scheduler, *, make: Callable[[int, int], S], station_base: int = ...,
+         reset: bool = ..., read_sii: bool = ...,
+         expected: Sequence[Identity | ExpectedSlave] | None = ...,
+         progress: Progress | None = ..., max_sii_bytes: int = ...) -> list[S]: ...
+
+
+@overload
+def scan(scheduler: Scheduler, *, make: None = ..., station_base: int = ...,
+         reset: bool = ..., read_sii: bool = ...,
+         expected: Sequence[Identity | ExpectedSlave] | None = ...,
+         progress: Progress | None = ..., max_sii_bytes: int = ...) -> list[SlaveInfo]: ...
+
+
+def scan(scheduler: Scheduler, *, make: Callable[[int, int], SlaveInfo] | None = None,
+         station_base: int = DEFAULT_STATION_BASE, reset: bool = True,
          read_sii: bool = True, expected: Sequence[Identity | ExpectedSlave] | None = None,
          progress: Progress | None = None,
-         max_sii_bytes: int = SII_DEFAULT_MAX_BYTES) -> list[Slave]:
+         max_sii_bytes: int = SII_DEFAULT_MAX_BYTES) -> list[Any]:
     """Find, address and identify every slave; returns them in ring order.
 
+    ``make(position, station_address)`` makes each slave object (default
+    :class:`SlaveInfo`; the master makes its :class:`Slave` handles).
     ``reset`` broadcasts INIT (with error acknowledge) and the start-up
     defaults first; without it the slaves keep their states (a listing tool).
     SII problems of one slave do not stop the scan: that slave gets
@@ -538,7 +558,8 @@ def scan(scheduler: Scheduler, *, station_base: int = DEFAULT_STATION_BASE, rese
     else:
         take_sii_ownership(scheduler)
     stations = assign_addresses(scheduler, count, station_base)
-    slaves = [Slave(pos, st) for pos, st in enumerate(stations)]
+    factory = SlaveInfo if make is None else make
+    slaves = [factory(pos, st) for pos, st in enumerate(stations)]
     report("registers", 0, 1)
     read_esc_info(scheduler, slaves)
     report("registers", 1, 1)

@@ -90,8 +90,11 @@ class Scheduler:
                  retries: int = DEFAULT_RETRIES, max_in_flight: int = DEFAULT_MAX_IN_FLIGHT,
                  src: bytes = MASTER_MAC, capacity: int = MAX_PAYLOAD,
                  clock: Clock | None = None) -> None:
+        # Own-frame detection by source MAC only where the link cannot tell received
+        # frames from the ones it sent (see Link.sees_own_frames).
         self.core = PduCore(timeout=timeout, retries=retries, max_in_flight=max_in_flight,
-                            src=src, capacity=capacity, name=link.name)
+                            src=src, capacity=capacity, name=link.name,
+                            drop_own_frames=link.sees_own_frames)
         self.link = link
         self.clock: Clock = clock if clock is not None else WallClock()
         #: True in virtual time (see the module text).

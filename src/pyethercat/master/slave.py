@@ -1,311 +1,122 @@
-"""What the master knows about one slave: address, identity, SII, ports, state.
+"""``Slave``: one scanned slave and the I/O a user does with it.
 
-``Slave`` objects are created by the scan (``pyethercat.master.scan``) and
-kept in ``Master.slaves`` in ring order (position 0 is the slave next to the
-master). Configuration, process data and mailbox layers add their own
-attributes on top; this module only holds what scanning and the state
-machine find out.
+A :class:`Slave` is the data the master knows about the slave
+(:class:`~pyethercat.master.slave_info.SlaveInfo`: address, identity, SII,
+ports, AL state, process-data layout) bound to its master's services
+(ethercrab's ``SubDeviceRef``): the protocol clients of its mailbox, its
+process-image views, PDO mapping over CoE::
+
+    s = master.slaves[1]
+    s.sdo_read(0x1018, 1, "uint32")          # CoE through the slave's CoE client
+    s.outputs["Output 1"] = 1                # its view into the group image
+    s.client(CoeClient).od[0x1018]           # any registered mailbox protocol client
+
+The handle keeps nothing of the services itself; it asks them by position
+(:class:`SlaveServices`), so a new scan or configuration is seen at once and
+nobody sets attributes on slaves from outside. A ``Slave`` made without
+services (a test, a listing of data read elsewhere) has the data and raises
+:class:`~pyethercat.errors.ConfigError` for I/O.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Protocol, TypeVar
 
 from pyethercat.errors import ConfigError
-from pyethercat.wire.al import AlState, al_status_code_name, state_name
-from pyethercat.wire.registers import (
-    AL_ERROR_FLAG,
-    EscConfig,
-    EscFeaturesMixin,
-    PortType,
-    dl_status_com,
-    dl_status_link,
-    dl_status_loop,
-    port_types,
+from pyethercat.master.coe import CoeClient, DTypeLike, ObjectDictionary, PdoSpec
+from pyethercat.master.config import MappedPdo
+from pyethercat.master.image import SlaveIO
+from pyethercat.master.mailbox import Mailbox
+from pyethercat.master.slave_info import (
+    PORT_ORDER,
+    EscInfo,
+    Identity,
+    MailboxInfo,
+    Port,
+    SlaveInfo,
 )
-from pyethercat.wire.sii.model import GeneralFlags, MailboxProtocol, SiiInfo
 
 if TYPE_CHECKING:
-    from pyethercat.master.coe import CoeClient, DTypeLike, ObjectDictionary
-    from pyethercat.master.coe_setup import PdoSpec
-    from pyethercat.master.config import Pdo, SlaveConfig
-    from pyethercat.master.image import SlaveIO
-    from pyethercat.master.mailbox import Mailbox
     from pyethercat.wire.mailbox.datatypes import Value
 
-__all__ = ["Identity", "EscInfo", "Port", "MailboxInfo", "Slave", "PORT_ORDER"]
+__all__ = [
+    "PORT_ORDER",
+    "EscInfo",
+    "Identity",
+    "MailboxInfo",
+    "Port",
+    "Slave",
+    "SlaveInfo",
+    "SlaveServices",
+]
 
-#: Order in which an ESC passes a frame through its ports (facts 12.1).
-PORT_ORDER = (0, 3, 1, 2)
-
-
-@dataclass(frozen=True, slots=True)
-class Identity:
-    """Vendor ID, product code, revision and serial number (SII words 0x08-0x0F).
-
-    ``serial`` and ``revision`` may be ``None`` in an *expected* identity,
-    meaning "any".
-    """
-
-    vendor_id: int
-    product_code: int
-    revision: int | None = None
-    serial: int | None = None
-
-    def matches(self, found: Identity) -> bool:
-        """Whether ``found`` satisfies this (expected) identity."""
-        return (self.vendor_id == found.vendor_id and self.product_code == found.product_code
-                and (self.revision is None or self.revision == found.revision)
-                and (self.serial is None or self.serial == found.serial))
-
-    def __str__(self) -> str:
-        text = f"vendor 0x{self.vendor_id:08X} product 0x{self.product_code:08X}"
-        if self.revision is not None:
-            text += f" revision 0x{self.revision:08X}"
-        if self.serial is not None:
-            text += f" serial {self.serial}"
-        return text
+C = TypeVar("C")
 
 
-@dataclass(frozen=True, slots=True)
-class EscInfo(EscFeaturesMixin):
-    """ESC identification registers 0x0000-0x0009 (``dc_supported`` etc. decode 0x0008)."""
+class SlaveServices(Protocol):
+    """What a :class:`Slave` handle asks its master for (the master's services implement it)."""
 
-    type: int = 0
-    revision: int = 0
-    build: int = 0
-    fmmu_count: int = 0
-    sm_count: int = 0
-    ram_kib: int = 0
-    port_descriptor: int = 0
-    features: int = 0
+    def mailbox_of(self, position: int) -> Mailbox | None:
+        """The mailbox transport of the slave at ``position`` (None: it has none)."""
+        ...
 
-    @property
-    def port_types(self) -> list[PortType]:
-        """Types of ports 0-3 from the port descriptor 0x0007."""
-        return port_types(self.port_descriptor)
+    def client_of(self, position: int, kind: type[C]) -> C | None:
+        """The slave's client of protocol class ``kind`` (None: no mailbox)."""
+        ...
+
+    def io_of(self, slave: SlaveInfo, outputs: bool) -> SlaveIO:
+        """The slave's view of its group image (ConfigError before a configuration)."""
+        ...
+
+    def map_pdos(self, slave: SlaveInfo,
+                 mapping: Mapping[int, Sequence[PdoSpec]]) -> dict[int, list[MappedPdo]]:
+        """Write a PDO assignment over CoE (see :meth:`Slave.set_pdo_mapping`)."""
+        ...
 
 
-@dataclass(slots=True)
-class Port:
-    """One ESC port: its type, DL status bits and what hangs on it."""
+class Slave(SlaveInfo):
+    """A scanned slave bound to its master (see the module text)."""
 
-    number: int
-    type: PortType = PortType.NOT_IMPLEMENTED
-    link: bool = False
-    loop_closed: bool = True
-    communication: bool = False
-    #: The slave joined to this port (port 0: the parent side; None: the master or nothing).
-    peer: Slave | None = field(default=None, repr=False)
+    def __init__(self, position: int, station_address: int,
+                 services: SlaveServices | None = None) -> None:
+        super().__init__(position, station_address)
+        self._services = services
+
+    def _need(self, what: str) -> SlaveServices:
+        if self._services is None:
+            raise ConfigError(f"{self.describe()} was not scanned by a master: no {what}")
+        return self._services
+
+    # -- mailbox ----------------------------------------------------------------------
 
     @property
-    def implemented(self) -> bool:
-        return self.type.implemented
+    def mbx(self) -> Mailbox | None:
+        """The mailbox transport (None: no mailbox, or no master)."""
+        return None if self._services is None else self._services.mailbox_of(self.position)
 
-    @property
-    def active(self) -> bool:
-        """Open with communication: frames leave and come back through it (SOEM's rule)."""
-        return self.communication and not self.loop_closed
+    def client(self, kind: type[C]) -> C:
+        """The slave's client of mailbox protocol ``kind`` (``slave.client(CoeClient)``).
 
-    @property
-    def status_text(self) -> str:
-        """``up``/``down`` plus loop state, for listings."""
-        if not self.implemented:
-            return "-"
-        state = "up" if self.link else "down"
-        loop = "closed" if self.loop_closed else "open"
-        return f"{state}/{loop}"
-
-    @classmethod
-    def from_registers(cls, number: int, descriptor: int, dl_status: int) -> Port:
-        return cls(number, port_types(descriptor)[number],
-                   bool(dl_status & dl_status_link(number)),
-                   bool(dl_status & dl_status_loop(number)),
-                   bool(dl_status & dl_status_com(number)))
-
-
-@dataclass(frozen=True, slots=True)
-class MailboxInfo:
-    """Standard and bootstrap mailboxes from the SII fixed area (words 0x14-0x1C)."""
-
-    rx_offset: int  # master -> slave (SM0)
-    rx_size: int
-    tx_offset: int  # slave -> master (SM1)
-    tx_size: int
-    protocols: int
-    boot_rx_offset: int = 0
-    boot_rx_size: int = 0
-    boot_tx_offset: int = 0
-    boot_tx_size: int = 0
-
-    @property
-    def protocol_names(self) -> list[str]:
-        """Names of the supported mailbox protocols (AoE, EoE, CoE, FoE, SoE, VoE)."""
-        names = ["AoE", "EoE", "CoE", "FoE", "SoE", "VoE"]
-        return [n for bit, n in enumerate(names) if self.protocols & (1 << bit)]
-
-
-class Slave:
-    """One slave of the segment as found by the scan.
-
-    ``position`` is the ring position (0 = next to the master);
-    ``station_address`` the configured address the master gave it;
-    ``alias`` the station alias (register 0x0012, loaded from SII word 4).
-    ``parent``/``parent_port`` say where it hangs (``None`` for the first
-    slave: the master), ``children`` maps port numbers to the slaves on them.
-    """
-
-    def __init__(self, position: int, station_address: int) -> None:
-        self.position = position
-        self.station_address = station_address
-        self.alias = 0
-        self.identity = Identity(0, 0, 0, 0)
-        self.name = ""
-        self.sii: SiiInfo | None = None
-        #: Raw SII bytes as read (from word 0).
-        self.sii_image: bytes = b""
-        #: Why the SII could not be read or parsed, if it could not.
-        self.sii_error: str | None = None
-        #: The SII interface delivers 8 bytes per read (0x0502 bit 6).
-        self.sii_read_8 = False
-        self.esc = EscInfo()
-        #: ESC configuration register 0x0141 as the scan read it (loaded from SII word 0).
-        self.esc_config: int | None = None
-        self.ports: list[Port] = [Port(n) for n in range(4)]
-        self.dl_status = 0
-        self.parent: Slave | None = None
-        self.parent_port: int | None = None
-        self.children: dict[int, Slave] = {}
-        self.al_state = AlState.NONE
-        self.al_error = False
-        self.al_status_code = 0
-        self.mailbox: MailboxInfo | None = None
-        #: Mailbox transport and CoE client (set by the master after a scan; None: no mailbox).
-        self.mbx: Mailbox | None = None
-        self.coe: CoeClient | None = None
-        #: PDOs per sync manager read (or written) over CoE; None: the SII's PDOs apply.
-        self.pdo_mapping: dict[int, list[Pdo]] | None = None
-        self._mapping_changed: Any = None
-        self._startup: list[Any] | None = None
-        #: Process-data configuration of this slave (set by ``master.configure()``).
-        self.config: SlaveConfig | None = None
-        self._inputs: SlaveIO | None = None
-        self._outputs: SlaveIO | None = None
-
-    # -- process data ------------------------------------------------------------------
-
-    def _no_image(self) -> str:
-        if self.config is None:
-            return (f"slave {self.position} ({self.address_text}): no process image yet, "
-                    "call master.configure() first")
-        return f"slave {self.position} ({self.address_text}) is in no process-data group"
-
-    @property
-    def inputs(self) -> SlaveIO:
-        """The slave's input PDO entries by name (``slave.inputs["Input 1"]``), read-only.
-
-        Set by ``master.configure()``; before that :class:`ConfigError`.
+        Raises :class:`ConfigError` when the slave has no mailbox.
         """
-        if self._inputs is None:
-            raise ConfigError(self._no_image())
-        return self._inputs
-
-    @inputs.setter
-    def inputs(self, io: SlaveIO | None) -> None:
-        self._inputs = io
+        got = self._need("mailbox").client_of(self.position, kind)
+        if got is None:
+            raise ConfigError(f"{self.describe()} has no mailbox: no {kind.__name__}")
+        return got
 
     @property
-    def outputs(self) -> SlaveIO:
-        """The slave's output PDO entries by name (``slave.outputs["Output 1"] = 1``).
-
-        Set by ``master.configure()``; before that :class:`ConfigError`.
-        """
-        if self._outputs is None:
-            raise ConfigError(self._no_image())
-        return self._outputs
-
-    @outputs.setter
-    def outputs(self, io: SlaveIO | None) -> None:
-        self._outputs = io
-
-    # -- derived -------------------------------------------------------------------
-
-    @property
-    def dc_supported(self) -> bool:
-        """The ESC has distributed-clock receive times (0x0008 bit 2)."""
-        return self.esc.dc_supported
-
-    @property
-    def lrw_supported(self) -> bool:
-        """LRW works: the ESC supports it and the SII does not forbid it."""
-        if not self.esc.lrw_supported:
-            return False
-        gen = self.sii.general if self.sii is not None else None
-        return not (gen is not None and gen.flags & GeneralFlags.NOT_LRW)
-
-    @property
-    def has_mailbox(self) -> bool:
-        return self.mailbox is not None and self.mailbox.rx_size > 0 and self.mailbox.tx_size > 0
-
-    @property
-    def active_ports(self) -> list[int]:
-        """Ports with communication and an open loop, in port-number order."""
-        return [p.number for p in self.ports if p.active]
-
-    @property
-    def topology_kind(self) -> str:
-        """``end``, ``line``, ``fork`` or ``cross`` from the number of active ports."""
-        n = len(self.active_ports)
-        return {0: "alone", 1: "end", 2: "line", 3: "fork"}.get(n, "cross")
-
-    @property
-    def device_emulation(self) -> bool:
-        """The ESC runs without firmware (ESC configuration 0x0141 bit 0, SII word 0 bit 8).
-
-        Such a chip (EK1100, simple EL terminals) copies AL control bits 4:0
-        into AL status, so an error acknowledge reads back as the error flag
-        until the state is written again without it. Taken from the register
-        the scan read, else from the SII; ``False`` when neither is known
-        (treated as a firmware slave).
-        """
-        if self.esc_config is not None:
-            return bool(self.esc_config & EscConfig.DEVICE_EMULATION)
-        if self.sii is None:
-            return False
-        return bool((self.sii.pdi_control >> 8) & EscConfig.DEVICE_EMULATION)
-
-    @property
-    def al_state_name(self) -> str:
-        """State as IgH prints it, with ``+ERR`` when the error flag is set."""
-        return state_name(int(self.al_state) | (AL_ERROR_FLAG if self.al_error else 0))
-
-    @property
-    def al_status_text(self) -> str:
-        """``0x001D Invalid output configuration`` (or ``""`` without error)."""
-        if not self.al_status_code:
-            return ""
-        return f"0x{self.al_status_code:04X} {al_status_code_name(self.al_status_code)}"
-
-    @property
-    def address_text(self) -> str:
-        """``0x1001`` or ``0x1001/alias 7`` for listings."""
-        text = f"0x{self.station_address:04X}"
-        return f"{text}/alias {self.alias}" if self.alias else text
-
-    # -- CoE (through the client the master attached) ---------------------------------
+    def coe(self) -> CoeClient | None:
+        """The CoE client (None: no mailbox, or no master)."""
+        services = self._services
+        return None if services is None else services.client_of(self.position, CoeClient)
 
     def _coe_client(self) -> CoeClient:
-        if self.coe is None:
+        client = self.coe
+        if client is None:
             raise ConfigError(f"{self.describe()} has no mailbox (or was not scanned by a "
                               "master): no CoE")
-        return self.coe
-
-    @property
-    def has_coe(self) -> bool:
-        """The SII announces CoE among the mailbox protocols."""
-        return self.mailbox is not None and bool(self.mailbox.protocols & MailboxProtocol.COE)
+        return client
 
     def sdo_read(self, index: int, subindex: int = 0, dtype: DTypeLike | None = None, *,
                  complete_access: bool = False, timeout: float | None = None) -> Value:
@@ -325,7 +136,8 @@ class Slave:
         """The object dictionary (SDO information service, fetched lazily)."""
         return self._coe_client().od
 
-    def set_pdo_mapping(self, mapping: Mapping[int, Sequence[PdoSpec]]) -> dict[int, list[Pdo]]:
+    def set_pdo_mapping(self, mapping: Mapping[int, Sequence[PdoSpec]]
+                        ) -> dict[int, list[MappedPdo]]:
         """Write a new PDO assignment (and mappings) in PRE-OP; the next start uses it.
 
         ``mapping`` keys are sync managers (2, 3) or assignment objects
@@ -334,15 +146,22 @@ class Slave:
         object too. The writes are also kept as PS start-up commands, so they
         are done again whenever the slave passes PRE-OP -> SAFE-OP.
         """
-        from pyethercat.master.coe_setup import set_pdo_mapping
+        return self._need("CoE").map_pdos(self, mapping)
 
-        return set_pdo_mapping(self._mapping_changed, self, mapping, self._startup)
+    # -- process data ------------------------------------------------------------------
 
-    def describe(self) -> str:
-        """``slave 3 (0x1004, EL2004)``: how errors name a slave."""
-        name = f", {self.name}" if self.name else ""
-        return f"slave {self.position} (0x{self.station_address:04X}{name})"
+    @property
+    def inputs(self) -> SlaveIO:
+        """The slave's input PDO entries by name (``slave.inputs["Input 1"]``), read-only.
 
-    def __repr__(self) -> str:
-        return (f"<Slave {self.position} 0x{self.station_address:04X} {self.name!r} "
-                f"{self.al_state_name}>")
+        There after ``master.configure()``; before that :class:`ConfigError`.
+        """
+        return self._need("process image").io_of(self, False)
+
+    @property
+    def outputs(self) -> SlaveIO:
+        """The slave's output PDO entries by name (``slave.outputs["Output 1"] = 1``).
+
+        There after ``master.configure()``; before that :class:`ConfigError`.
+        """
+        return self._need("process image").io_of(self, True)

@@ -1,4 +1,4 @@
-"""The EtherCAT state machine from the master's side (facts 4).
+"""The EtherCAT state machine from the master's side (ETG.1000.6 section 5.3).
 
 Requests go out as one AL control write per slave, all in the same frames;
 polling reads AL status and AL status code (0x0130-0x0135) of every slave
@@ -18,12 +18,13 @@ from __future__ import annotations
 import struct
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import TypeVar
 
 from pyethercat.errors import AlStatusError, StateTimeoutError, WorkingCounterError
 from pyethercat.master.diag import multiple_read, multiple_write
 from pyethercat.master.scheduler import Scheduler
-from pyethercat.master.slave import Slave
-from pyethercat.wire.al import AlState, al_status_code_name, state_name
+from pyethercat.master.slave_info import SlaveInfo
+from pyethercat.wire.al import AlState, al_status_code_name, state_name, state_path
 from pyethercat.wire.datagram import Command, Datagram
 from pyethercat.wire.registers import (
     AL_CONTROL,
@@ -52,6 +53,8 @@ __all__ = [
     "DEFAULT_STATE_TIMEOUT",
 ]
 
+S = TypeVar("S", bound=SlaveInfo)
+
 #: Seconds one transition may take before the wait gives up.
 DEFAULT_STATE_TIMEOUT = 5.0
 #: Longest pause between two polls (in the scheduler's time: virtual time does not wait).
@@ -61,7 +64,6 @@ DEFAULT_POLL_INTERVAL = 0.001
 FIRST_POLL_PAUSE = 50e-6
 # AL status (2 bytes), reserved (2), AL status code (2): one read covers all.
 _AL_READ_SIZE = 6
-_UP_ORDER = (AlState.INIT, AlState.PREOP, AlState.SAFEOP, AlState.OP)
 
 
 @dataclass(frozen=True, slots=True)
@@ -83,7 +85,7 @@ class AlStatusReading:
         return al_status_code_name(self.code)
 
 
-def _apply(slave: Slave, r: AlStatusReading) -> None:
+def _apply(slave: SlaveInfo, r: AlStatusReading) -> None:
     if not r.answered:
         return
     try:
@@ -94,7 +96,7 @@ def _apply(slave: Slave, r: AlStatusReading) -> None:
     slave.al_status_code = r.code if r.error else 0
 
 
-def read_al_status(scheduler: Scheduler, slaves: Sequence[Slave]) -> list[AlStatusReading]:
+def read_al_status(scheduler: Scheduler, slaves: Sequence[SlaveInfo]) -> list[AlStatusReading]:
     """AL status and code of every slave in one multiple read; updates the slaves."""
     results = multiple_read(scheduler, [s.station_address for s in slaves], AL_STATUS,
                             _AL_READ_SIZE)
@@ -108,7 +110,7 @@ def read_al_status(scheduler: Scheduler, slaves: Sequence[Slave]) -> list[AlStat
     return out
 
 
-def request_state(scheduler: Scheduler, slaves: Sequence[Slave], state: AlState | int,
+def request_state(scheduler: Scheduler, slaves: Sequence[SlaveInfo], state: AlState | int,
                   ack: bool = False) -> None:
     """Write the requested state (with the error-acknowledge bit if ``ack``) to every slave."""
     value = int(state) | (AL_ERROR_FLAG if ack else 0)
@@ -122,12 +124,12 @@ def request_state(scheduler: Scheduler, slaves: Sequence[Slave], state: AlState 
             f"AL control write ({state_name(int(state))}) not taken by {names}{more}", 1, 0)
 
 
-def acknowledge_errors(scheduler: Scheduler, slaves: Sequence[Slave]) -> list[Slave]:
+def acknowledge_errors(scheduler: Scheduler, slaves: Sequence[S]) -> list[S]:
     """Acknowledge the error flag of every slave that shows one; returns those slaves.
 
     The acknowledge writes the state the slave is in with the error bit
     (what IgH does), so the slave stays where it is and clears the flag.
-    A slave in device emulation (no firmware, :attr:`Slave.device_emulation`)
+    A slave in device emulation (no firmware, :attr:`SlaveInfo.device_emulation`)
     copies the acknowledge bit into AL status and shows the flag until the
     state is written again without it: those slaves, and only those, get that
     second, plain write (a firmware slave could read AL control after it and
@@ -147,14 +149,14 @@ def acknowledge_errors(scheduler: Scheduler, slaves: Sequence[Slave]) -> list[Sl
     return [s for s, _ in flagged]
 
 
-def _write_acks(scheduler: Scheduler, flagged: Sequence[tuple[Slave, AlStatusReading]]) -> None:
+def _write_acks(scheduler: Scheduler, flagged: Sequence[tuple[SlaveInfo, AlStatusReading]]) -> None:
     """Write each flagged slave's current state with the acknowledge bit."""
     multiple_write(scheduler, [s.station_address for s, _ in flagged], AL_CONTROL,
                    [struct.pack("<H", (r.state or int(AlState.INIT)) | AL_ERROR_FLAG)
                     for _, r in flagged])
 
 
-def _stuck_message(target: AlState | int, stuck: list[tuple[Slave, AlStatusReading | None]],
+def _stuck_message(target: AlState | int, stuck: list[tuple[SlaveInfo, AlStatusReading | None]],
                    timeout: float) -> str:
     parts = []
     for slave, r in stuck[:8]:
@@ -165,7 +167,7 @@ def _stuck_message(target: AlState | int, stuck: list[tuple[Slave, AlStatusReadi
             f"{state_name(int(target))} within {timeout:g} s: {'; '.join(parts)}{more}")
 
 
-def wait_for_state(scheduler: Scheduler, slaves: Sequence[Slave], state: AlState | int,
+def wait_for_state(scheduler: Scheduler, slaves: Sequence[SlaveInfo], state: AlState | int,
                    timeout: float = DEFAULT_STATE_TIMEOUT,
                    poll_interval: float = DEFAULT_POLL_INTERVAL,
                    clock: Callable[[], float] | None = None,
@@ -193,8 +195,8 @@ def wait_for_state(scheduler: Scheduler, slaves: Sequence[Slave], state: AlState
             readings, first = list(first), None
         else:
             readings = read_al_status(scheduler, pending)
-        refused: list[tuple[Slave, AlStatusReading]] = []
-        still: list[Slave] = []
+        refused: list[tuple[SlaveInfo, AlStatusReading]] = []
+        still: list[SlaveInfo] = []
         for slave, r in zip(pending, readings, strict=True):
             last[slave.position] = r
             if r.answered and r.state == target and not r.error:
@@ -223,7 +225,7 @@ def wait_for_state(scheduler: Scheduler, slaves: Sequence[Slave], state: AlState
             pause = min(2 * pause, poll_interval)
 
 
-def request_and_read(scheduler: Scheduler, slaves: Sequence[Slave], state: AlState | int
+def request_and_read(scheduler: Scheduler, slaves: Sequence[SlaveInfo], state: AlState | int
                      ) -> list[AlStatusReading]:
     """Request ``state`` and read AL status back in the same frame(s); checks the writes.
 
@@ -249,28 +251,7 @@ def request_and_read(scheduler: Scheduler, slaves: Sequence[Slave], state: AlSta
     return readings
 
 
-def state_path(current: AlState | int, target: AlState | int) -> list[AlState]:
-    """The states to request one after the other to get from ``current`` to ``target``."""
-    cur, tgt = int(current) & AL_STATE_MASK, AlState(int(target))
-    if cur == tgt:
-        return [tgt]
-    if tgt == AlState.BOOT:
-        return [AlState.BOOT] if cur == AlState.INIT else [AlState.INIT, AlState.BOOT]
-    if cur == AlState.BOOT or cur not in _UP_ORDER:
-        start = AlState.INIT
-        path = [AlState.INIT]
-    else:
-        start = AlState(cur)
-        path = []
-    i, j = _UP_ORDER.index(start), _UP_ORDER.index(tgt)
-    if j > i:
-        path += list(_UP_ORDER[i + 1:j + 1])
-    elif j < i:
-        path.append(tgt)  # going down may skip states
-    return path or [tgt]
-
-
-def mailbox_sm_writes(slave: Slave, boot: bool = False) -> list[tuple[int, bytes]]:
+def mailbox_sm_writes(slave: SlaveInfo, boot: bool = False) -> list[tuple[int, bytes]]:
     """(register address, bytes) of SM0/SM1 for the slave's standard (or bootstrap) mailbox.
 
     Sizes and offsets come from the SII fixed area (words 0x14-0x1B), control
@@ -280,12 +261,7 @@ def mailbox_sm_writes(slave: Slave, boot: bool = False) -> list[tuple[int, bytes
     sii = slave.sii
     if sii is None:
         return []
-    if boot:
-        rx = (sii.boot_rx_mailbox_offset, sii.boot_rx_mailbox_size)
-        tx = (sii.boot_tx_mailbox_offset, sii.boot_tx_mailbox_size)
-    else:
-        rx = (sii.rx_mailbox_offset, sii.rx_mailbox_size)
-        tx = (sii.tx_mailbox_offset, sii.tx_mailbox_size)
+    rx, tx = sii.mailbox_layout(boot)
     if not rx[1] or not tx[1]:
         return []
     controls = [SM_CONTROL_MAILBOX_OUT, SM_CONTROL_MAILBOX_IN]
@@ -297,7 +273,7 @@ def mailbox_sm_writes(slave: Slave, boot: bool = False) -> list[tuple[int, bytes
             for n, (start, size) in enumerate((rx, tx))]
 
 
-def setup_mailboxes(scheduler: Scheduler, step: AlState, slaves: Sequence[Slave]) -> None:
+def setup_mailboxes(scheduler: Scheduler, step: AlState, slaves: Sequence[SlaveInfo]) -> None:
     """Before INIT -> PREOP/BOOT: write the mailbox sync managers of slaves still in INIT."""
     if step not in (AlState.PREOP, AlState.BOOT):
         return
@@ -319,10 +295,10 @@ def setup_mailboxes(scheduler: Scheduler, step: AlState, slaves: Sequence[Slave]
 
 
 #: Called before each step with the state about to be requested and the slaves concerned.
-PrepareStep = Callable[[Scheduler, AlState, Sequence[Slave]], None]
+PrepareStep = Callable[[Scheduler, AlState, Sequence[SlaveInfo]], None]
 
 
-def set_state(scheduler: Scheduler, slaves: Sequence[Slave], state: AlState | int,
+def set_state(scheduler: Scheduler, slaves: Sequence[SlaveInfo], state: AlState | int,
               timeout: float = DEFAULT_STATE_TIMEOUT, *, ack_errors: bool = True,
               poll_interval: float = DEFAULT_POLL_INTERVAL,
               clock: Callable[[], float] | None = None,
@@ -360,7 +336,7 @@ def set_state(scheduler: Scheduler, slaves: Sequence[Slave], state: AlState | in
     steps = max(len(p) for p in paths.values())
     for n in range(steps):
         # Slaves with shorter paths sit at their target while others catch up.
-        by_state: dict[AlState, list[Slave]] = {}
+        by_state: dict[AlState, list[SlaveInfo]] = {}
         for s in slaves:
             p = paths[s.position]
             step = p[n - (steps - len(p))] if n >= steps - len(p) else None

@@ -14,10 +14,17 @@ from pyethercat.wire.registers import AL_ERROR_FLAG, AL_STATE_MASK
 
 __all__ = [
     "AL_STATUS_CODE_NAMES",
+    "PENDING",
+    "STATE_LETTERS",
+    "TRANSITIONS",
     "AlState",
     "AlStatusCode",
     "al_status_code_name",
+    "is_legal_transition",
+    "parse_transition",
     "state_name",
+    "state_path",
+    "transition_name",
 ]
 
 
@@ -55,6 +62,9 @@ class AlState(enum.IntEnum):
         return self.name
 
 
+_STATE_VALUES = frozenset(int(s) for s in AlState if s != AlState.NONE)
+
+
 def state_name(value: int) -> str:
     """Name of an AL status value, with ``+ERR`` when the error flag is set."""
     base = value & AL_STATE_MASK
@@ -63,6 +73,103 @@ def state_name(value: int) -> str:
     except ValueError:
         name = f"0x{base:X}"
     return name + ("+ERR" if value & AL_ERROR_FLAG else "")
+
+
+#: One-letter state names of ESI/ENI transitions (ETG.2000 ``InitCmd/Transition``).
+STATE_LETTERS: dict[AlState, str] = {AlState.INIT: "I", AlState.PREOP: "P", AlState.BOOT: "B",
+                                     AlState.SAFEOP: "S", AlState.OP: "O"}
+
+#: Every transition a slave carries out, by name -> (from state, to state)
+#: (ETG.1000.6 section 5.3.1, figure "EtherCAT state machine"): up one step at a
+#: time, down to any lower state, BOOT only from and back to INIT.
+TRANSITIONS: dict[str, tuple[AlState, AlState]] = {
+    "IP": (AlState.INIT, AlState.PREOP),
+    "PI": (AlState.PREOP, AlState.INIT),
+    "PS": (AlState.PREOP, AlState.SAFEOP),
+    "SP": (AlState.SAFEOP, AlState.PREOP),
+    "SO": (AlState.SAFEOP, AlState.OP),
+    "OS": (AlState.OP, AlState.SAFEOP),
+    "SI": (AlState.SAFEOP, AlState.INIT),
+    "OI": (AlState.OP, AlState.INIT),
+    "OP": (AlState.OP, AlState.PREOP),
+    "IB": (AlState.INIT, AlState.BOOT),
+    "BI": (AlState.BOOT, AlState.INIT),
+}
+_LEGAL = frozenset(TRANSITIONS.values())
+_BY_LETTER = {letter: state for state, letter in STATE_LETTERS.items()}
+_UP_ORDER = (AlState.INIT, AlState.PREOP, AlState.SAFEOP, AlState.OP)
+
+#: A transition check that neither grants nor refuses the request yet: the
+#: slave keeps the request pending (SAFEOP -> OP waiting for the first valid
+#: outputs, ETG.1000.6 section 5.3.2). Not an AL status code (those are 0..0xFFFF).
+PENDING = -1
+
+
+def is_legal_transition(current: AlState | int, requested: AlState | int) -> bool:
+    """Whether a slave in ``current`` carries out a request for ``requested``.
+
+    Staying in the same state is legal; states outside :class:`AlState` are not.
+    """
+    cur, req = int(current) & AL_STATE_MASK, int(requested) & AL_STATE_MASK
+    if cur == req:
+        return cur in _STATE_VALUES
+    return (cur, req) in _LEGAL
+
+
+def transition_name(current: AlState | int, target: AlState | int) -> str | None:
+    """``"PS"`` for PREOP -> SAFEOP; ``None`` for no change, an unknown state or an illegal step."""
+    try:
+        a, b = AlState(int(current) & AL_STATE_MASK), AlState(int(target) & AL_STATE_MASK)
+    except ValueError:
+        return None
+    name = STATE_LETTERS.get(a, "") + STATE_LETTERS.get(b, "")
+    return name if name in TRANSITIONS else None
+
+
+def parse_transition(name: str) -> str:
+    """Normalise a transition name (``"ps"``, ``"P->S"``, ``"PREOP_SAFEOP"``...) to ``"PS"``.
+
+    Raises :class:`~pyethercat.errors.ConfigError` for names of no legal transition.
+    """
+    text = name.strip().upper().replace("->", "").replace("_", "").replace(" ", "")
+    if text not in TRANSITIONS:
+        for a, a_letter in _WORDS.items():
+            if text.startswith(a) and text[len(a):] in _WORDS:
+                text = a_letter + _WORDS[text[len(a):]]
+                break
+    if text not in TRANSITIONS:
+        raise ConfigError(f"unknown state transition {name!r} "
+                          f"(use one of {', '.join(TRANSITIONS)})")
+    return text
+
+
+_WORDS = {"INIT": "I", "PREOP": "P", "SAFEOP": "S", "OP": "O", "BOOT": "B"}
+
+
+def state_path(current: AlState | int, target: AlState | int) -> list[AlState]:
+    """The states to request one after the other to get from ``current`` to ``target``.
+
+    Up one step at a time (INIT -> PREOP -> SAFEOP -> OP), down in one step;
+    BOOT is reached from INIT only and left to INIT only; from an unknown
+    state the path starts at INIT. ``[target]`` when already there.
+    """
+    cur, tgt = int(current) & AL_STATE_MASK, AlState(int(target))
+    if cur == tgt:
+        return [tgt]
+    if tgt == AlState.BOOT:
+        return [AlState.BOOT] if cur == AlState.INIT else [AlState.INIT, AlState.BOOT]
+    if cur == AlState.BOOT or cur not in _UP_ORDER:
+        start = AlState.INIT
+        path = [AlState.INIT]
+    else:
+        start = AlState(cur)
+        path = []
+    i, j = _UP_ORDER.index(start), _UP_ORDER.index(tgt)
+    if j > i:
+        path += list(_UP_ORDER[i + 1:j + 1])
+    elif j < i:
+        path.append(tgt)  # going down may skip states
+    return path or [tgt]
 
 
 class AlStatusCode(enum.IntEnum):

@@ -451,6 +451,21 @@ class SiiInfo:
     end_marker: bool = field(default=True, compare=False)
     warnings: list[str] = field(default_factory=list, compare=False)
 
+    # --- mailbox --------------------------------------------------------------
+
+    def mailbox_layout(self, boot: bool = False) -> tuple[tuple[int, int], tuple[int, int]]:
+        """``((receive offset, size), (send offset, size))`` of the standard or bootstrap mailbox.
+
+        Receive is master -> slave (SM0), send slave -> master (SM1); SII
+        words 0x18-0x1B for the standard mailbox, 0x14-0x17 for the bootstrap
+        mailbox (ETG.1000.6 table "SII EEPROM"). A size of 0 means none.
+        """
+        if boot:
+            return ((self.boot_rx_mailbox_offset, self.boot_rx_mailbox_size),
+                    (self.boot_tx_mailbox_offset, self.boot_tx_mailbox_size))
+        return ((self.rx_mailbox_offset, self.rx_mailbox_size),
+                (self.tx_mailbox_offset, self.tx_mailbox_size))
+
     # --- sizes ---------------------------------------------------------------
 
     @property
