@@ -61,7 +61,7 @@ class Bench:
         self.setup_wall = time.perf_counter() - t
         self.m.configure()
         self.m.dc.configure_sync(1_000_000)
-        self.m._bring_up(self.m.slaves, 5.0)
+        self.m.pd.bring_up(self.m.slaves, 5.0)
 
     def delay_error(self) -> int:
         route = self.seg.route

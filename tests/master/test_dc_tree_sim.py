@@ -79,7 +79,7 @@ def test_fifty_slaves_stay_within_50ns_for_60s_and_after_a_20ppm_step() -> None:
     assert report.static_frames <= 210 and report.duration_s < 0.5
     m.configure()
     assert len(m.dc.configure_sync(1_000_000)) == 46  # every terminal; couplers have no DC mode
-    m._bring_up(m.slaves, 5.0)
+    m.pd.bring_up(m.slaves, 5.0)
     plan = m.dc.cycle(1_000_000, "master", clock)
     runner = CyclicRunner(m.scheduler, m.process_data, m.images, m.slaves, cycle=0.001,
                           clock=clock, check_interval=0, dc=plan)
@@ -113,7 +113,7 @@ def test_reference_follows_the_master() -> None:
     m.dc.setup(DcSettings(static_sync=3000))
     m.configure()
     m.dc.configure_sync(1_000_000)
-    m._bring_up(m.slaves, 5.0)
+    m.pd.bring_up(m.slaves, 5.0)
     plan = m.dc.cycle(1_000_000, "reference", clock)
     runner = CyclicRunner(m.scheduler, m.process_data, m.images, m.slaves, cycle=0.001,
                           clock=clock, check_interval=0, dc=plan)
