@@ -52,7 +52,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from pyethercat.errors import ConfigError, EtherCATError, MailboxError
-from pyethercat.master.mailbox import Mailbox, MailboxMessage
+from pyethercat.master.mailbox import Mailbox, ReceivedMessage
 from pyethercat.master.scheduler import Request
 from pyethercat.master.slave import Slave
 from pyethercat.wire import registers as reg
@@ -99,7 +99,7 @@ class EoeError(MailboxError):
         self.code = code
 
 
-def eoe_frame_type(msg: MailboxMessage) -> int | None:
+def eoe_frame_type(msg: ReceivedMessage) -> int | None:
     """EoE frame type of a mailbox message (None: not EoE or too short)."""
     if msg.header.type != MailboxType.EOE or len(msg.payload) < 4:
         return None
@@ -191,7 +191,7 @@ class EoeClient:
         count = min(opts & 0xF, max(0, (len(body) - 2) // 6))
         return [bytes(body[2 + 6 * i:8 + 6 * i]) for i in range(count)], bool(opts & 0x80)
 
-    def _check(self, msg: MailboxMessage, what: str) -> None:
+    def _check(self, msg: ReceivedMessage, what: str) -> None:
         code = int.from_bytes(msg.payload[2:4], "little")
         if code != EoeResult.SUCCESS:
             raise EoeError(f"{self.label}: EoE {what}: result 0x{code:04X} "
@@ -213,7 +213,7 @@ class EoeClient:
         """Whether :meth:`send` would take another frame."""
         return self.sender.room
 
-    def _unsolicited(self, mailbox: Mailbox, msg: MailboxMessage) -> bool:
+    def _unsolicited(self, mailbox: Mailbox, msg: ReceivedMessage) -> bool:
         ftype = eoe_frame_type(msg)
         if ftype == EoeFrameType.FRAGMENT:
             frame = self.receiver.feed_payload(msg.payload, time.monotonic())
@@ -497,5 +497,5 @@ def eoe_clients(slaves: Sequence[Slave]) -> dict[int, EoeClient]:
     return {s.position: eoe_client(s) for s in slaves if speaks_eoe(s)}
 
 
-def _is(ftype: EoeFrameType) -> Callable[[MailboxMessage], bool]:
+def _is(ftype: EoeFrameType) -> Callable[[ReceivedMessage], bool]:
     return lambda m: eoe_frame_type(m) == ftype
