@@ -20,7 +20,7 @@ import struct
 import sys
 import time
 
-from pyethercat.sim.clock import VirtualClock
+from pyethercat.clock import VirtualClock
 from pyethercat.sim.profiles import PROFILES
 from pyethercat.sim.segment import Segment, SlaveSpec
 from pyethercat.wire import registers as R

@@ -96,40 +96,42 @@ class VirtualClock:
     """Deterministic time: starts at ``start_ns``, moves only forward and only when told.
 
     ``sleep_until`` jumps to the deadline; ``advance`` models time spent
-    working (the simulator advances it by each frame's wire time).
+    working. ``ns`` is the current time as a public attribute: the
+    simulator's frame path reads it and adds each frame's wire time to it
+    directly (two method calls would cost about 7 % of a small frame).
+    Everybody else moves time with ``advance``, ``set`` or ``sleep_until``,
+    which refuse to go back.
     """
 
-    # The simulator's frame path reads and moves ``_now`` directly (one attribute
-    # access instead of a method call per frame); keep the name.
-    __slots__ = ("_now",)
+    __slots__ = ("ns",)
 
     def __init__(self, start_ns: int = 0) -> None:
-        self._now = int(start_ns)
+        self.ns = int(start_ns)
 
     def now_ns(self) -> int:
         """Current virtual time."""
-        return self._now
+        return self.ns
 
     def advance(self, ns: int) -> int:
         """Move time forward by ``ns`` (>= 0) and return the new time."""
         if ns < 0:
             raise ValueError(f"a virtual clock cannot go back ({ns} ns)")
-        self._now += int(ns)
-        return self._now
+        self.ns += int(ns)
+        return self.ns
 
     def set(self, ns: int) -> None:
         """Jump to ``ns`` (must not be earlier than now)."""
-        if ns < self._now:
-            raise ValueError(f"a virtual clock cannot go back (from {self._now} to {ns} ns)")
-        self._now = int(ns)
+        if ns < self.ns:
+            raise ValueError(f"a virtual clock cannot go back (from {self.ns} to {ns} ns)")
+        self.ns = int(ns)
 
     def sleep_until(self, deadline_ns: int) -> None:
         """Jump to ``deadline_ns`` if it is ahead (nothing waits in virtual time)."""
-        if deadline_ns > self._now:
-            self._now = int(deadline_ns)
+        if deadline_ns > self.ns:
+            self.ns = int(deadline_ns)
 
     def __repr__(self) -> str:
-        return f"VirtualClock({self._now})"
+        return f"VirtualClock({self.ns})"
 
 
 def is_virtual(clock: TimeSource) -> bool:

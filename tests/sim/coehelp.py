@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import struct
 
+from pyethercat.clock import VirtualClock
 from pyethercat.errors import SdoAbort
-from pyethercat.sim.clock import VirtualClock
 from pyethercat.sim.devices import DEVICES, behaviour
 from pyethercat.sim.profiles import PROFILES
 from pyethercat.sim.segment import Segment, SlaveSpec

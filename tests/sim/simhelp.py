@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import struct
 
-from pyethercat.sim.clock import VirtualClock
+from pyethercat.clock import VirtualClock
 from pyethercat.sim.device import DeviceApp
 from pyethercat.sim.profiles import PROFILES, EscProfile
 from pyethercat.sim.segment import Segment, SlaveSpec

@@ -29,8 +29,8 @@ from simhelp import (
     u16,
 )
 
+from pyethercat.clock import VirtualClock
 from pyethercat.errors import ConfigError
-from pyethercat.sim.clock import VirtualClock
 from pyethercat.sim.segment import Segment
 from pyethercat.sim.topology import parse_topology
 from pyethercat.wire import registers as R

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from simhelp import address_all, fprd, fpwr, one, u16
 
-from pyethercat.sim.clock import VirtualClock
+from pyethercat.clock import VirtualClock
 from pyethercat.sim.segment import Segment
 from pyethercat.sim.topology import parse_topology
 from pyethercat.wire import registers as R

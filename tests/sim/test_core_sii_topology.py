@@ -6,7 +6,7 @@ import struct
 
 from simhelp import address_all, fprd, fpwr, line, make_sii, one, spec, u16, xfer
 
-from pyethercat.sim.clock import VirtualClock
+from pyethercat.clock import VirtualClock
 from pyethercat.sim.profiles import PROFILES
 from pyethercat.sim.segment import Segment, SlaveSpec
 from pyethercat.wire import registers as R

@@ -19,7 +19,7 @@ from simhelp import (
     u16,
 )
 
-from pyethercat.sim.clock import VirtualClock
+from pyethercat.clock import VirtualClock
 from pyethercat.sim.device import DeviceApp
 from pyethercat.sim.segment import Segment
 from pyethercat.wire import registers as R

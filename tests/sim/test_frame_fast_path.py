@@ -16,7 +16,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from simhelp import line, one, spec
 
-from pyethercat.sim.clock import VirtualClock
+from pyethercat.clock import VirtualClock
 from pyethercat.sim.segment import Segment
 from pyethercat.wire import registers as R
 from pyethercat.wire.datagram import Command, Datagram

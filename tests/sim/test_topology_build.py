@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from pyethercat.sim.clock import VirtualClock
+from pyethercat.clock import VirtualClock
 from pyethercat.sim.topology import load_topology, parse_topology
 from pyethercat.wire.datagram import Command, Datagram
 from pyethercat.wire.frame import decode_frame, encode_frame

@@ -38,7 +38,7 @@ def wall_clock_for_sim(conn: Connection) -> None:
     seg = conn.segment
     if seg is None:
         return
-    from pyethercat.sim.clock import WallClock
+    from pyethercat.clock import WallClock
 
     seg.advance_clock = False
     seg.clock = WallClock()

@@ -25,7 +25,7 @@ from importlib import import_module
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from pyethercat.sim.clock import VirtualClock, WallClock
+    from pyethercat.clock import VirtualClock, WallClock
     from pyethercat.sim.segment import Segment
     from pyethercat.sim.topology import Topology, build_segment, load_topology, parse_topology
 
@@ -45,8 +45,8 @@ _HOME = {
     "build_segment": "pyethercat.sim.topology",
     "load_topology": "pyethercat.sim.topology",
     "parse_topology": "pyethercat.sim.topology",
-    "VirtualClock": "pyethercat.sim.clock",
-    "WallClock": "pyethercat.sim.clock",
+    "VirtualClock": "pyethercat.clock",
+    "WallClock": "pyethercat.clock",
 }
 
 

@@ -39,9 +39,9 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from pyethercat.clock import TimeSource, VirtualClock
 from pyethercat.errors import ConfigError
 from pyethercat.sim.apps import DeviceApps
-from pyethercat.sim.clock import Clock, VirtualClock
 from pyethercat.sim.commands import RMW, Commands, station_map
 from pyethercat.sim.datagrams import Head, scan_headers
 from pyethercat.sim.dc import DcClocks
@@ -172,7 +172,7 @@ class SimSlave:
 class Segment:
     """A segment of simulated slaves; :meth:`process` answers one frame."""
 
-    def __init__(self, clock: Clock | None = None, mac_wire_ns: int = 80) -> None:
+    def __init__(self, clock: TimeSource | None = None, mac_wire_ns: int = 80) -> None:
         self.clock = clock if clock is not None else VirtualClock()
         self._host = _EscHost(self)
         self.mac_wire_ns = mac_wire_ns
@@ -226,12 +226,12 @@ class Segment:
         self.frames_lost = 0
 
     @property
-    def clock(self) -> Clock:
+    def clock(self) -> TimeSource:
         """The segment's time source (virtual by default)."""
         return self._clock
 
     @clock.setter
-    def clock(self, clock: Clock) -> None:
+    def clock(self, clock: TimeSource) -> None:
         self._clock = clock
         # A virtual clock moves by each frame's wire time (see the module docstring);
         # the frame path uses its public ``ns``.

@@ -465,7 +465,7 @@ def serve(
     ``realtime`` > 0 serves under SCHED_FIFO with that priority where the
     process may (see :func:`set_realtime`); otherwise it is logged and ignored.
     """
-    from pyethercat.sim.clock import WallClock
+    from pyethercat.clock import WallClock
     from pyethercat.sim.topology import close_eoe, load_topology
 
     segment = load_topology(os.fspath(topology)).build(clock=WallClock())

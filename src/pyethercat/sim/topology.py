@@ -61,7 +61,7 @@ from pyethercat.wire.sii import MailboxProtocol, SiiInfo, SiiPortType, parse_sii
 from pyethercat.wire.sii.model import CategoryType
 
 if TYPE_CHECKING:
-    from pyethercat.sim.clock import Clock
+    from pyethercat.clock import TimeSource
     from pyethercat.sim.device import DeviceApp
     from pyethercat.sim.segment import Segment
 
@@ -185,7 +185,7 @@ class Topology:
                 return i
         raise ConfigError(f"{self.source}: no slave named {name!r}")
 
-    def build(self, clock: Clock | None = None) -> Segment:
+    def build(self, clock: TimeSource | None = None) -> Segment:
         """Build the segment (see :func:`build_segment`)."""
         return build_segment(self, clock=clock)
 
@@ -588,7 +588,7 @@ def _parse_fault(raw: dict[str, Any], i: int, topo: Topology) -> FaultConfig:
 # --- building ------------------------------------------------------------------------
 
 
-def build_segment(topo: Topology, clock: Clock | None = None) -> Segment:
+def build_segment(topo: Topology, clock: TimeSource | None = None) -> Segment:
     """Make a :class:`pyethercat.sim.segment.Segment` from a parsed topology.
 
     ``clock``: the segment's time source (a virtual clock by default).
