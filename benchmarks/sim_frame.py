@@ -22,7 +22,7 @@ import time
 
 from pyethercat.clock import VirtualClock
 from pyethercat.sim.profiles import PROFILES
-from pyethercat.sim.segment import Segment, SlaveSpec
+from pyethercat.sim.segment import Segment, SimSlaveSpec
 from pyethercat.wire import registers as R
 from pyethercat.wire.datagram import MAX_DATA, Command, Datagram
 from pyethercat.wire.frame import encode_frame
@@ -59,7 +59,7 @@ def build(n: int) -> tuple[Segment, int]:
     di, do = terminal_sii("di8", False), terminal_sii("do8", True)
     prof = PROFILES["ET1200"]
     for i in range(n):
-        seg.add_slave(SlaveSpec(f"t{i}", do if i % 2 else di, prof))
+        seg.add_slave(SimSlaveSpec(f"t{i}", do if i % 2 else di, prof))
 
     def send(*ds: Datagram) -> None:
         assert seg.process(encode_frame(list(ds))) is not None

@@ -19,7 +19,7 @@ from pyethercat.link.pair import PairLink
 from pyethercat.sim.device import DeviceApp
 from pyethercat.sim.devices.builtin import AI2
 from pyethercat.sim.profiles import PROFILES
-from pyethercat.sim.segment import Segment, SlaveSpec
+from pyethercat.sim.segment import Segment, SimSlaveSpec
 from pyethercat.wire.mailbox.coe import (
     CoeMessage,
     Emergency,
@@ -312,7 +312,7 @@ def coe_segment(count: int = 1, mailbox_size: int = 128,
     for i in range(count):
         app = apps[i] if apps is not None else MiniCoe(mailbox_size=mailbox_size)
         made.append(app)
-        seg.add_slave(SlaveSpec(f"coe{i}", coe_sii(mailbox_size), PROFILES[AI2.profile], app))
+        seg.add_slave(SimSlaveSpec(f"coe{i}", coe_sii(mailbox_size), PROFILES[AI2.profile], app))
     drop = DropFilter(seg.process)
     drop.ticks = [a.tick for a in made]
     link = PairLink.responder_link(drop)

@@ -12,7 +12,7 @@ from pyethercat.clock import VirtualClock
 from pyethercat.errors import SdoAbort
 from pyethercat.sim.devices import DEVICES, behaviour
 from pyethercat.sim.profiles import PROFILES
-from pyethercat.sim.segment import Segment, SlaveSpec
+from pyethercat.sim.segment import Segment, SimSlaveSpec
 from pyethercat.wire import registers as R
 from pyethercat.wire.al import AlState
 from pyethercat.wire.datagram import Command, Datagram
@@ -48,7 +48,7 @@ class CoeSlave:
         self.app = run.app
         self.clock = VirtualClock(1_000_000)
         self.seg = Segment(self.clock)
-        self.seg.add_slave(SlaveSpec(builtin, sii, PROFILES[dev.profile], run.app, model=run.model,
+        self.seg.add_slave(SimSlaveSpec(builtin, sii, PROFILES[dev.profile], run.app, model=run.model,
                                      instance=run.instance))
         assert self.dg(Datagram.positional(Command.APWR, 0, R.STATION_ADDRESS,
                                            struct.pack("<H", STATION))).wkc == 1

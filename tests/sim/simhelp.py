@@ -7,7 +7,7 @@ import struct
 from pyethercat.clock import VirtualClock
 from pyethercat.sim.device import DeviceApp
 from pyethercat.sim.profiles import PROFILES, EscProfile
-from pyethercat.sim.segment import Segment, SlaveSpec
+from pyethercat.sim.segment import Segment, SimSlaveSpec
 from pyethercat.wire import registers as R
 from pyethercat.wire.datagram import Command, Datagram
 from pyethercat.wire.frame import decode_frame, encode_frame
@@ -55,13 +55,13 @@ def make_sii(name: str = "dev", product: int = 0x1234, out_bits: int = 0, in_bit
 
 
 def spec(name: str = "dev", profile: str | EscProfile = "ET1100", app: DeviceApp | None = None,
-         **kw: object) -> SlaveSpec:
+         **kw: object) -> SimSlaveSpec:
     prof = PROFILES[profile] if isinstance(profile, str) else profile
     sii_kw = {k: kw.pop(k) for k in list(kw) if k in (
         "product", "out_bits", "in_bits", "mailbox", "alias_sii", "boot", "esc_config")}
     if "alias_sii" in sii_kw:
         sii_kw["alias"] = sii_kw.pop("alias_sii")
-    return SlaveSpec(name, make_sii(name, **sii_kw), prof, app, **kw)  # type: ignore[arg-type]
+    return SimSlaveSpec(name, make_sii(name, **sii_kw), prof, app, **kw)  # type: ignore[arg-type]
 
 
 def line(n: int, profile: str = "ET1100", **kw: object) -> Segment:

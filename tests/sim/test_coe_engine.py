@@ -5,7 +5,7 @@ from __future__ import annotations
 from pyethercat.errors import MailboxError
 from pyethercat.sim.coe import CoeServer
 from pyethercat.sim.mailbox import QUEUE_LIMIT, MailboxEngine
-from pyethercat.sim.od import RW, ObjectDictionary
+from pyethercat.sim.od import RW, SimObjectDictionary
 from pyethercat.wire.al import AlState
 from pyethercat.wire.mailbox import decode_message
 from pyethercat.wire.mailbox.coe import (
@@ -95,7 +95,7 @@ def test_short_buffer_is_a_syntax_error() -> None:
 
 
 def test_entry_description_of_an_entry_longer_than_16_bit_lengths() -> None:
-    od = ObjectDictionary()
+    od = SimObjectDictionary()
     od.var(0x2003, "Large", DataType.OCTET_STRING, RW, bytes(9000), max_length=9000)
     od.var(0x2004, "Small", DataType.OCTET_STRING, RW, bytes(8), max_length=8)
     sent: list[bytes] = []

@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 from pyethercat.sim.devices.coe_io import add_seed002_objects, coe_io_dictionary
-from pyethercat.sim.od import ObjectDictionary
+from pyethercat.sim.od import SimObjectDictionary
 from pyethercat.wire.mailbox.objects import StandardObject, SyncSub
 
 
-def _all_plain(od: ObjectDictionary) -> bool:
+def _all_plain(od: SimObjectDictionary) -> bool:
     return all(type(o.index) is int and all(type(e.subindex) is int for e in o.entries.values())
                for o in od)
 
@@ -30,7 +30,7 @@ def test_coe_io_dictionary_uses_the_table() -> None:
 
 
 def test_seed002_objects_use_the_table() -> None:
-    od = ObjectDictionary()
+    od = SimObjectDictionary()
     add_seed002_objects(od)
     assert _all_plain(od)
     assert [o.index for o in od] == [0x1000, 0x1001, 0x1018, 0x1100,

@@ -8,7 +8,7 @@ from simhelp import address_all, fprd, fpwr, line, make_sii, one, spec, u16, xfe
 
 from pyethercat.clock import VirtualClock
 from pyethercat.sim.profiles import PROFILES
-from pyethercat.sim.segment import Segment, SlaveSpec
+from pyethercat.sim.segment import Segment, SimSlaveSpec
 from pyethercat.wire import registers as R
 from pyethercat.wire.al import AlState
 from pyethercat.wire.datagram import Command, Datagram
@@ -76,7 +76,7 @@ def test_sii_checksum_error_at_load_and_ownership_and_busy() -> None:
     image = bytearray(make_sii("bad", alias=0x55))
     image[14] ^= 0xFF
     seg = Segment(VirtualClock(0))
-    seg.add_slave(SlaveSpec("bad", bytes(image), PROFILES["ET1100"]))
+    seg.add_slave(SimSlaveSpec("bad", bytes(image), PROFILES["ET1100"]))
     address_all(seg)
     status = u16(fprd(seg, ST, R.SII_CONTROL, 2))
     assert status & R.SiiControl.CHECKSUM_ERROR
@@ -259,7 +259,7 @@ def test_drift_and_frmw_distribution() -> None:
     assert diff & 0x80000000 and 99_000 < (diff & 0x7FFFFFFF) < 101_000
     # DC registers exist only on DC chips; ET1200 has them, an IP core without DC would not
     nodc = Segment()
-    nodc.add_slave(SlaveSpec("x", make_sii("x"), PROFILES["ET1100"].replace(features=0)))
+    nodc.add_slave(SimSlaveSpec("x", make_sii("x"), PROFILES["ET1100"].replace(features=0)))
     assert one(nodc, Datagram.device(Command.BRD, 0, R.DC_SYSTEM_TIME, 8)).wkc == 0
 
 

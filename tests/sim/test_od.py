@@ -9,7 +9,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from pyethercat.errors import MailboxError, SdoAbort
-from pyethercat.sim.od import RO, RW, RW_PREOP, RXPDO, TXPDO, WO, ObjectDictionary, OdEntry
+from pyethercat.sim.od import RO, RW, RW_PREOP, RXPDO, TXPDO, WO, SimObjectDictionary, SimOdEntry
 from pyethercat.wire.al import AlState
 from pyethercat.wire.mailbox.coe import ObjectCode, SdoAbortCode
 from pyethercat.wire.mailbox.datatypes import DataType
@@ -17,8 +17,8 @@ from pyethercat.wire.mailbox.datatypes import DataType
 P, S, OP = AlState.PREOP, AlState.SAFEOP, AlState.OP
 
 
-def make() -> ObjectDictionary:
-    od = ObjectDictionary()
+def make() -> SimObjectDictionary:
+    od = SimObjectDictionary()
     od.var(0x1000, "Device type", DataType.UNSIGNED32, RO, 0x191)
     od.var(0x2000, "Blob", DataType.OCTET_STRING, RW, b"abc", max_length=16)
     od.var(0x2001, "Command", DataType.UNSIGNED32, WO, 0)
@@ -30,10 +30,10 @@ def make() -> ObjectDictionary:
     od.var(0x2007, "Name", DataType.VISIBLE_STRING, RW, "ab", max_length=8)
     od.var(0x2008, "Op only read", DataType.UNSIGNED8, 0x0004, 9)  # readable in OP only
     od.record(0x3000, "Rec", [
-        OdEntry(1, "a", DataType.UNSIGNED8, RW | TXPDO, 1),
-        OdEntry(2, "b", DataType.UNSIGNED16, RW | RXPDO, 0x0302),
-        OdEntry(3, "bit", DataType.BOOLEAN, RW, True),
-        OdEntry(4, "c", DataType.UNSIGNED32, RO, 0x07060504),
+        SimOdEntry(1, "a", DataType.UNSIGNED8, RW | TXPDO, 1),
+        SimOdEntry(2, "b", DataType.UNSIGNED16, RW | RXPDO, 0x0302),
+        SimOdEntry(3, "bit", DataType.BOOLEAN, RW, True),
+        SimOdEntry(4, "c", DataType.UNSIGNED32, RO, 0x07060504),
     ])
     od.array(0x3001, "Arr", DataType.UNSIGNED16, [10, 20, 30], RW, count_access=RW, length=4)
     return od
@@ -181,18 +181,18 @@ def test_lists_and_descriptions() -> None:
 
 
 def test_building_errors() -> None:
-    od = ObjectDictionary()
+    od = SimObjectDictionary()
     with pytest.raises(MailboxError):
         od.var(0x2000, "x", DataType.OCTET_STRING, RW, bytes(5), max_length=4)
     with pytest.raises(MailboxError):
-        OdEntry(300, "x", DataType.UNSIGNED8)
+        SimOdEntry(300, "x", DataType.UNSIGNED8)
     with pytest.raises(MailboxError):
-        od.record(0x2001, "r", [OdEntry(0, "no", DataType.UNSIGNED8)])
+        od.record(0x2001, "r", [SimOdEntry(0, "no", DataType.UNSIGNED8)])
 
 
 @given(st.integers(0, 0xFFFF))
 def test_u16_round_trip_through_sdo_access(value: int) -> None:
-    od = ObjectDictionary()
+    od = SimObjectDictionary()
     od.var(0x2000, "x", DataType.UNSIGNED16, RW, 0)
     od.download(0x2000, 0, struct.pack("<H", value), P)
     assert od.upload(0x2000, 0, OP) == struct.pack("<H", value)
@@ -200,7 +200,7 @@ def test_u16_round_trip_through_sdo_access(value: int) -> None:
 
 @given(st.lists(st.integers(0, 0xFFFFFFFF), min_size=0, max_size=8))
 def test_complete_access_round_trip(values: list[int]) -> None:
-    od = ObjectDictionary()
+    od = SimObjectDictionary()
     od.array(0x1600, "map", DataType.UNSIGNED32, [], RW, count_access=RW, length=8)
     data = struct.pack(f"<Bx{len(values)}I", len(values), *values)
     od.download(0x1600, 0, data, P, complete_access=True)

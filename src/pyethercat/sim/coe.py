@@ -2,7 +2,7 @@
 
 :class:`CoeServer` is the mailbox protocol server (``sim.mailbox.ProtocolServer``)
 of CoE, answering requests against a slave's
-:class:`~pyethercat.sim.od.ObjectDictionary`: SDO upload and download
+:class:`~pyethercat.sim.od.SimObjectDictionary`: SDO upload and download
 (expedited, normal, segmented with toggle checks, complete access with the
 subindex 0 and 1 variants), SDO information (OD lists of every list type,
 object and entry descriptions with value info, fragmented to the mailbox
@@ -25,7 +25,7 @@ from collections.abc import Callable
 from pyethercat.errors import MailboxError, SdoAbort
 from pyethercat.sim.device import DeviceApp
 from pyethercat.sim.mailbox import MailboxDevice, service_error
-from pyethercat.sim.od import ObjectDictionary, OdEntry, sdo_abort
+from pyethercat.sim.od import SimObjectDictionary, SimOdEntry, sdo_abort
 from pyethercat.wire.al import AlState
 from pyethercat.wire.mailbox.coe import (
     COE_HEADER_SIZE,
@@ -81,7 +81,7 @@ class CoeServer:
     #: The mailbox type this server takes.
     type = int(MailboxType.COE)
 
-    def __init__(self, od: ObjectDictionary, send: Callable[[bytes], None],
+    def __init__(self, od: SimObjectDictionary, send: Callable[[bytes], None],
                  state: Callable[[], AlState], mailbox_size: Callable[[], int],
                  details: int = _FULL_COE) -> None:
         self.od = od
@@ -289,7 +289,7 @@ class CoeServer:
         )
 
 
-def _type_limits(e: OdEntry) -> tuple[bytes, bytes]:
+def _type_limits(e: SimOdEntry) -> tuple[bytes, bytes]:
     """Raw minimum and maximum of the entry's type (zeros for non-numbers)."""
     size = (e.bit_length + 7) // 8
     bits = e.bit_length

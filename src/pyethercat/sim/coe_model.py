@@ -38,7 +38,7 @@ import numpy.typing as npt
 from pyethercat.sim.coe import CoeServer
 from pyethercat.sim.mailbox import MailboxDevice
 from pyethercat.sim.model import DeviceModel
-from pyethercat.sim.od import ObjectDictionary
+from pyethercat.sim.od import SimObjectDictionary
 from pyethercat.sim.pdo_mapping import MappedEntry, PdoMapping
 from pyethercat.wire.al import AlState
 from pyethercat.wire.mailbox.coe import ObjectAccess
@@ -162,7 +162,7 @@ class CoeModel(DeviceModel):
     reads (parameters): they get image columns too.
     """
 
-    def __init__(self, dictionary: Callable[[SiiInfo, MailboxDevice], ObjectDictionary], *,
+    def __init__(self, dictionary: Callable[[SiiInfo, MailboxDevice], SimObjectDictionary], *,
                  details: int, capacity_out: int = 128, capacity_in: int = 128,
                  fields: Iterable[Key] = ()) -> None:
         super().__init__()
@@ -204,7 +204,7 @@ class CoeModel(DeviceModel):
         self._layout_changed(instance)
         return instance, app
 
-    def _define_fields(self, od: ObjectDictionary) -> None:
+    def _define_fields(self, od: SimObjectDictionary) -> None:
         """Image columns: every PDO-mappable entry and the declared ones, in dictionary order."""
         offset = 0
         wanted = set(self._extra)
@@ -226,7 +226,7 @@ class CoeModel(DeviceModel):
         self.image = image
         self._views.clear()
 
-    def _hook(self, instance: int, od: ObjectDictionary) -> None:
+    def _hook(self, instance: int, od: SimObjectDictionary) -> None:
         """The instance's image entries read and write its image row."""
         for (index, sub), f in self.fields.items():
             obj = od.find(index)

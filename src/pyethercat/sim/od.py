@@ -1,17 +1,17 @@
 """Object dictionary of a simulated CoE slave.
 
-An :class:`ObjectDictionary` holds :class:`OdObject` s (object code VAR,
-ARRAY or RECORD), each with :class:`OdEntry` s: a CANopen data type
+An :class:`SimObjectDictionary` holds :class:`SimOdObject` s (object code VAR,
+ARRAY or RECORD), each with :class:`SimOdEntry` s: a CANopen data type
 (:class:`~pyethercat.wire.mailbox.datatypes.DataType`), access rights per AL
 state and PDO-mappable flags (the :class:`~pyethercat.wire.mailbox.coe.ObjectAccess`
 bits an entry description reports), a default, an optional value range and a
 current value kept as the little-endian bytes an SDO transfer carries.
 
-:meth:`ObjectDictionary.upload` and :meth:`ObjectDictionary.download` are what
+:meth:`SimObjectDictionary.upload` and :meth:`SimObjectDictionary.download` are what
 the CoE server calls: they enforce access rights, lengths and value ranges and
 raise :class:`~pyethercat.errors.SdoAbort` with the abort code a real slave
 answers (facts 7.5). Local code (the device application) reads and writes
-values with :meth:`ObjectDictionary.value` / :meth:`ObjectDictionary.set_value`,
+values with :meth:`SimObjectDictionary.value` / :meth:`SimObjectDictionary.set_value`,
 which skip every check.
 
 Modelling choices (public sources leave these open):
@@ -54,9 +54,9 @@ __all__ = [
     "RXPDO",
     "TXPDO",
     "ObjectHook",
-    "OdEntry",
-    "OdObject",
-    "ObjectDictionary",
+    "SimOdEntry",
+    "SimOdObject",
+    "SimObjectDictionary",
     "sdo_abort",
 ]
 
@@ -100,7 +100,7 @@ def _write_bit(state: AlState) -> int:
 
 
 @dataclass(eq=False)
-class OdEntry:
+class SimOdEntry:
     """One subindex: type, access, value range, current value (raw bytes).
 
     ``max_length`` is the capacity in bytes of a variable-length entry
@@ -220,7 +220,7 @@ class OdEntry:
         self.raw = bytearray(raw)
 
 
-ObjectHook = Callable[["OdObject", dict[int, bytes], bool], None]
+ObjectHook = Callable[["SimOdObject", dict[int, bytes], bool], None]
 """``hook(obj, changes, complete)``: validate (raise :class:`SdoAbort`) or react to writes.
 
 ``changes`` maps subindex to the new raw value; ``complete`` is True for a
@@ -229,7 +229,7 @@ complete-access write.
 
 
 @dataclass(eq=False)
-class OdObject:
+class SimOdObject:
     """One object: index, name, object code and its entries by subindex.
 
     ``check`` runs before a download is stored (after the entry checks), with
@@ -241,7 +241,7 @@ class OdObject:
     name: str
     object_code: ObjectCode
     data_type: int
-    entries: dict[int, OdEntry]
+    entries: dict[int, SimOdEntry]
     check: ObjectHook | None = None
     after: ObjectHook | None = None
 
@@ -263,7 +263,7 @@ class OdObject:
         """True when an entry has a variable length (no complete access)."""
         return any(e.variable for e in self.entries.values())
 
-    def entry(self, subindex: int) -> OdEntry:
+    def entry(self, subindex: int) -> SimOdEntry:
         """The entry at ``subindex``; :class:`SdoAbort` 0x06090011 if there is none."""
         e = self.entries.get(subindex)
         if e is None:
@@ -275,7 +275,7 @@ class OdObject:
         raw = self.entries[0].read()
         return raw[0] if raw else 0
 
-    def copy(self) -> OdObject:
+    def copy(self) -> SimOdObject:
         """An independent copy (values copied, no hooks: the copy's owner attaches its own)."""
         entries = {}
         for sub, e in self.entries.items():
@@ -288,29 +288,29 @@ class OdObject:
         obj.check = obj.after = None
         return obj
 
-    def ca_entries(self, count: int) -> list[OdEntry]:
+    def ca_entries(self, count: int) -> list[SimOdEntry]:
         """Entries 1..count that exist, in order (what complete access covers)."""
         return [e for s, e in self.entries.items() if 1 <= s <= count]
 
 
-class ObjectDictionary:
+class SimObjectDictionary:
     """Objects by index, with the SDO access rules (see the module docstring)."""
 
     def __init__(self) -> None:
-        self._objects: dict[int, OdObject] = {}
+        self._objects: dict[int, SimOdObject] = {}
         #: (index, subindex) of entries mapped into the active RxPDOs (set by the PDO layer):
         #: SDO downloads to them are refused in SAFEOP and OP with 0x06010006.
         self.rx_mapped: frozenset[tuple[int, int]] = frozenset()
 
-    def copy(self) -> ObjectDictionary:
+    def copy(self) -> SimObjectDictionary:
         """An independent copy of every object (a device kind builds one template, copies it per slave)."""
-        od = ObjectDictionary()
+        od = SimObjectDictionary()
         od._objects = {i: o.copy() for i, o in self._objects.items()}
         return od
 
     # --- building ---------------------------------------------------------------
 
-    def add(self, obj: OdObject) -> OdObject:
+    def add(self, obj: SimOdObject) -> SimOdObject:
         """Add (or replace) an object."""
         self._objects[obj.index] = obj
         if len(self._objects) > 1 and obj.index < max(self._objects):
@@ -318,14 +318,14 @@ class ObjectDictionary:
         return obj
 
     def var(self, index: int, name: str, data_type: DataType, access: int = RO,
-            default: Value | None = None, **kw: object) -> OdObject:
-        """Add a VAR object (its value is subindex 0); ``kw`` goes to :class:`OdEntry`."""
-        entry = OdEntry(0, name, data_type, access, default, **kw)  # type: ignore[arg-type]
-        return self.add(OdObject(index, name, ObjectCode.VAR, int(data_type), {0: entry}))
+            default: Value | None = None, **kw: object) -> SimOdObject:
+        """Add a VAR object (its value is subindex 0); ``kw`` goes to :class:`SimOdEntry`."""
+        entry = SimOdEntry(0, name, data_type, access, default, **kw)  # type: ignore[arg-type]
+        return self.add(SimOdObject(index, name, ObjectCode.VAR, int(data_type), {0: entry}))
 
     def array(self, index: int, name: str, data_type: DataType, values: Iterable[Value],
               access: int = RO, *, count_access: int = RO, length: int | None = None,
-              names: Iterable[str] | None = None, **kw: object) -> OdObject:
+              names: Iterable[str] | None = None, **kw: object) -> SimOdObject:
         """Add an ARRAY: subindex 0 = count (UNSIGNED8), subindex n = ``values[n-1]``.
 
         ``length`` defines more subindices than ``values`` fills (the rest get
@@ -334,47 +334,47 @@ class ObjectDictionary:
         vals = list(values)
         total = max(len(vals), length or 0)
         labels = list(names) if names is not None else []
-        entries = {0: OdEntry(0, "Number of entries", DataType.UNSIGNED8, count_access, len(vals),
+        entries = {0: SimOdEntry(0, "Number of entries", DataType.UNSIGNED8, count_access, len(vals),
                               maximum=total)}
         for n in range(1, total + 1):
             label = labels[n - 1] if n - 1 < len(labels) else f"SubIndex {n:03d}"
             default = vals[n - 1] if n - 1 < len(vals) else None
-            entries[n] = OdEntry(n, label, data_type, access, default, **kw)  # type: ignore[arg-type]
-        return self.add(OdObject(index, name, ObjectCode.ARRAY, int(data_type), entries))
+            entries[n] = SimOdEntry(n, label, data_type, access, default, **kw)  # type: ignore[arg-type]
+        return self.add(SimOdObject(index, name, ObjectCode.ARRAY, int(data_type), entries))
 
-    def record(self, index: int, name: str, entries: Iterable[OdEntry],
-               data_type: int = 0, count_access: int = RO) -> OdObject:
+    def record(self, index: int, name: str, entries: Iterable[SimOdEntry],
+               data_type: int = 0, count_access: int = RO) -> SimOdObject:
         """Add a RECORD; subindex 0 (UNSIGNED8, the highest subindex) is added for you."""
         subs = {e.subindex: e for e in entries}
         if 0 in subs:
             raise MailboxError(f"record 0x{index:04X}: subindex 0 is generated")
         top = max(subs) if subs else 0
-        subs[0] = OdEntry(0, "Number of entries", DataType.UNSIGNED8, count_access, top)
-        return self.add(OdObject(index, name, ObjectCode.RECORD, data_type, subs))
+        subs[0] = SimOdEntry(0, "Number of entries", DataType.UNSIGNED8, count_access, top)
+        return self.add(SimOdObject(index, name, ObjectCode.RECORD, data_type, subs))
 
     # --- lookup -------------------------------------------------------------------
 
     def __contains__(self, index: object) -> bool:
         return index in self._objects
 
-    def __iter__(self) -> Iterator[OdObject]:
+    def __iter__(self) -> Iterator[SimOdObject]:
         return iter(self._objects.values())
 
     def __len__(self) -> int:
         return len(self._objects)
 
-    def get(self, index: int) -> OdObject:
+    def get(self, index: int) -> SimOdObject:
         """The object at ``index``; :class:`SdoAbort` 0x06020000 if there is none."""
         obj = self._objects.get(index)
         if obj is None:
             raise sdo_abort(SdoAbortCode.NO_OBJECT, index, 0)
         return obj
 
-    def find(self, index: int) -> OdObject | None:
+    def find(self, index: int) -> SimOdObject | None:
         """The object at ``index`` or None."""
         return self._objects.get(index)
 
-    def entry(self, index: int, subindex: int) -> OdEntry:
+    def entry(self, index: int, subindex: int) -> SimOdEntry:
         """The entry ``index:subindex`` (aborts 0x06020000 / 0x06090011)."""
         return self.get(index).entry(subindex)
 
@@ -470,7 +470,7 @@ class ObjectDictionary:
         if obj.after is not None:
             obj.after(obj, changes, False)
 
-    def _check_writable(self, obj: OdObject, e: OdEntry, state: AlState) -> None:
+    def _check_writable(self, obj: SimOdObject, e: SimOdEntry, state: AlState) -> None:
         if not e.writable(state):
             code = (SdoAbortCode.DEVICE_STATE if e.access & int(ObjectAccess.WRITE)
                     else SdoAbortCode.READ_ONLY)
@@ -480,14 +480,14 @@ class ObjectDictionary:
 
     # --- complete access ------------------------------------------------------------
 
-    def _ca_target(self, obj: OdObject, subindex: int) -> None:
+    def _ca_target(self, obj: SimOdObject, subindex: int) -> None:
         if subindex not in (0, 1):
             raise sdo_abort(SdoAbortCode.UNSUPPORTED_ACCESS, obj.index, subindex,
                             "complete access needs subindex 0 or 1")
         if obj.variable:
             raise sdo_abort(SdoAbortCode.CA_VARIABLE_LENGTH, obj.index, subindex)
 
-    def _ca_upload(self, obj: OdObject, subindex: int, state: AlState) -> bytes:
+    def _ca_upload(self, obj: SimOdObject, subindex: int, state: AlState) -> bytes:
         self._ca_target(obj, subindex)
         if obj.object_code == ObjectCode.VAR:
             return self.upload(obj.index, 0, state)
@@ -504,7 +504,7 @@ class ObjectDictionary:
             pos += bits
         return acc.to_bytes((pos + 7) // 8, "little")
 
-    def _ca_download(self, obj: OdObject, subindex: int, data: bytes, state: AlState) -> None:
+    def _ca_download(self, obj: SimOdObject, subindex: int, data: bytes, state: AlState) -> None:
         self._ca_target(obj, subindex)
         if obj.object_code == ObjectCode.VAR:
             self.download(obj.index, 0, data, state)
@@ -555,6 +555,6 @@ class ObjectDictionary:
         if obj.after is not None:
             obj.after(obj, changes, True)
 
-    def describe(self) -> Mapping[int, OdObject]:
+    def describe(self) -> Mapping[int, SimOdObject]:
         """Read-only view of the objects by index (for documentation and tests)."""
         return dict(self._objects)

@@ -18,7 +18,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from pyethercat.sim.od import ObjectDictionary, OdEntry, OdObject, sdo_abort
+from pyethercat.sim.od import SimObjectDictionary, SimOdEntry, SimOdObject, sdo_abort
 from pyethercat.wire.mailbox.coe import ObjectAccess, SdoAbortCode
 from pyethercat.wire.mailbox.objects import (
     StandardObject,
@@ -42,7 +42,7 @@ class MappedEntry:
     subindex: int
     bit_offset: int
     bits: int
-    entry: OdEntry | None  # None: a gap (mapping index 0)
+    entry: SimOdEntry | None  # None: a gap (mapping index 0)
 
 
 class PdoMapping:
@@ -55,7 +55,7 @@ class PdoMapping:
     ``on_change`` is called after a change of the layout.
     """
 
-    def __init__(self, od: ObjectDictionary, *, capacity_out: int = 128,
+    def __init__(self, od: SimObjectDictionary, *, capacity_out: int = 128,
                  capacity_in: int = 128, on_change: Callable[[], None] | None = None) -> None:
         self.od = od
         self.capacity = {_RX_ASSIGN: capacity_out, _TX_ASSIGN: capacity_in}
@@ -112,7 +112,7 @@ class PdoMapping:
 
     # --- validation hooks ------------------------------------------------------------
 
-    def _check(self, obj: OdObject, changes: dict[int, bytes], complete: bool) -> None:
+    def _check(self, obj: SimOdObject, changes: dict[int, bytes], complete: bool) -> None:
         index = obj.index
         if not complete:
             subs = [s for s in changes if s != 0]
@@ -124,7 +124,7 @@ class PdoMapping:
         else:
             self._check_mapping(obj, changes)
 
-    def _check_mapping(self, obj: OdObject, changes: dict[int, bytes]) -> None:
+    def _check_mapping(self, obj: SimOdObject, changes: dict[int, bytes]) -> None:
         index = obj.index
         rx = is_rxpdo_mapping(index)
         flag = int(ObjectAccess.RXPDO_MAPPABLE if rx else ObjectAccess.TXPDO_MAPPABLE)
@@ -162,7 +162,7 @@ class PdoMapping:
             raise sdo_abort(SdoAbortCode.PARAMETER_INCOMPATIBLE, pdo, sub,
                             f"0x{index:04X}:{subindex:02X} has {e.bit_length} bits, not {bits}")
 
-    def _check_assignment(self, obj: OdObject, changes: dict[int, bytes]) -> None:
+    def _check_assignment(self, obj: SimOdObject, changes: dict[int, bytes]) -> None:
         index = obj.index
         of_direction = is_rxpdo_mapping if index == _RX_ASSIGN else is_txpdo_mapping
         for sub, raw in changes.items():
@@ -185,13 +185,13 @@ class PdoMapping:
                 raise sdo_abort(SdoAbortCode.PDO_LENGTH_EXCEEDED, index, 0,
                                 f"{bits} bits, SM buffer holds {8 * self.capacity[index]}")
 
-    def _after(self, obj: OdObject, changes: dict[int, bytes], complete: bool) -> None:
+    def _after(self, obj: SimOdObject, changes: dict[int, bytes], complete: bool) -> None:
         self.rebuild()
         if self.on_change is not None:
             self.on_change()
 
 
-def _u(overlay: dict[int, bytes] | None, obj: OdObject, sub: int) -> int:
+def _u(overlay: dict[int, bytes] | None, obj: SimOdObject, sub: int) -> int:
     if overlay is not None and sub in overlay:
         return int.from_bytes(overlay[sub], "little")
     e = obj.entries.get(sub)

@@ -84,7 +84,7 @@ __all__ = [
     "Route",
     "Segment",
     "SimSlave",
-    "SlaveSpec",
+    "SimSlaveSpec",
 ]
 
 I64 = npt.NDArray[np.int64]
@@ -117,7 +117,7 @@ _DIRTY_FLAGS = ((Dirty.ADDRESSING, "addressing_dirty"), (Dirty.FMMU, "fmmu_dirty
 
 
 @dataclass
-class SlaveSpec:
+class SimSlaveSpec:
     """What a slave is: its EEPROM image, its ESC and its application.
 
     ``alias`` overrides SII word 4; ``drift_ppm`` makes its local clock run
@@ -144,7 +144,7 @@ class SlaveSpec:
 class SimSlave:
     """One slave of a segment. ``esc`` is its ESC model; ``read``/``write`` are raw test helpers."""
 
-    def __init__(self, name: str, spec: SlaveSpec, index: int, esc: Esc) -> None:
+    def __init__(self, name: str, spec: SimSlaveSpec, index: int, esc: Esc) -> None:
         self.name = name
         self.spec = spec
         self.index = index
@@ -243,7 +243,7 @@ class Segment:
 
     # --- building --------------------------------------------------------------------
 
-    def add_slave(self, spec: SlaveSpec, parent: int | None = None, port: int | None = None,
+    def add_slave(self, spec: SimSlaveSpec, parent: int | None = None, port: int | None = None,
                   cable_delay_ns: int = 5) -> int:
         """Add a slave; return its index.
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 
-from pyethercat.sim.od import RO, RW, RW_PREOP, ObjectDictionary, OdEntry, OdObject
+from pyethercat.sim.od import RO, RW, RW_PREOP, SimObjectDictionary, SimOdEntry, SimOdObject
 from pyethercat.wire.mailbox.datatypes import DataType
 from pyethercat.wire.mailbox.objects import (
     IdentitySub,
@@ -39,7 +39,7 @@ _TX_ASSIGN = int(StandardObject.TXPDO_ASSIGNMENT)
 _SM_OUTPUT_SYNC = int(StandardObject.SM_OUTPUT_SYNC)
 
 
-def add_device_info(od: ObjectDictionary, device_type: int, name: str, hardware: str = "",
+def add_device_info(od: SimObjectDictionary, device_type: int, name: str, hardware: str = "",
                     software: str = "") -> None:
     """0x1000 device type, 0x1001 error register and the 0x1008/0x1009/0x100A strings."""
     std = StandardObject
@@ -54,20 +54,20 @@ def add_device_info(od: ObjectDictionary, device_type: int, name: str, hardware:
                RO, software)
 
 
-def add_identity(od: ObjectDictionary, vendor: int, product: int, revision: int,
+def add_identity(od: SimObjectDictionary, vendor: int, product: int, revision: int,
                  serial: int = 0) -> None:
     """0x1018 identity (vendor id, product code, revision, serial number)."""
     od.record(StandardObject.IDENTITY, "Identity", [
-        OdEntry(IdentitySub.VENDOR_ID, "Vendor ID", DataType.UNSIGNED32, RO, vendor),
-        OdEntry(IdentitySub.PRODUCT_CODE, "Product code", DataType.UNSIGNED32, RO, product),
-        OdEntry(IdentitySub.REVISION, "Revision", DataType.UNSIGNED32, RO, revision),
-        OdEntry(IdentitySub.SERIAL_NUMBER, "Serial number", DataType.UNSIGNED32, RO, serial),
+        SimOdEntry(IdentitySub.VENDOR_ID, "Vendor ID", DataType.UNSIGNED32, RO, vendor),
+        SimOdEntry(IdentitySub.PRODUCT_CODE, "Product code", DataType.UNSIGNED32, RO, product),
+        SimOdEntry(IdentitySub.REVISION, "Revision", DataType.UNSIGNED32, RO, revision),
+        SimOdEntry(IdentitySub.SERIAL_NUMBER, "Serial number", DataType.UNSIGNED32, RO, serial),
     ], data_type=int(DataType.IDENTITY))
 
 
-def add_pdo_mapping(od: ObjectDictionary, index: int, name: str,
+def add_pdo_mapping(od: SimObjectDictionary, index: int, name: str,
                     entries: Iterable[tuple[int, int, int]], *, max_entries: int = 8,
-                    access: int = RW_PREOP) -> OdObject:
+                    access: int = RW_PREOP) -> SimOdObject:
     """A PDO mapping object 0x16xx/0x1Axx with ``(index, subindex, bits)`` entries."""
     words = [mapping_word(*e) for e in entries]
     obj = od.array(index, name, DataType.UNSIGNED32, words, access, count_access=access,
@@ -76,9 +76,9 @@ def add_pdo_mapping(od: ObjectDictionary, index: int, name: str,
     return obj
 
 
-def add_pdo_assignment(od: ObjectDictionary, index: int, pdos: Sequence[int], *,
+def add_pdo_assignment(od: SimObjectDictionary, index: int, pdos: Sequence[int], *,
                        max_entries: int = 4, access: int = RW_PREOP,
-                       assigned: int | None = None) -> OdObject:
+                       assigned: int | None = None) -> SimOdObject:
     """0x1C12/0x1C13: subindex n = PDO index; subindex 0 = ``assigned`` (default: all)."""
     name = ("RxPDO assign" if index == _RX_ASSIGN else "TxPDO assign" if index == _TX_ASSIGN
             else f"SM{assignment_sm(index)} PDO assign")
@@ -94,7 +94,7 @@ _STANDARD_SM_TYPES = (SyncManagerType.MAILBOX_OUT, SyncManagerType.MAILBOX_IN,
                       SyncManagerType.OUTPUTS, SyncManagerType.INPUTS)
 
 
-def add_sync_manager_objects(od: ObjectDictionary,
+def add_sync_manager_objects(od: SimObjectDictionary,
                              types: Sequence[int] = _STANDARD_SM_TYPES) -> None:
     """0x1C00 SM communication types and the (empty) 0x1C10/0x1C11 mailbox assignments.
 
@@ -112,7 +112,7 @@ _DEFAULT_SYNC_SUPPORT = int(SyncModeSupported.FREE_RUN | SyncModeSupported.SYNCH
                             | SyncModeSupported.DC_SYNC0)
 
 
-def add_sync_parameters(od: ObjectDictionary, index: int, *, mode: int,
+def add_sync_parameters(od: SimObjectDictionary, index: int, *, mode: int,
                         supported: int = _DEFAULT_SYNC_SUPPORT,
                         min_cycle_ns: int = 100_000) -> None:
     """0x1C32 (outputs) or 0x1C33 (inputs) synchronisation parameters (facts 7.9)."""
@@ -121,17 +121,17 @@ def add_sync_parameters(od: ObjectDictionary, index: int, *, mode: int,
     modes = frozenset(int(m) for m in SyncMode)
     S = SyncSub
     od.record(index, name, [
-        OdEntry(S.SYNC_MODE, "Sync mode", u16, RW_PREOP, mode, allowed=modes),
-        OdEntry(S.CYCLE_TIME, "Cycle time", u32, RO, 0),
-        OdEntry(S.SHIFT_TIME, "Shift time", u32, RO, 0),
-        OdEntry(S.SYNC_MODES_SUPPORTED, "Sync modes supported", u16, RO, supported),
-        OdEntry(S.MIN_CYCLE_TIME, "Minimum cycle time", u32, RO, min_cycle_ns),
-        OdEntry(S.CALC_AND_COPY_TIME, "Calc and copy time", u32, RO, 0),
-        OdEntry(S.MIN_DELAY_TIME, "Minimum delay time", u32, RO, 0),
-        OdEntry(S.GET_CYCLE_TIME, "Get cycle time", u16, RW, 0, maximum=3),
-        OdEntry(S.DELAY_TIME, "Delay time", u32, RO, 0),
-        OdEntry(S.SYNC0_CYCLE_TIME, "Sync0 cycle time", u32, RW_PREOP, 0),
-        OdEntry(S.SM_EVENT_MISSED, "SM event missed", u16, RO, 0),
-        OdEntry(S.CYCLE_TIME_TOO_SMALL, "Cycle time too small", u16, RO, 0),
-        OdEntry(S.SYNC_ERROR, "Sync error", DataType.BOOLEAN, RO, False),
+        SimOdEntry(S.SYNC_MODE, "Sync mode", u16, RW_PREOP, mode, allowed=modes),
+        SimOdEntry(S.CYCLE_TIME, "Cycle time", u32, RO, 0),
+        SimOdEntry(S.SHIFT_TIME, "Shift time", u32, RO, 0),
+        SimOdEntry(S.SYNC_MODES_SUPPORTED, "Sync modes supported", u16, RO, supported),
+        SimOdEntry(S.MIN_CYCLE_TIME, "Minimum cycle time", u32, RO, min_cycle_ns),
+        SimOdEntry(S.CALC_AND_COPY_TIME, "Calc and copy time", u32, RO, 0),
+        SimOdEntry(S.MIN_DELAY_TIME, "Minimum delay time", u32, RO, 0),
+        SimOdEntry(S.GET_CYCLE_TIME, "Get cycle time", u16, RW, 0, maximum=3),
+        SimOdEntry(S.DELAY_TIME, "Delay time", u32, RO, 0),
+        SimOdEntry(S.SYNC0_CYCLE_TIME, "Sync0 cycle time", u32, RW_PREOP, 0),
+        SimOdEntry(S.SM_EVENT_MISSED, "SM event missed", u16, RO, 0),
+        SimOdEntry(S.CYCLE_TIME_TOO_SMALL, "Cycle time too small", u16, RO, 0),
+        SimOdEntry(S.SYNC_ERROR, "Sync error", DataType.BOOLEAN, RO, False),
     ], data_type=int(DataType.SYNC_PAR))

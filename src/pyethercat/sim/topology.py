@@ -596,7 +596,7 @@ def build_segment(topo: Topology, clock: TimeSource | None = None) -> Segment:
     from pyethercat.sim.devices import Behaviour, behaviour
     from pyethercat.sim.devices.esi_device import esi_model
     from pyethercat.sim.model import DeviceModel
-    from pyethercat.sim.segment import Segment, SlaveSpec
+    from pyethercat.sim.segment import Segment, SimSlaveSpec
 
     seg = Segment(clock=clock)
     index: dict[str, int] = {}
@@ -621,7 +621,7 @@ def build_segment(topo: Topology, clock: TimeSource | None = None) -> Segment:
             run = behaviour(s.builtin, s.info, models)
         if s.eoe is not None:
             _eoe_endpoint(run.app, s.eoe, s.name, where)
-        spec = SlaveSpec(
+        spec = SimSlaveSpec(
             name=s.name,
             sii=s.sii,
             profile=s.profile,

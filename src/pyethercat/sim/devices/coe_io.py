@@ -34,7 +34,7 @@ from pyethercat.sim.devices.builtin import BuiltinDevice, BuiltinPdo, BuiltinPdo
 from pyethercat.sim.devices.eoe_web import device_status
 from pyethercat.sim.eoe import attach_eoe
 from pyethercat.sim.mailbox import MailboxDevice
-from pyethercat.sim.od import RO, RW, RW_PREOP, RXPDO, TXPDO, WO, ObjectDictionary, OdEntry
+from pyethercat.sim.od import RO, RW, RW_PREOP, RXPDO, TXPDO, WO, SimObjectDictionary, SimOdEntry
 from pyethercat.sim.std_objects import (
     add_device_info,
     add_identity,
@@ -98,15 +98,15 @@ I64 = npt.NDArray[np.int64]
 # --- coe-io ---------------------------------------------------------------------------
 
 
-def coe_io_dictionary(vendor: int, product: int, revision: int, serial: int = 0) -> ObjectDictionary:
+def coe_io_dictionary(vendor: int, product: int, revision: int, serial: int = 0) -> SimObjectDictionary:
     """The object dictionary of ``builtin:coe-io`` with its default mapping."""
-    od = ObjectDictionary()
+    od = SimObjectDictionary()
     u8, u16, u32 = DataType.UNSIGNED8, DataType.UNSIGNED16, DataType.UNSIGNED32
     add_device_info(od, 0x00000191, "PEC-COEIO CoE test IO", "1.0", "pyethercat sim 1.0")
     add_identity(od, vendor, product, revision, serial)
     od.record(_STD.ERROR_SETTINGS, "Error settings", [
-        OdEntry(1, "Local error reaction", u32, RW, 1, maximum=2),
-        OdEntry(2, "Sync error counter limit", u16, RW, 4),
+        SimOdEntry(1, "Local error reaction", u32, RW, 1, maximum=2),
+        SimOdEntry(2, "Sync error counter limit", u16, RW, 4),
     ])
     add_pdo_mapping(od, 0x1600, "DO outputs", [(0x7000, 1, 8)])
     add_pdo_mapping(od, 0x1601, "Value outputs", [(0x7000, 2, 16), (0x7000, 3, 32)])
@@ -129,29 +129,29 @@ def coe_io_dictionary(vendor: int, product: int, revision: int, serial: int = 0)
            _LARGE_BLOCK, max_length=LARGE_BLOCK_SIZE)
     od.var(0x2002, "PREOP parameter", u16, RW_PREOP, 100, minimum=1, maximum=1000)
     od.record(0x6000, "Inputs", [
-        OdEntry(1, "Digital inputs", u8, RO | TXPDO, 0),
-        OdEntry(2, "Value 16", u16, RO | TXPDO, 0),
-        OdEntry(3, "Value 32", u32, RO | TXPDO, 0),
-        OdEntry(4, "Cycle counter", u16, RO | TXPDO, 0),
-        OdEntry(5, "Bit input", DataType.BOOLEAN, RO | TXPDO, False),
+        SimOdEntry(1, "Digital inputs", u8, RO | TXPDO, 0),
+        SimOdEntry(2, "Value 16", u16, RO | TXPDO, 0),
+        SimOdEntry(3, "Value 32", u32, RO | TXPDO, 0),
+        SimOdEntry(4, "Cycle counter", u16, RO | TXPDO, 0),
+        SimOdEntry(5, "Bit input", DataType.BOOLEAN, RO | TXPDO, False),
     ])
     od.record(0x7000, "Outputs", [
-        OdEntry(1, "Digital outputs", u8, RW | RXPDO, 0),
-        OdEntry(2, "Value 16", u16, RW | RXPDO, 0),
-        OdEntry(3, "Value 32", u32, RW | RXPDO, 0),
-        OdEntry(4, "Bit output", DataType.BOOLEAN, RW | RXPDO, False),
+        SimOdEntry(1, "Digital outputs", u8, RW | RXPDO, 0),
+        SimOdEntry(2, "Value 16", u16, RW | RXPDO, 0),
+        SimOdEntry(3, "Value 32", u32, RW | RXPDO, 0),
+        SimOdEntry(4, "Bit output", DataType.BOOLEAN, RW | RXPDO, False),
     ])
     od.record(0x8000, "Settings", [
-        OdEntry(1, "Filter time", u16, RW, 10, maximum=10000),
-        OdEntry(2, "Offset", DataType.INTEGER32, RW, 0, minimum=-1_000_000, maximum=1_000_000),
-        OdEntry(3, "Invert digital", DataType.BOOLEAN, RW, False),
-        OdEntry(4, "Mode", u8, RW, 0, allowed=frozenset({0, 1, 2})),
-        OdEntry(5, "Gain", DataType.REAL32, RW, 1.0, minimum=0.0, maximum=100.0),
-        OdEntry(6, "Channel name", DataType.VISIBLE_STRING, RW, "channel 1", max_length=32),
+        SimOdEntry(1, "Filter time", u16, RW, 10, maximum=10000),
+        SimOdEntry(2, "Offset", DataType.INTEGER32, RW, 0, minimum=-1_000_000, maximum=1_000_000),
+        SimOdEntry(3, "Invert digital", DataType.BOOLEAN, RW, False),
+        SimOdEntry(4, "Mode", u8, RW, 0, allowed=frozenset({0, 1, 2})),
+        SimOdEntry(5, "Gain", DataType.REAL32, RW, 1.0, minimum=0.0, maximum=100.0),
+        SimOdEntry(6, "Channel name", DataType.VISIBLE_STRING, RW, "channel 1", max_length=32),
     ])
     od.record(0x8001, "Limits", [
-        OdEntry(1, "Low", DataType.INTEGER16, RW, -100),
-        OdEntry(2, "High", DataType.INTEGER16, RW, 100),
+        SimOdEntry(1, "Low", DataType.INTEGER16, RW, -100),
+        SimOdEntry(2, "High", DataType.INTEGER16, RW, 100),
     ])
     return od
 
@@ -171,7 +171,7 @@ class CoeIoModel(CoeModel):
                          capacity_in=_PD_CAPACITY, fields=((0x8000, 2), (0x8000, 3)))
 
     @staticmethod
-    def _dictionary(info: SiiInfo, app: MailboxDevice) -> ObjectDictionary:
+    def _dictionary(info: SiiInfo, app: MailboxDevice) -> SimObjectDictionary:
         return coe_io_dictionary(info.vendor_id, info.product_code, info.revision, info.serial)
 
     def compute(self, instances: I64) -> None:
@@ -225,7 +225,7 @@ SEED002_PRODUCT = 0x264860D2
 SEED002_REVISION = 0x00020000
 
 
-def add_seed002_objects(od: ObjectDictionary, *, serial: int = 0,
+def add_seed002_objects(od: SimObjectDictionary, *, serial: int = 0,
                         station_address: Callable[[], int] | None = None,
                         assigned_rx: int = 0, assigned_tx: int = 0,
                         profile_objects: bool = True) -> None:
@@ -305,13 +305,13 @@ class Seed002Model(CoeModel):
                          capacity_out=_PD_CAPACITY, capacity_in=_PD_CAPACITY)
 
     @staticmethod
-    def _dictionary(info: SiiInfo, app: MailboxDevice) -> ObjectDictionary:
+    def _dictionary(info: SiiInfo, app: MailboxDevice) -> SimObjectDictionary:
         def station() -> int:
             if app.pdi is None:
                 return 0
             return int.from_bytes(app.pdi.read(R.STATION_ADDRESS, 2), "little")
 
-        od = ObjectDictionary()
+        od = SimObjectDictionary()
         add_seed002_objects(od, serial=info.serial, station_address=station)
         od.set_value(_402.STATUSWORD, 0, 0x0250)  # switch on disabled
         return od

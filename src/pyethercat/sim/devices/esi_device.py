@@ -38,9 +38,9 @@ from pyethercat.sim.od import (
     RXPDO,
     TXPDO,
     WO,
-    ObjectDictionary,
-    OdEntry,
-    OdObject,
+    SimObjectDictionary,
+    SimOdEntry,
+    SimOdObject,
 )
 from pyethercat.sim.std_objects import (
     add_identity,
@@ -117,7 +117,7 @@ def _access(flags: EsiFlags) -> int:
     return value
 
 
-def _entry(e: EsiOdEntry) -> OdEntry:
+def _entry(e: EsiOdEntry) -> SimOdEntry:
     code = e.code
     if code is None or code not in DataType.__members__.values():
         code = DataType.OCTET_STRING
@@ -128,7 +128,7 @@ def _entry(e: EsiOdEntry) -> OdEntry:
         # A string declared STRING(0)/BitSize 0 with a DefaultString (SOES's ESI
         # generator writes 0x1009/0x100A so) holds its default.
         max_length = max(max_length, len(e.default))
-    entry = OdEntry(e.subindex, e.name, dt, _access(e.flags), None, max_length=max_length)
+    entry = SimOdEntry(e.subindex, e.name, dt, _access(e.flags), None, max_length=max_length)
     if e.default is not None:
         raw = e.default
         want = size if size is not None else max_length
@@ -138,9 +138,9 @@ def _entry(e: EsiOdEntry) -> OdEntry:
     return entry
 
 
-def esi_dictionary(device: EsiDevice, *, vendor_id: int, serial: int = 0) -> ObjectDictionary:
+def esi_dictionary(device: EsiDevice, *, vendor_id: int, serial: int = 0) -> SimObjectDictionary:
     """The device's object dictionary, consistent with its SII (see the module text)."""
-    od = ObjectDictionary()
+    od = SimObjectDictionary()
     esi_od: EsiDictionary | None = device.dictionary
     if esi_od is not None:
         for obj in esi_od.objects:
@@ -156,12 +156,12 @@ def esi_dictionary(device: EsiDevice, *, vendor_id: int, serial: int = 0) -> Obj
             else:
                 ocode = ObjectCode.RECORD
             if 0 not in entries:
-                entries[0] = OdEntry(0, "SubIndex 000", DataType.UNSIGNED8, RO, max(entries))
+                entries[0] = SimOdEntry(0, "SubIndex 000", DataType.UNSIGNED8, RO, max(entries))
             elif ocode != ObjectCode.VAR and flat[0].subindex == 0 and flat[0].default is None:
                 # No default for "number of entries": all of them are in use.
                 entries[0].raw[:] = bytes([max(entries) & 0xFF])
             first = entries.get(1, entries[0])
-            od.add(OdObject(obj.index, str(obj.name), ocode, int(first.data_type), entries))
+            od.add(SimOdObject(obj.index, str(obj.name), ocode, int(first.data_type), entries))
     # Identity as the SII says.
     if StandardObject.IDENTITY not in od:
         add_identity(od, vendor_id, device.product_code, device.revision, serial)
@@ -189,9 +189,9 @@ def esi_dictionary(device: EsiDevice, *, vendor_id: int, serial: int = 0) -> Obj
             if pe.subindex == 0 and pe.index not in od:
                 od.var(pe.index, name, code, acc)
             elif pe.index not in od:
-                od.record(pe.index, f"0x{pe.index:04X}", [OdEntry(pe.subindex, name, code, acc)])
+                od.record(pe.index, f"0x{pe.index:04X}", [SimOdEntry(pe.subindex, name, code, acc)])
             else:
-                od.get(pe.index).entries[pe.subindex] = OdEntry(pe.subindex, name, code, acc)
+                od.get(pe.index).entries[pe.subindex] = SimOdEntry(pe.subindex, name, code, acc)
         words = [(e.index, e.subindex, e.bit_len) for e in pdo.entries]
         existing = od.find(pdo.index)
         size = max(8, len(words), existing.max_subindex if existing is not None else 0)
@@ -235,12 +235,12 @@ class EsiCoeModel(CoeModel):
 
     def __init__(self, slave: EsiSlave, details: int) -> None:
         self.slave = slave
-        self._template: ObjectDictionary | None = None
+        self._template: SimObjectDictionary | None = None
         super().__init__(self._dictionary, details=details,
                          capacity_out=_capacity(slave.device, "Outputs"),
                          capacity_in=_capacity(slave.device, "Inputs"))
 
-    def _dictionary(self, info: SiiInfo, app: MailboxDevice) -> ObjectDictionary:
+    def _dictionary(self, info: SiiInfo, app: MailboxDevice) -> SimObjectDictionary:
         if self._template is None:
             self._template = esi_dictionary(self.slave.device, vendor_id=self.slave.vendor_id)
         od = self._template.copy()
