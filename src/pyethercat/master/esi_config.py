@@ -23,11 +23,10 @@ The master stands on ``pyethercat.esi`` only (never on the simulator).
 from __future__ import annotations
 
 import struct
-import tomllib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from pyethercat.errors import ConfigError, EsiError, EtherCATError, TopologyMismatchError
 from pyethercat.esi.eni import (
@@ -59,6 +58,7 @@ from pyethercat.master import scan as scanning
 from pyethercat.master.config import MappedPdo, MappedPdoEntry, PdoDirection
 from pyethercat.master.scan import ExpectedSlave
 from pyethercat.master.slave import Identity, Slave
+from pyethercat.topology import parse_topology_text
 from pyethercat.wire.mailbox.datatypes import DataType
 from pyethercat.wire.mailbox.objects import sm_pdo_assignment
 from pyethercat.wire.sii import (
@@ -132,7 +132,7 @@ def _spec(esi: EsiFile, product: int | None, revision: int | None) -> EsiSlaveSp
 
 
 def expected_from_topology(path: str | Path) -> list[EsiSlaveSpec]:
-    """The expected network of a topology file (the simulator's TOML format).
+    """The expected network of a topology file (the format of ``pyethercat.topology``).
 
     ``esi = ...`` entries give an ESI device; ``sii = ...`` entries an
     identity read from the image. ``device = "builtin:..."`` entries cannot
@@ -142,42 +142,33 @@ def expected_from_topology(path: str | Path) -> list[EsiSlaveSpec]:
     """
     p = Path(path)
     try:
-        raw: dict[str, Any] = tomllib.loads(p.read_text("utf-8"))
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        text = p.read_text("utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{p}: cannot read topology file: {exc}") from exc
-    slaves = raw.get("slave")
-    if not isinstance(slaves, list) or not slaves:
-        raise ConfigError(f"{p}: no [[slave]] tables")
-    if any(isinstance(s, dict) and "parent" in s for s in slaves):
+    doc = parse_topology_text(text, str(p))
+    if any(s.parent is not None for s in doc.slaves):
         raise ConfigError(f"{p}: tree topologies (parent/port) are not supported as an "
                           "expected network; list the slaves in ring order")  # fmt: skip
     out: list[EsiSlaveSpec] = []
     loaded: dict[Path, EsiFile] = {}  # a catalogue named by many slaves is parsed once
-    for n, s in enumerate(slaves):
+    for n, s in enumerate(doc.slaves):
         where = f"{p}: slave #{n + 1}"
-        if not isinstance(s, dict):
-            raise ConfigError(f"{where}: not a table")
-        name = s.get("name")
-        alias = s.get("alias")
-        if "esi" in s:
-            esi_path = p.parent / str(s["esi"])
+        if s.kind == "esi":
             try:
-                spec = _spec(_load_once(esi_path, loaded), s.get("product"), s.get("revision"))
+                spec = _spec(_load_once(p.parent / s.source, loaded), s.product, s.revision)
             except EsiError as exc:
                 raise ConfigError(f"{where}: {exc}") from exc
-        elif "sii" in s:
+        elif s.kind == "sii":
             try:
-                info = parse_sii((p.parent / str(s["sii"])).read_bytes())
+                info = parse_sii((p.parent / s.source).read_bytes())
             except (OSError, EtherCATError) as exc:
-                raise ConfigError(f"{where}: SII {s['sii']}: {exc}") from exc
+                raise ConfigError(f"{where}: SII {s.source}: {exc}") from exc
             spec = EsiSlaveSpec(Identity(info.vendor_id, info.product_code, info.revision))
         else:
-            raise ConfigError(
-                f"{where}: {s.get('device', 'this entry')!r}: only esi = ... and sii = ... "
-                "entries name an identity the master can check"
-            )
-        spec.name = str(name) if name is not None else spec.name
-        spec.alias = int(alias) if isinstance(alias, int) else None
+            raise ConfigError(f"{where}: {s.written_source!r}: only esi = ... and sii = ... "
+                              "entries name an identity the master can check")  # fmt: skip
+        spec.name = s.name
+        spec.alias = s.alias
         out.append(spec)
     return out
 

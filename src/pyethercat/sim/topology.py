@@ -1,37 +1,10 @@
-"""Topology files: a TOML description of a simulated segment, and building it.
+"""Topology files: building a simulated segment from one.
 
-The format (documented with examples in ``docs/simulator.md``)::
-
-    [segment]                       # optional
-    drop_probability = 0.0          # frames lost on the wire, 0..1
-    seed = 1                        # random seed for the drops
-    drift_ppm = 100.0               # slaves without drift_ppm draw theirs from
-    drift_seed = 0                  #   +-drift_ppm with this seed (0.0: all exact)
-
-    [[slave]]
-    name = "coupler"                # unique; used by parent/wire/fault
-    device = "builtin:coupler"      # or sii = "dump.bin" (relative to this file)
-                                    # or esi = "dev.xml" with product/revision
-    alias = 0x1234                  # optional, overrides SII word 4
-    profile = "ET1100"              # optional ESC profile (sim.esc.PROFILES)
-    drift_ppm = 20.0                # optional DC oscillator drift (default: random)
-    forwarding_delay_ns = 500       # optional; default from the port types
-    cable_delay_ns = 5              # optional delay of the cable into port 0
-    inputs = "00ff"                 # optional initial input image (hex)
-    parent = "coupler"              # optional: hang on a port of another slave
-    port = 3                        #   (1, 2 or 3) instead of following the
-                                    #   previous slave of the file
-
-    [[wire]]                        # an output drives an input
-    from = "do8:0"                  # slave:bit in its output image (SM outputs)
-    to = "di8:0"                    # slave:bit in its input image (SM inputs)
-    bits = 8                        # default: as many as both sides have
-
-    [[fault]]                       # applied when the segment is built
-    kind = "break_link"             # break_link | power_off | corrupt
-    slave = "di8"
-    port = 1                        # break_link, corrupt
-    count = 3                       # corrupt: frames to damage
+The format is shared with the master (``pyethercat.topology``, documented
+with examples in ``docs/simulator.md``): this module reads the file, resolves
+every ``[[slave]]`` into what it is (a built-in kind, an SII image, an ESI
+device) with its ESC profile, places the slaves on their ports, checks wires
+and faults against the devices, and builds the :class:`Segment`.
 
 Slaves form a line in file order: a slave without ``parent`` joins the
 previous slave of the file, on that slave's first free port of 1, 2, 3 (in
@@ -45,7 +18,6 @@ the slave (or wire/fault) it concerns.
 from __future__ import annotations
 
 import random
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -56,6 +28,14 @@ from pyethercat.sim.devices.builtin import BuiltinDevice
 from pyethercat.sim.devices.esi_device import EsiSlave, load_esi_device
 from pyethercat.sim.eoe import EchoEndpoint, EoeSettings
 from pyethercat.sim.profiles import DEVICE_PROFILES, PROFILES, EscProfile
+from pyethercat.topology import (
+    DEFAULT_DRIFT_PPM,
+    FaultEntry,
+    SlaveEntry,
+    WireEntry,
+    parse_topology_text,
+    to_int,
+)
 from pyethercat.wire.registers import PortType
 from pyethercat.wire.sii import MailboxProtocol, SiiInfo, SiiPortType, parse_sii, sii_crc
 from pyethercat.wire.sii.model import CategoryType
@@ -75,35 +55,6 @@ __all__ = [
     "load_topology",
     "parse_topology",
 ]
-
-_SLAVE_KEYS = {
-    "name",
-    "device",
-    "sii",
-    "esi",
-    "product",
-    "revision",
-    "alias",
-    "profile",
-    "drift_ppm",
-    "forwarding_delay_ns",
-    "cable_delay_ns",
-    "inputs",
-    "parent",
-    "port",
-    "serial",
-    "eoe",
-}
-_EOE_KEYS = {"ip", "gateway", "mac", "netns", "http_port"}
-_WIRE_KEYS = {"from", "to", "bits"}
-_FAULT_KEYS = {"kind", "slave", "port", "count"}
-_FAULT_KINDS = ("break_link", "power_off", "corrupt")
-_SEGMENT_KEYS = {"drop_probability", "seed", "drift_ppm", "drift_seed"}
-#: Oscillators of slaves without their own ``drift_ppm`` deviate by up to this
-#: (uniformly drawn with ``drift_seed``): the tolerance of common quartzes.
-DEFAULT_DRIFT_PPM = 100.0
-_TOP_KEYS = {"slave", "wire", "fault", "segment"}
-
 
 @dataclass
 class SlaveConfig:
@@ -208,122 +159,35 @@ def load_topology(path: str | Path) -> Topology:
 def parse_topology(
     text: str | dict[str, Any], base_dir: str | Path = ".", source: str = "<topology>"
 ) -> Topology:
-    """Parse topology TOML text (or an already-parsed dict)."""
-    if isinstance(text, str):
-        try:
-            doc = tomllib.loads(text)
-        except tomllib.TOMLDecodeError as exc:
-            raise ConfigError(f"{source}: not valid TOML: {exc}") from exc
-    else:
-        doc = text
-    unknown = set(doc) - _TOP_KEYS
-    if unknown:
-        raise ConfigError(
-            f"{source}: unknown top-level key(s) {', '.join(sorted(unknown))} "
-            f"(expected [[slave]], [[wire]], [[fault]], [segment])"
-        )
-    topo = Topology(source=source)
-    seg = doc.get("segment", {})
-    if not isinstance(seg, dict):
-        raise ConfigError(f"{source}: [segment] must be a table")
-    _check_keys(seg, _SEGMENT_KEYS, f"{source}: [segment]")
-    if "drop_probability" in seg:
-        p = _number(seg["drop_probability"], f"{source}: [segment] drop_probability")
-        if not 0.0 <= p <= 1.0:
-            raise ConfigError(f"{source}: [segment] drop_probability {p} is not within 0..1")
-        topo.drop_probability = p
-    if "seed" in seg:
-        topo.seed = _int(seg["seed"], f"{source}: [segment] seed")
-    if "drift_ppm" in seg:
-        topo.drift_ppm = abs(_number(seg["drift_ppm"], f"{source}: [segment] drift_ppm"))
-    if "drift_seed" in seg:
-        topo.drift_seed = _int(seg["drift_seed"], f"{source}: [segment] drift_seed")
-
-    slaves = _table_list(doc, "slave", source)
-    if not slaves:
-        raise ConfigError(f"{source}: no [[slave]] tables: a segment needs at least one slave")
+    """Parse topology TOML text (or an already-parsed dict) and resolve its slaves."""
+    doc = parse_topology_text(text, source)
+    topo = Topology(source=source, drop_probability=doc.drop_probability, seed=doc.seed,
+                    drift_ppm=doc.drift_ppm, drift_seed=doc.drift_seed)
     base = Path(base_dir)
-    for i, raw in enumerate(slaves):
-        topo.slaves.append(_parse_slave(raw, i, topo, base))
+    for entry in doc.slaves:
+        topo.slaves.append(_resolve_slave(entry, topo, base))
     _place(topo)
-    for i, raw in enumerate(_table_list(doc, "wire", source)):
-        topo.wires.append(_parse_wire(raw, i, topo))
-    for i, raw in enumerate(_table_list(doc, "fault", source)):
-        topo.faults.append(_parse_fault(raw, i, topo))
+    for w in doc.wires:
+        topo.wires.append(_check_wire(w, topo))
+    for i, f in enumerate(doc.faults):
+        _check_fault(f, i, topo)
+        topo.faults.append(FaultConfig(f.kind, f.slave, f.port, f.count))
     return topo
 
 
-def _table_list(doc: dict[str, Any], key: str, source: str) -> list[dict[str, Any]]:
-    value = doc.get(key, [])
-    if not isinstance(value, list) or not all(isinstance(v, dict) for v in value):
-        raise ConfigError(f"{source}: {key!r} must be an array of tables ([[{key}]])")
-    return value
-
-
-def _check_keys(raw: dict[str, Any], allowed: set[str], where: str) -> None:
-    unknown = set(raw) - allowed
-    if unknown:
-        raise ConfigError(
-            f"{where}: unknown key(s) {', '.join(sorted(unknown))} "
-            f"(allowed: {', '.join(sorted(allowed))})"
-        )
-
-
-def _int(value: Any, where: str, lo: int | None = None, hi: int | None = None) -> int:
-    if isinstance(value, str):
-        try:
-            value = int(value, 0)
-        except ValueError:
-            raise ConfigError(f"{where}: {value!r} is not a number") from None
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise ConfigError(f"{where}: expected an integer, got {value!r}")
-    if (lo is not None and value < lo) or (hi is not None and value > hi):
-        raise ConfigError(f"{where}: {value} is out of range {lo}..{hi}")
-    return value
-
-
-def _number(value: Any, where: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ConfigError(f"{where}: expected a number, got {value!r}")
-    return float(value)
-
-
-def _str(value: Any, where: str) -> str:
-    if not isinstance(value, str) or not value:
-        raise ConfigError(f"{where}: expected a non-empty string, got {value!r}")
-    return value
-
-
-def _parse_slave(raw: dict[str, Any], i: int, topo: Topology, base: Path) -> SlaveConfig:
-    src = topo.source
-    label = f"{src}: slave #{i + 1}"
-    name = _str(raw.get("name", ""), f"{label}: name") if "name" in raw else ""
-    if not name:
-        raise ConfigError(f"{label}: every [[slave]] needs a name")
-    where = f"{src}: slave {name!r}"
-    _check_keys(raw, _SLAVE_KEYS, where)
-    if any(s.name == name for s in topo.slaves):
-        raise ConfigError(f"{where}: the name is used twice")
-    kinds = [k for k in ("device", "sii", "esi") if k in raw]
-    if len(kinds) != 1:
-        raise ConfigError(f"{where}: give exactly one of device = \"builtin:...\", sii = ..., esi = ...")
-    kind = kinds[0]
-    serial = _int(raw.get("serial", i + 1), f"{where}: serial", 0, 0xFFFFFFFF)
+def _resolve_slave(entry: SlaveEntry, topo: Topology, base: Path) -> SlaveConfig:
+    where = f"{topo.source}: slave {entry.name!r}"
     builtin: BuiltinDevice | None = None
     sii_path: Path | None = None
-    if kind == "device":
-        dev = _str(raw["device"], f"{where}: device")
-        if not dev.startswith("builtin:"):
-            raise ConfigError(f"{where}: device {dev!r} must be \"builtin:<name>\"")
+    esi_slave: EsiSlave | None = None
+    if entry.kind == "device":
         try:
-            builtin = get_builtin(dev.removeprefix("builtin:"))
+            builtin = get_builtin(entry.source)
         except ConfigError as exc:
             raise ConfigError(f"{where}: {exc}") from None
-        source = dev
-        image = builtin.sii_image(serial=serial)
-    elif kind == "sii":
-        source = _str(raw["sii"], f"{where}: sii")
-        sii_path = (base / source) if not Path(source).is_absolute() else Path(source)
+        image = builtin.sii_image(serial=entry.serial)
+    elif entry.kind == "sii":
+        sii_path = (base / entry.source) if not Path(entry.source).is_absolute() else Path(entry.source)
         try:
             image = sii_path.read_bytes()
         except OSError as exc:
@@ -331,62 +195,39 @@ def _parse_slave(raw: dict[str, Any], i: int, topo: Topology, base: Path) -> Sla
                 f"{where}: cannot read SII file {sii_path}: {exc.strerror or exc}"
             ) from exc
     else:
-        source = _str(raw["esi"], f"{where}: esi")
-        esi_slave = _esi_slave(raw, _esi_file(source, base, where), where, serial)
+        try:
+            esi_slave = load_esi_device(_esi_file(entry.source, base, where), entry.product,
+                                        entry.revision, entry.serial)
+        except ConfigError as exc:
+            raise ConfigError(f"{where}: {exc}") from exc
         image = esi_slave.sii
-    if "product" in raw and kind != "esi":
-        raise ConfigError(f"{where}: product/revision only go with esi = ...")
     try:
         info = parse_sii(image)
     except SiiError as exc:
-        raise ConfigError(f"{where}: SII image {source} is unusable: {exc}") from exc
-    profile_name = (
-        _str(raw["profile"], f"{where}: profile")
-        if "profile" in raw
-        else default_profile(builtin, info)
-    )
+        raise ConfigError(f"{where}: SII image {entry.written_source} is unusable: {exc}") from exc
+    profile_name = entry.profile if entry.profile is not None else default_profile(builtin, info)
     if profile_name.upper() not in PROFILES:
         raise ConfigError(
             f"{where}: unknown ESC profile {profile_name!r}: "
             f"choose one of {', '.join(sorted(PROFILES))}"
         )
     profile = profile_for(PROFILES[profile_name.upper()], info)
-    _check_image(image, info, profile, f"{where}: SII image {source}")
+    _check_image(image, info, profile, f"{where}: SII image {entry.written_source}")
     cfg = SlaveConfig(
-        name=name, source=source, sii=image, info=info, profile=profile, builtin=builtin
+        name=entry.name, source=entry.written_source, sii=image, info=info,
+        profile=profile, builtin=builtin,
+        sii_path=sii_path, alias=entry.alias, drift_ppm=entry.drift_ppm,
+        forwarding_delay_ns=entry.forwarding_delay_ns, cable_delay_ns=entry.cable_delay_ns,
+        inputs=entry.inputs, parent=entry.parent, port=entry.port, esi=esi_slave,
     )
-    cfg.sii_path = sii_path
-    if kind == "esi":
-        cfg.esi = esi_slave
-    if "alias" in raw:
-        cfg.alias = _int(raw["alias"], f"{where}: alias", 0, 0xFFFF)
-    if "drift_ppm" in raw:
-        cfg.drift_ppm = _number(raw["drift_ppm"], f"{where}: drift_ppm")
-    if "forwarding_delay_ns" in raw:
-        cfg.forwarding_delay_ns = _int(raw["forwarding_delay_ns"], f"{where}: forwarding_delay_ns", 0)
-    if "cable_delay_ns" in raw:
-        cfg.cable_delay_ns = _int(raw["cable_delay_ns"], f"{where}: cable_delay_ns", 0)
-    if "inputs" in raw:
-        text = _str(raw["inputs"], f"{where}: inputs").replace(" ", "")
-        try:
-            cfg.inputs = bytes.fromhex(text.removeprefix("0x"))
-        except ValueError:
-            raise ConfigError(f"{where}: inputs {raw['inputs']!r} is not hex bytes") from None
+    if cfg.inputs is not None:
         limit = (cfg.input_bits + 7) // 8
         if len(cfg.inputs) > limit:
             raise ConfigError(
                 f"{where}: inputs has {len(cfg.inputs)} bytes, the device has {limit} input bytes"
             )
-    if "parent" in raw:
-        cfg.parent = _str(raw["parent"], f"{where}: parent")
-        if "port" not in raw:
-            raise ConfigError(f"{where}: parent needs a port (1, 2 or 3)")
-    if "port" in raw:
-        if "parent" not in raw:
-            raise ConfigError(f"{where}: port needs a parent")
-        cfg.port = _int(raw["port"], f"{where}: port", 1, 3)
-    if "eoe" in raw:
-        cfg.eoe = _eoe_settings(raw["eoe"], f"{where}: eoe")
+    if entry.eoe is not None:
+        cfg.eoe = _eoe_settings(entry.eoe, f"{where}: eoe")
         if not info.mailbox_protocols & MailboxProtocol.EOE:
             raise ConfigError(f"{where}: eoe given, but the device does not speak EoE")
     return cfg
@@ -444,45 +285,39 @@ def _check_image(image: bytes, info: SiiInfo, profile: EscProfile, where: str) -
                               f"{profile.name})")
 
 
-def _eoe_settings(raw: Any, where: str) -> EoeSettings:
-    """``eoe = { ip = "A/P", gateway = "G", mac = "M", netns = "pyecat-...", http_port = 80 }``."""
+def _text(value: Any, where: str) -> str:
+    if not isinstance(value, str) or not value:
+        raise ConfigError(f"{where}: expected a non-empty string, got {value!r}")
+    return value
+
+
+def _eoe_settings(raw: dict[str, Any], where: str) -> EoeSettings:
+    """``eoe = { ip = "A/P", gateway = "G", mac = "M", netns = "pyecat-...", http_port = 80 }``
+    (keys checked by ``pyethercat.topology``)."""
     import ipaddress
 
     from pyethercat.link.tap import parse_mac
 
-    if not isinstance(raw, dict):
-        raise ConfigError(f"{where}: expected a table like {{ ip = \"192.168.100.10/24\" }}")
-    _check_keys(raw, _EOE_KEYS, where)
     out = EoeSettings()
     try:
         if "ip" in raw:
-            out.ip = ipaddress.IPv4Interface(_str(raw["ip"], f"{where}: ip"))
+            out.ip = ipaddress.IPv4Interface(_text(raw["ip"], f"{where}: ip"))
         if "gateway" in raw:
-            out.gateway = ipaddress.IPv4Address(_str(raw["gateway"], f"{where}: gateway"))
+            out.gateway = ipaddress.IPv4Address(_text(raw["gateway"], f"{where}: gateway"))
     except ValueError as exc:
         raise ConfigError(f"{where}: {exc}") from None
     if "mac" in raw:
         try:
-            out.mac = parse_mac(_str(raw["mac"], f"{where}: mac"))
+            out.mac = parse_mac(_text(raw["mac"], f"{where}: mac"))
         except ConfigError as exc:
             raise ConfigError(f"{where}: {exc}") from None
     if "netns" in raw:
-        out.netns = _str(raw["netns"], f"{where}: netns")
+        out.netns = _text(raw["netns"], f"{where}: netns")
         if not out.netns.startswith("pyecat-"):
             raise ConfigError(f"{where}: netns {out.netns!r} must start with 'pyecat-'")
     if "http_port" in raw:
-        out.http_port = _int(raw["http_port"], f"{where}: http_port", 1, 65535)
+        out.http_port = to_int(raw["http_port"], f"{where}: http_port", 1, 65535)
     return out
-
-
-def _esi_slave(raw: dict[str, Any], path: Path, where: str, serial: int) -> EsiSlave:
-    """The ESI device (product/revision) of a slave, with its SII image."""
-    product = _int(raw["product"], f"{where}: product") if "product" in raw else None
-    revision = _int(raw["revision"], f"{where}: revision") if "revision" in raw else None
-    try:
-        return load_esi_device(path, product, revision, serial)
-    except ConfigError as exc:
-        raise ConfigError(f"{where}: {exc}") from exc
 
 
 def _place(topo: Topology) -> None:
@@ -490,11 +325,9 @@ def _place(topo: Topology) -> None:
     used: dict[str, set[int]] = {s.name: {0} for s in topo.slaves}
     names = [s.name for s in topo.slaves]
     for i, s in enumerate(topo.slaves):
-        where = f"{topo.source}: slave {s.name!r}"
         if i == 0:
-            if s.parent is not None:
-                raise ConfigError(f"{where}: the first slave is connected to the master, it has no parent")
             continue
+        where = f"{topo.source}: slave {s.name!r}"
         if s.parent is None:
             prev = topo.slaves[i - 1]
             free = [p for p in (1, 2, 3) if p not in used[prev.name] and p in prev.ports]
@@ -505,10 +338,6 @@ def _place(topo: Topology) -> None:
                 )
             s.parent, s.port = prev.name, free[0]
         else:
-            if s.parent not in names[:i]:
-                if s.parent in names:
-                    raise ConfigError(f"{where}: parent {s.parent!r} must come earlier in the file")
-                raise ConfigError(f"{where}: parent {s.parent!r} is not a slave of this file")
             parent = topo.slaves[names.index(s.parent)]
             assert s.port is not None
             if s.port not in parent.ports:
@@ -519,70 +348,38 @@ def _place(topo: Topology) -> None:
         used[s.parent].add(s.port)
 
 
-def _endpoint(text: Any, where: str, topo: Topology) -> tuple[str, int]:
-    value = _str(text, where)
-    name, _, bit = value.partition(":")
-    if name not in (s.name for s in topo.slaves):
-        raise ConfigError(f"{where}: no slave named {name!r}")
-    return name, (_int(bit, where, 0) if bit else 0)
-
-
-def _parse_wire(raw: dict[str, Any], i: int, topo: Topology) -> WireConfig:
-    where = f"{topo.source}: wire #{i + 1}"
-    _check_keys(raw, _WIRE_KEYS, where)
-    if "from" not in raw or "to" not in raw:
-        raise ConfigError(f"{where}: needs from = \"slave:bit\" and to = \"slave:bit\"")
-    src, sbit = _endpoint(raw["from"], f"{where}: from", topo)
-    dst, dbit = _endpoint(raw["to"], f"{where}: to", topo)
-    out_bits = topo.slaves[topo.index(src)].output_bits
-    in_bits = topo.slaves[topo.index(dst)].input_bits
+def _check_wire(w: WireEntry, topo: Topology) -> WireConfig:
+    where = f"{topo.source}: wire #{len(topo.wires) + 1}"
+    out_bits = topo.slaves[topo.index(w.src)].output_bits
+    in_bits = topo.slaves[topo.index(w.dst)].input_bits
     if out_bits == 0:
-        raise ConfigError(f"{where}: slave {src!r} has no outputs to wire from")
+        raise ConfigError(f"{where}: slave {w.src!r} has no outputs to wire from")
     if in_bits == 0:
-        raise ConfigError(f"{where}: slave {dst!r} has no inputs to wire to")
-    bits = (
-        _int(raw["bits"], f"{where}: bits", 1)
-        if "bits" in raw
-        else min(out_bits - sbit, in_bits - dbit)
-    )
-    if bits < 1 or sbit + bits > out_bits:
-        raise ConfigError(f"{where}: {src!r} has {out_bits} output bits, bits {sbit}+{bits} do not fit")
-    if dbit + bits > in_bits:
-        raise ConfigError(f"{where}: {dst!r} has {in_bits} input bits, bits {dbit}+{bits} do not fit")
-    return WireConfig(src, sbit, dst, dbit, bits)
+        raise ConfigError(f"{where}: slave {w.dst!r} has no inputs to wire to")
+    bits = w.bits if w.bits is not None else min(out_bits - w.src_bit, in_bits - w.dst_bit)
+    if bits < 1 or w.src_bit + bits > out_bits:
+        raise ConfigError(f"{where}: {w.src!r} has {out_bits} output bits, "
+                          f"bits {w.src_bit}+{bits} do not fit")
+    if w.dst_bit + bits > in_bits:
+        raise ConfigError(f"{where}: {w.dst!r} has {in_bits} input bits, "
+                          f"bits {w.dst_bit}+{bits} do not fit")
+    return WireConfig(w.src, w.src_bit, w.dst, w.dst_bit, bits)
 
 
-def _parse_fault(raw: dict[str, Any], i: int, topo: Topology) -> FaultConfig:
+def _check_fault(f: FaultEntry, i: int, topo: Topology) -> None:
+    if f.kind not in ("break_link", "corrupt"):
+        return
     where = f"{topo.source}: fault #{i + 1}"
-    _check_keys(raw, _FAULT_KEYS, where)
-    kind = _str(raw.get("kind", ""), f"{where}: kind") if "kind" in raw else ""
-    if kind not in _FAULT_KINDS:
-        raise ConfigError(f"{where}: kind must be one of {', '.join(_FAULT_KINDS)}")
-    if "slave" not in raw:
-        raise ConfigError(f"{where}: needs slave = \"name\"")
-    slave = _str(raw["slave"], f"{where}: slave")
-    topo.index(slave)
-    port = 0
-    if kind in ("break_link", "corrupt"):
-        if "port" not in raw:
-            raise ConfigError(f"{where}: {kind} needs a port (0-3)")
-        port = _int(raw["port"], f"{where}: port", 0, 3)
-        cfg = topo.slaves[topo.index(slave)]
-        # Port 0 always has a cable (to the parent, or to the master); ports
-        # 1-3 only when another slave hangs there. A fault elsewhere would be
-        # silently a no-op.
-        cabled = {0} | {s.port for s in topo.slaves if s.parent == slave and s.port is not None}
-        if port not in cfg.ports:
-            raise ConfigError(f"{where}: slave {slave!r} has no port {port} "
-                              f"(ports {', '.join(map(str, cfg.ports))})")
-        if port not in cabled:
-            raise ConfigError(f"{where}: port {port} of slave {slave!r} has no cable")
-        if kind == "break_link" and port == 0 and topo.index(slave) == 0:
-            raise ConfigError(f"{where}: port 0 of the first slave {slave!r} is the master's "
-                              "cable; broken, no slave would answer (cut it at run time "
-                              "with the control socket instead)")
-    count = _int(raw.get("count", 1), f"{where}: count", 1)
-    return FaultConfig(kind, slave, port, count)
+    cfg = topo.slaves[topo.index(f.slave)]
+    # Port 0 always has a cable (to the parent, or to the master); ports 1-3
+    # only when another slave hangs there. A fault elsewhere would be
+    # silently a no-op.
+    cabled = {0} | {s.port for s in topo.slaves if s.parent == f.slave and s.port is not None}
+    if f.port not in cfg.ports:
+        raise ConfigError(f"{where}: slave {f.slave!r} has no port {f.port} "
+                          f"(ports {', '.join(map(str, cfg.ports))})")
+    if f.port not in cabled:
+        raise ConfigError(f"{where}: port {f.port} of slave {f.slave!r} has no cable")
 
 
 # --- building ------------------------------------------------------------------------
