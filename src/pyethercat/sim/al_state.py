@@ -1,8 +1,9 @@
 """The AL state machine of a simulated slave (AL control 0x0120, AL status 0x0130/0x0134).
 
 :class:`AlStateMachine` carries out what a slave's firmware does when the
-master writes AL control (ETG.1000.6 section 5.3 "ESM", the state machine
-and its status codes; SOES ``soes/esc.c`` ``ESC_state`` for the checks a real
+master writes AL control (IEC 61158-6-12 6.4.1.4, the state machine, as
+gatorcat ``src/module/sim/ESM.zig`` implements it; SOES ``soes/esc.c``
+``ESC_state``, ``ESC_checkmbx``, ``ESC_checkSM23`` for the checks a real
 stack makes):
 
 - requests are checked: legal transition, mailbox SMs as the SII says for
@@ -18,8 +19,8 @@ stack makes):
 - SM changes while running drop the slave back (mailbox: INIT + 0x0016,
   process data: PREOP + 0x001D/0x001E), as SOES re-checks on SM activation;
 - devices whose SII asks for device emulation (0x0141 bit 0) follow AL
-  control without checks, as ESCs without a microcontroller do (ET1100
-  datasheet section II, "AL status / device emulation").
+  control without checks, as ESCs without a microcontroller do (ESC
+  datasheet section II, register 0x0141; KickCAT ``EmulatedESC.cc``).
 """
 
 from __future__ import annotations

@@ -6,10 +6,11 @@ of CoE, answering requests against a slave's
 (expedited, normal, segmented with toggle checks, complete access with the
 subindex 0 and 1 variants), SDO information (OD lists of every list type,
 object and entry descriptions with value info, fragmented to the mailbox
-size) and aborts with the codes of ETG.1000.6 section 5.6.2.7 (CiA 301
-section 7.2.4.3.17). It uses the sans-IO codecs and transfer state machines
-of :mod:`pyethercat.wire.mailbox.coe`. :meth:`CoeServer.emergency` sends a
-CoE emergency (ETG.1000.6 section 5.6.4).
+size) and aborts with the codes SOES ``soes/esc.h`` (``ABORT_*``) and SOEM
+``src/ec_print.c`` (``ec_sdoerrorlist``) list. It uses the sans-IO codecs and
+transfer state machines of :mod:`pyethercat.wire.mailbox.coe`.
+:meth:`CoeServer.emergency` sends a CoE emergency (CoE service 1: code,
+register, 5 data bytes, as SOEM ``src/ec_main.c`` ``ec_emcyt`` reads it).
 
 The PDO mapping objects live in ``sim.pdo_mapping``, the standard objects'
 builders in ``sim.std_objects``; a device kind's process data and behaviour

@@ -1,4 +1,8 @@
-"""Per-command rules of the node-addressed and broadcast datagrams (ETG.1000.4 section 5.4).
+"""Per-command rules of the node-addressed and broadcast datagrams.
+
+The rules follow the command table of IEC 61158-4-12 (as gatorcat and
+KickCAT ``EmulatedESC.cc`` implement it; Wireshark
+``packet-ethercat-datagram.c`` names the commands):
 
 - single-slave commands (APRD/APWR/APRW, FPRD/FPWR/FPRW) address one ESC,
   which applies its own access rules (``sim.esc``); APRW/FPRW read the old
@@ -384,7 +388,8 @@ def station_map(memory: EscMemory, passes: I64) -> dict[int, list[int]]:
     """Configured addresses of the slaves on the route: address -> route positions.
 
     A slave answers its station address 0x0010 and, when DL control 0x0100
-    bit 24 enables it, its alias 0x0012 (ETG.1000.4 section 5.4.2)."""
+    bit 24 enables it, its alias 0x0012 (KickCAT ``EmulatedESC.cc``
+    ``matchesConfiguredAddress``)."""
     stations: dict[int, list[int]] = {}
     mem = memory.mem
     for pos, s in enumerate(passes.tolist()):

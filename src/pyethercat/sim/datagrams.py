@@ -1,7 +1,7 @@
 """The datagram headers of an EtherCAT frame, as the segment's frame path walks them.
 
-A frame's datagrams follow each other (ETG.1000.4 section 5.3, "EtherCAT
-datagram"): a 10-byte header (command, index, address, length word with the
+A frame's datagrams follow each other (Wireshark
+``plugins/epan/ethercat/packet-ethercat-datagram.c``): a 10-byte header (command, index, address, length word with the
 circulating and more-follows bits, IRQ), the data, a 2-byte working counter.
 :func:`scan_headers` reads all headers before any datagram is executed,
 because a slave does not process a frame whose datagrams run past its end.

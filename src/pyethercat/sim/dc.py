@@ -6,8 +6,8 @@ Every slave with a DC unit has a local clock driven by its own oscillator:
 the time-control loop; registers read it in 10 ns ticks. All slaves' clock
 state lives in arrays indexed by slave, so the DC work of a frame is a fixed
 number of array operations whatever the slave count. The registers follow
-ETG.1000.4 section 5.5 "Distributed clocks" and the ET1100 datasheet section
-I, "Distributed Clocks":
+the ESC datasheet section I, "Distributed Clocks" (the master's side: SOEM
+``src/ec_dc.c``):
 
 - a write to receive time port 0 (0x0900) latches, in every slave it passes,
   the local time at which the frame arrived at each port (0x0900-0x090F,
@@ -28,7 +28,7 @@ I, "Distributed Clocks":
 - latch inputs (0x09A8-0x09CF) stamp the system time of an edge a device
   application reports.
 
-The loop's arithmetic is not published (facts sheet: "unverified"); this one
+The loop's arithmetic is not published in any public source; this one
 keeps the documented registers and behaviour: 0x092C is the difference
 filtered with depth 0x0934, the speed correction stays within a bound set by
 0x0930 and is learned with a depth set by 0x0935, and it acts between

@@ -1,8 +1,9 @@
 """The SII EEPROM interface of a simulated ESC (registers 0x0500-0x050F).
 
 :class:`SiiInterface` holds the EEPROM image and carries out the commands the
-master writes into SII control 0x0502 (ETG.1000.4 section 6.4 "SII access";
-ESC datasheet section II "SII EEPROM interface"): read (4 or 8 bytes, as the
+master writes into SII control 0x0502 (ESC datasheet section II, registers
+0x0500-0x050F; SOEM ``src/ec_main.c`` ``ecx_readeepromFP``; KickCAT
+``EmulatedESC.cc``): read (4 or 8 bytes, as the
 chip's profile says), write (one word, write enable needed), reload (the
 configuration words 0-7 are applied again, as at power-on).
 

@@ -315,7 +315,7 @@ class Esc(EscRegisters):
                         self.inputs[: s.length], np.uint8)
             elif not now_enabled and was_enabled:
                 self.set_sm_status(n, 0)
-            # Repeat request toggled on the send mailbox (ETG.1000.4 section 6.7.3).
+            # Repeat request toggled on the send mailbox (SOES esc.c ESC_mbxprocess).
             if (now_enabled and s.mode == _SM_MODE_MAILBOX and not s.ecat_writes
                     and (before[R.SM_ACTIVATE] ^ after[R.SM_ACTIVATE]) & R.SM_ACTIVATE_REPEAT):
                 self.mailbox.repeat(n)

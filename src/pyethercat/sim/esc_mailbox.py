@@ -1,15 +1,15 @@
 """The mailbox sync managers of a simulated ESC and the firmware's side of them.
 
 SM0 (master -> slave) and SM1 (slave -> master) in mailbox (one-buffer) mode
-(ETG.1000.4 section 6.7 "Sync manager"; ESC datasheet section I "SyncManager",
-mailbox mode): a write of the last byte by the writing side makes the
+(ESC datasheet section I, "SyncManager", mailbox mode; SOES ``soes/esc.c``
+``ESC_readmbx``/``ESC_writembx``): a write of the last byte by the writing side makes the
 mailbox full, a read of the last byte by the reading side empties it.
 
 The firmware side follows SOES (``soes/esc.c``): what the master wrote is
 handed to the device application (``DeviceApp.on_mailbox``) and then read
 out of SM0 unless the application declares ``mailbox_auto_read = False``;
-replies are posted into SM1. The repeat request (ETG.1000.4 section 6.7.3,
-SM1 activate bit 1 toggled) posts the mailbox the master read last once more;
+replies are posted into SM1. The repeat request (SM1 activate bit 1 toggled; SOEM
+``src/ec_main.c`` ``ecx_mbxreceive``) posts the mailbox the master read last once more;
 a newer mailbox already posted but not yet read is taken back and posted
 again right after the repeated one was read (SOES ``ESC_sm_act_event``).
 Entering INIT stops the mailbox: SOES deactivates SM0/SM1 through PDI control

@@ -2,8 +2,9 @@
 
 Each ESC keeps ECAT event request bits (0x0210) and the master's mask
 (0x0200). Every slave a datagram passes ORs (request AND mask) into the
-datagram's IRQ field (ETG.1000.4 section 5.3, "EtherCAT datagram": the IRQ
-field; ET1100 datasheet section II, registers 0x0200 and 0x0210), so the
+datagram's IRQ field (gatorcat ``esc.zig`` ``ExternalEvent``, IEC 61158-4-12
+6.1.6; KickCAT ``protocol.h`` ``EcatEvent``; ESC datasheet section II,
+registers 0x0200 and 0x0210), so the
 field the master sees is the OR over the route.
 """
 

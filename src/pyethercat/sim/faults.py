@@ -1,7 +1,7 @@
 """Frame faults of a segment: CRC errors on a port, frames lost on the wire, malformed frames.
 
-A frame with a CRC error on a link (ETG.1000.4 section 5.7 "Error
-detection"; ET1100 datasheet section I, "Error counters" 0x0300-0x0313):
+A frame with a CRC error on a link (ESC datasheet section II, error
+counters 0x0300-0x0313; gatorcat ``esc.zig`` ``RXErrorCounter``):
 
 - the port that receives it counts an invalid frame (RX error counter,
   0x0300 + 2 * port), every later port on the walk counts a forwarded error

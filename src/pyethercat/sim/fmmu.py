@@ -1,4 +1,4 @@
-"""FMMU configuration compiled into gather/scatter index arrays (issue 3 items 6, 12).
+"""FMMU configuration compiled into gather/scatter index arrays.
 
 When the FMMU or SM registers of any slave change, the segment compiles the
 active FMMUs of all slaves on the frame's route into flat index arrays over
@@ -11,11 +11,13 @@ the memory array (``EscMemory.flat``):
 A logical datagram then costs a fixed number of numpy operations: two
 ``searchsorted`` to find the entries inside [address, address + length), a
 gather for the read FMMUs and a scatter for the write FMMUs. The rules of
-seed 004 hold: a logical byte may be read by one FMMU and written by another,
+the FMMU rules hold (ESC datasheet section I, "FMMU"; KickCAT
+``EmulatedESC.cc`` ``copyFmmu``): a logical byte may be read by one FMMU and
+written by another,
 bit operations leave unmapped bits untouched (``ufunc.at`` read-modify-write),
 unconfigured logical addresses pass unchanged.
 
-Sync managers (facts 3.13) are compiled in as well, so that a logical access
+Sync managers (ESC datasheet section I, "SyncManager") are compiled in as well, so that a logical access
 obeys the same rules as FPRD/FPWR: write entries whose physical byte lies in
 an enabled ECAT-read SM (inputs, send mailbox) are dropped, as the ESC
 refuses EtherCAT writes there (and they do not count in the working

@@ -2,10 +2,11 @@
 
 :class:`MailboxEngine` takes what the master wrote into SM0 (the ESC hands the
 whole SM buffer to ``DeviceApp.on_mailbox``), checks the header, drops a
-request whose counter repeats the previous one (facts 6.3: a frame the master
+request whose counter repeats the previous one (SOES ``soes/esc.c``
+``ESC_mbxprocess``: a frame the master
 sent twice is not executed twice), and dispatches by mailbox type to the
 protocol handlers registered with it. What cannot be served is answered with
-a mailbox error reply (type 0, facts 6.4):
+a mailbox error reply (type 0; SOES ``soes/esc.h`` ``MBXERR_*``):
 
 ===========================  ======================================================
 0x0002 unsupported protocol  no handler for the type (AoE, EoE, FoE, SoE, VoE ...)
@@ -21,7 +22,7 @@ Replies go out through ``Pdi.post_mailbox`` numbered with the engine's own
 counter (1..7, then 1). When SM1 is still full they wait in a queue and are
 posted, in order, as soon as the master has read SM1 (the ESC calls
 ``on_mailbox_read``). The ESC keeps the mailbox the master read last and
-re-posts it on a repeat request (facts 6.6); a newer reply already in SM1 is
+re-posts it on a repeat request (``sim.esc_mailbox``); a newer reply already in SM1 is
 taken back and posted again after it (SOES's order), so a reply whose frame
 was lost, or which the master gave up on, comes back once and nothing is
 skipped, without the engine's help. :attr:`MailboxEngine.last_reply` is the

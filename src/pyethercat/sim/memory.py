@@ -1,4 +1,4 @@
-"""All slaves' ESC memories in one numpy array (issue 3 item 12).
+"""All slaves' ESC memories in one numpy array.
 
 Row ``i`` is the 64 KiB address space of slave ``i`` as the EtherCAT side
 sees it. ``shadow`` has the same shape and holds, for each buffered write

@@ -10,7 +10,7 @@ current value kept as the little-endian bytes an SDO transfer carries.
 :meth:`SimObjectDictionary.upload` and :meth:`SimObjectDictionary.download` are what
 the CoE server calls: they enforce access rights, lengths and value ranges and
 raise :class:`~pyethercat.errors.SdoAbort` with the abort code a real slave
-answers (facts 7.5). Local code (the device application) reads and writes
+answers (SOES ``soes/esc.h`` ``ABORT_*``). Local code (the device application) reads and writes
 values with :meth:`SimObjectDictionary.value` / :meth:`SimObjectDictionary.set_value`,
 which skip every check.
 
@@ -388,7 +388,7 @@ class SimObjectDictionary:
         e.raw = bytearray(encode_value(e.data_type, value))
 
     def indices(self, list_type: int) -> tuple[int, ...]:
-        """Object indices of an OD list (facts 7.6; list type 0 gives the five list lengths)."""
+        """Object indices of an OD list (list type 0 gives the five list lengths; SOES ``esc_coe.c``)."""
         if list_type == OdListType.LENGTHS:
             return tuple(len(self.indices(t)) for t in range(1, 6))
         flags: dict[int, int] = {
@@ -495,7 +495,7 @@ class SimObjectDictionary:
         pos = 0
         if subindex == 0:
             acc = obj.count()
-            pos = 16  # subindex 0 travels as 16 bits (facts 7.4)
+            pos = 16  # subindex 0 travels as 16 bits (SOES esc_coe.c SDO_upload_complete_access)
         for e in obj.ca_entries(obj.count()):
             bits = e.bit_length
             if e.readable(state):

@@ -1,7 +1,8 @@
 """PDO mapping of a simulated CoE slave: the mapping and assignment objects define the process data.
 
-:class:`PdoMapping` makes the mapping objects real (CiA 301 section 7.4.8
-"PDO mapping"; ETG.1000.6 section 5.6.7 "Sync manager PDO assignment"):
+:class:`PdoMapping` makes the mapping objects real (CiA 301 PDO mapping;
+IEC 61158-6-12 5.6.7, as gatorcat ``mailbox/coe.zig`` and SOES
+``soes/esc_coe.c`` implement them):
 0x1C12/0x1C13 (PDO assignment of SM2/SM3) and 0x1600.../0x1A00... (PDO
 mapping) define the process-data layout. They are writable in PREOP only,
 follow the CiA 301 sequence (write subindex 0 = 0, write the entries, write

@@ -3,8 +3,8 @@
 Every slave has ports 0-3 (as many as its ESC implements); port 0 faces the
 master. A frame entering a slave at a port goes to the processing unit if
 that port is 0, then leaves by the next port in the order 0 -> 3 -> 1 -> 2
--> 0 (ETG.1000.4 section 5.4 "Frame processing order"; ET1100 datasheet
-section I "Frame processing"). A closed port (no link, or closed by loop
+-> 0 (ESC datasheet section I, "Frame processing"; KickCAT
+``EmulatedNetwork.cc`` ``walkFrame``; IgH ``master/slave.c``). A closed port (no link, or closed by loop
 control 0x0101) sends the frame on to the next port at once, so a broken
 link closes the loop at the port before it and the frame still comes back.
 
@@ -16,8 +16,8 @@ per port) and the lost-link counters up to date.
 
 Auto-close (loop control value 1): a port whose link went down stays closed
 when the link comes back, until the master writes 1 again after link up, or
-a valid frame arrives at it (ET1100 datasheet section I, "Loop control";
-ETG.1000.4 section 5.5).
+a valid frame arrives at it (ESC datasheet section II, DL control 0x0101;
+gatorcat ``esc.zig`` ``LoopControlSettings``, IEC 61158-4-12 6.1.3).
 """
 
 from __future__ import annotations
@@ -74,7 +74,8 @@ class Route:
         """Passes made before the circulating-frame rule destroys the frame (all if it does not).
 
         A frame already marked circulating is destroyed at the first closed
-        port 0, an unmarked one at the second (ETG.1000.4 section 5.6)."""
+        port 0, an unmarked one at the second (KickCAT issue #35 / PR #34, which
+        cites the ESC datasheet section I ch. 3.5)."""
         closed = self.closed_idx
         if closed and (any_circulating or len(closed) > 1):
             return closed[0] if any_circulating else closed[1]

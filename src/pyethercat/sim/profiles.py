@@ -1,4 +1,4 @@
-"""ESC profiles: chip families with their resources (issue 3 item 1).
+"""ESC profiles: chip families with their resources.
 
 A profile says what a slave controller has: identity register values, how
 many FMMUs and sync managers, how much process RAM, which ports, which
@@ -46,7 +46,7 @@ class EscProfile(EscFeaturesMixin):
     port the chip does not have). ``sii_read_bytes`` is 4 or 8: how many bytes
     one SII read command fetches (0x0502 bit 6 reports 8). ``forwarding_delay_ns``
     is the delay a frame needs to pass the chip once (None: from the port
-    types, about 500 ns for MII and 100 ns for E-Bus, seed 004).
+    types: see :attr:`default_forwarding_delay_ns`).
     """
 
     name: str

@@ -1,9 +1,10 @@
-"""Builders of the standard CoE objects of a simulated slave (CiA 301, ETG.1000.6 section 5.6.7).
+"""Builders of the standard CoE objects of a simulated slave (IEC 61158-6-12 5.6.7; CiA 301).
 
 0x1000-0x100A device information, 0x1018 identity, PDO mapping objects
 0x16xx/0x1Axx, PDO assignment 0x1C12/0x1C13, SM communication types 0x1C00
-and the synchronisation parameters 0x1C32/0x1C33 (ETG.1020 section 14
-"Synchronization"), with the names and access rights real devices give them.
+and the synchronisation parameters 0x1C32/0x1C33 (SOES
+``applications/rtl_xmc4_dynpdo/slave_objectlist.c`` ``SDO1C32``; IEC
+61158-6-12 5.6.7.4.11), with the names and access rights real devices give them.
 """
 
 from __future__ import annotations
@@ -115,7 +116,7 @@ _DEFAULT_SYNC_SUPPORT = int(SyncModeSupported.FREE_RUN | SyncModeSupported.SYNCH
 def add_sync_parameters(od: SimObjectDictionary, index: int, *, mode: int,
                         supported: int = _DEFAULT_SYNC_SUPPORT,
                         min_cycle_ns: int = 100_000) -> None:
-    """0x1C32 (outputs) or 0x1C33 (inputs) synchronisation parameters (facts 7.9)."""
+    """0x1C32 (outputs) or 0x1C33 (inputs) synchronisation parameters (SOES ``SDO1C32``)."""
     name = "SM output parameter" if index == _SM_OUTPUT_SYNC else "SM input parameter"
     u16, u32 = DataType.UNSIGNED16, DataType.UNSIGNED32
     modes = frozenset(int(m) for m in SyncMode)

@@ -75,11 +75,11 @@ VENDOR_ID = 0x00504543
 #: Revision number of the current built-in device generation.
 REVISION = 0x00010000
 
-# CoE basic data type codes (facts 7.10) used by the built-in PDO entries.
+# CoE basic data type codes (SOEM ec_type.h ec_datatype) used by the built-in PDO entries.
 _BOOL = int(DataType.BOOLEAN)
 _INT16 = int(DataType.INTEGER16)
 
-# Sync manager control bytes of the plain IO terminals (facts 3.13); the
+# Sync manager control bytes of the plain IO terminals (SOES esc.h _ESCsm); the
 # mailbox device uses the register map's typical SM0-SM3 bytes.
 _SM_CTRL_INPUTS_IO = R.sm_control(R.SmMode.BUFFERED, R.SmDirection.READ, al_event=False)  # EL1xxx: 0x00
 _SM_CTRL_OUTPUTS_IO = R.sm_control(R.SmMode.BUFFERED, R.SmDirection.WRITE, al_event=False,
@@ -87,7 +87,7 @@ _SM_CTRL_OUTPUTS_IO = R.sm_control(R.SmMode.BUFFERED, R.SmDirection.WRITE, al_ev
 
 # SII fixed-area word 0: low byte PDI type, high byte ESC configuration
 # (0x0141). Built-ins run a state machine of their own (no device emulation);
-# bits 2/3 enable the DC SYNC-out and latch-in units (facts 3.6), as the
+# bits 2/3 enable the DC SYNC-out and latch-in units (Wireshark ecat_esc_reg_141), as the
 # EK1100's image does (0x0D00: device emulation + SYNC-out + latch-in).
 _PDI_CONTROL_IO = 0x0C04  # PDI type 4: digital I/O
 _PDI_CONTROL_NONE = 0x0C00

@@ -218,7 +218,7 @@ COE_IO = BuiltinDevice(
 )
 
 
-# --- seed 002 drive ---------------------------------------------------------------------
+# --- the item C series servo controller --------------------------------------------------
 
 SEED002_VENDOR = 0x000000E4
 SEED002_PRODUCT = 0x264860D2
@@ -229,17 +229,17 @@ def add_seed002_objects(od: SimObjectDictionary, *, serial: int = 0,
                         station_address: Callable[[], int] | None = None,
                         assigned_rx: int = 0, assigned_tx: int = 0,
                         profile_objects: bool = True) -> None:
-    """The seed 002 drive's CoE communication objects (seed 002 chapter 6.1.2).
+    """The servo controller's CoE communication objects (its EtherCAT manual, chapter 6.1.2).
 
     0x1000 device type (CiA 402 servo drive), 0x1018 identity, 0x1100 fixed
     station address (read-only, the live register 0x0010 when
     ``station_address`` is given), four RxPDO and four TxPDO mapping objects
-    (0x1600 = controlword 0x6040 + modes of operation 0x6060 as in the seed's
+    (0x1600 = controlword 0x6040 + modes of operation 0x6060 as in the manual's
     ESI example; 0x1A00 = statusword 0x6041 + modes display 0x6061),
     0x1C00 = 4 channels of types 1, 2, 3, 4 (read-only), 0x1C10/0x1C11 with no
     PDO, 0x1C12/0x1C13 with 0x1600-0x1603 / 0x1A00-0x1A03 in subindices 1-4
-    and subindex 0 = ``assigned_rx``/``assigned_tx`` (the seed's default is 0:
-    the master assigns). 0x1008-0x100A are absent, as the seed says.
+    and subindex 0 = ``assigned_rx``/``assigned_tx`` (the manual's default is 0:
+    the master assigns). 0x1008-0x100A are absent, as the manual says.
     ``profile_objects`` adds 0x6040/0x6041/0x6060/0x6061 when missing, so
     the default mapping validates.
     """
@@ -279,7 +279,7 @@ def add_seed002_objects(od: SimObjectDictionary, *, serial: int = 0,
     rx.name = "Sync manager channel 2 (process data output)"
     tx = add_pdo_assignment(od, _STD.TXPDO_ASSIGNMENT, tx_pdos, assigned=assigned_tx)
     tx.name = "Sync manager channel 3 (process data input)"
-    # Entry names as the seed's tables give them (entry descriptions, `sdos`).
+    # Entry names as the manual's tables give them (entry descriptions, `sdos`).
     types = od.get(_STD.SM_COMM_TYPE)
     types.entries[0].name = "Number of used Sync Manager Channels"
     for n in range(1, 5):
@@ -357,7 +357,7 @@ SEED002_DRIVE = BuiltinDevice(
     key="seed002-drive",
     product_code=SEED002_PRODUCT,
     order="item C-Serie EtherCAT",
-    name="item Servo Positioning Controller C Series (seed 002)",
+    name="item Servo Positioning Controller C Series",
     group="Drive",
     profile="IPCORE",
     ports=_MII2,
@@ -375,7 +375,7 @@ SEED002_DRIVE = BuiltinDevice(
                  0x0002))),),
     mailbox=_MBX,
     pdi_control=0x0C05,
-    description="seed 002 servo controller: CoE communication objects 0x1000-0x1C13 "
+    description="item C series servo controller: CoE communication objects 0x1000-0x1C13 "
                 "(0x1C12/0x1C13 subindex 0 = 0 until the master assigns PDOs); EoE with a "
                 "diagnostic web page",
     coe_details=_COE_ALL & ~int(CoeDetails.SDO_COMPLETE_ACCESS),

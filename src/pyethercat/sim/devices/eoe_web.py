@@ -8,7 +8,7 @@ the topology gives ``eoe = { netns = "pyecat-..." }`` (root); there it
 serves the page of :mod:`pyethercat.sim.eoe_web` on port 80.
 
 :func:`device_status` builds that page's content for any simulated device
-(this one and the seed 002 drive).
+(this one and the ``seed002-drive``).
 """
 
 from __future__ import annotations
