@@ -72,23 +72,15 @@ class AlStateMachine:
 
     # --- process-data layout ----------------------------------------------------------
 
-    @property
-    def output_bytes(self) -> int:
-        """Bytes of process-data outputs expected (app's PDO mapping, else SII RxPDOs)."""
+    def process_data_bytes(self) -> tuple[int, int]:
+        """(output, input) bytes of process data (the app's PDO mapping, else the SII's PDOs)."""
         sizes = self.app.process_data_sizes() if self.app is not None else None
         if sizes is not None:
-            return sizes[0]
+            return sizes
         info = self.sii.info
-        return 0 if info is None else (info.output_bits + 7) // 8
-
-    @property
-    def input_bytes(self) -> int:
-        """Bytes of process-data inputs sent (app's PDO mapping, else SII TxPDOs)."""
-        sizes = self.app.process_data_sizes() if self.app is not None else None
-        if sizes is not None:
-            return sizes[1]
-        info = self.sii.info
-        return 0 if info is None else (info.input_bits + 7) // 8
+        if info is None:
+            return 0, 0
+        return (info.output_bits + 7) // 8, (info.input_bits + 7) // 8
 
     # --- status -----------------------------------------------------------------------
 
@@ -206,7 +198,7 @@ class AlStateMachine:
             code, state = self._app_check(cur, req, S)
             if code:
                 return code, state
-            if self.output_bytes and not self.regs.host.has_outputs(self.regs.index):
+            if self.process_data_bytes()[0] and not self.regs.host.has_outputs(self.regs.index):
                 return PENDING, S
             return 0, S
         # Downward transitions are always allowed.
@@ -245,7 +237,7 @@ class AlStateMachine:
             return 0
         regs = self.regs
         sm_count = regs.profile.sm_count
-        out_len, in_len = self.output_bytes, self.input_bytes
+        out_len, in_len = self.process_data_bytes()
         if out_len:
             n = self.sii.output_sm
             s = regs.sm(n) if n < sm_count else None

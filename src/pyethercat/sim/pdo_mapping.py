@@ -73,15 +73,10 @@ class PdoMapping:
 
     # --- layout -------------------------------------------------------------------
 
-    def _assigned(self, assign_index: int, overlay: dict[int, bytes] | None = None) -> list[int]:
-        obj = self.od.find(assign_index)
-        if obj is None:
-            return []
-        count = _u(overlay, obj, 0)
-        return [_u(overlay, obj, s) for s in range(1, count + 1) if s in obj.entries]
-
-    def _words(self, pdo: int, overlay: dict[int, bytes] | None = None) -> list[int]:
-        obj = self.od.find(pdo)
+    def _values(self, index: int, overlay: dict[int, bytes] | None = None) -> list[int]:
+        """Subindices 1..n of an assignment (PDO numbers) or mapping object (mapping words),
+        n = subindex 0; ``overlay`` holds values of a download not stored yet."""
+        obj = self.od.find(index)
         if obj is None:
             return []
         count = _u(overlay, obj, 0)
@@ -90,8 +85,8 @@ class PdoMapping:
     def _layout(self, assign_index: int) -> tuple[tuple[MappedEntry, ...], int]:
         out: list[MappedEntry] = []
         pos = 0
-        for pdo in self._assigned(assign_index):
-            for word in self._words(pdo):
+        for pdo in self._values(assign_index):
+            for word in self._values(pdo):
                 index, sub, bits = split_mapping_word(word)
                 entry = None
                 if index:
@@ -133,15 +128,15 @@ class PdoMapping:
             if sub:
                 self._check_word(index, sub, int.from_bytes(raw, "little"), flag)
         if 0 in changes:
-            words = self._words(index, changes)
+            words = self._values(index, changes)
             for n, word in enumerate(words, 1):
                 self._check_word(index, n, word, flag)
             bits = sum(w & 0xFF for w in words)
             assign = _RX_ASSIGN if rx else _TX_ASSIGN
-            total = bits + sum(sum(w & 0xFF for w in self._words(p))
-                               for p in self._assigned(assign) if p != index)
+            total = bits + sum(sum(w & 0xFF for w in self._values(p))
+                               for p in self._values(assign) if p != index)
             limit = 8 * self.capacity[assign]
-            if bits > limit or (index in self._assigned(assign) and total > limit):
+            if bits > limit or (index in self._values(assign) and total > limit):
                 raise sdo_abort(SdoAbortCode.PDO_LENGTH_EXCEEDED, index, 0,
                                 f"{bits} bits, SM buffer holds {limit}")
 
@@ -173,7 +168,7 @@ class PdoMapping:
                     raise sdo_abort(SdoAbortCode.VALUE_RANGE, index, sub,
                                     f"0x{pdo:04X} is no PDO of this direction")
         if 0 in changes:
-            pdos = self._assigned(index, changes)
+            pdos = self._values(index, changes)
             for n, pdo in enumerate(pdos, 1):
                 if not (of_direction(pdo) and pdo in self.od):
                     raise sdo_abort(SdoAbortCode.VALUE_RANGE, index, n,
@@ -181,7 +176,7 @@ class PdoMapping:
             if len(set(pdos)) != len(pdos):
                 raise sdo_abort(SdoAbortCode.PARAMETER_INCOMPATIBLE, index, 0,
                                 "a PDO is assigned twice")
-            bits = sum(sum(w & 0xFF for w in self._words(p)) for p in pdos)
+            bits = sum(sum(w & 0xFF for w in self._values(p)) for p in pdos)
             if bits > 8 * self.capacity[index]:
                 raise sdo_abort(SdoAbortCode.PDO_LENGTH_EXCEEDED, index, 0,
                                 f"{bits} bits, SM buffer holds {8 * self.capacity[index]}")
