@@ -143,9 +143,11 @@ ALLOWED = {
     "wire": {"errors"},
     "esi": {"errors", "wire"},
     "clock": set(),
+    # The topology file format (text in, typed entries out), read by both sides.
+    "topology": {"errors"},
     "link": {"errors", "wire"},
-    "master": {"errors", "wire", "esi", "link", "clock"},
-    "sim": {"errors", "wire", "esi", "link", "clock"},
+    "master": {"errors", "wire", "esi", "link", "clock", "topology"},
+    "sim": {"errors", "wire", "esi", "link", "clock", "topology"},
 }
 
 
