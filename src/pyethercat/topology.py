@@ -18,6 +18,8 @@ Format::
     seed = 1                        # random seed for the drops
     drift_ppm = 100.0               # slaves without drift_ppm draw theirs from
     drift_seed = 0                  #   +-drift_ppm with this seed (0.0: all exact)
+    ring = true                     # cable redundancy: the master's second port is cabled
+                                    #   to the last slave's free port (or "SLAVE:PORT")
 
     [[slave]]
     name = "coupler"                # unique; used by parent/wire/fault
@@ -63,7 +65,7 @@ _EOE_KEYS = {"ip", "gateway", "mac", "netns", "http_port"}
 _WIRE_KEYS = {"from", "to", "bits"}
 _FAULT_KEYS = {"kind", "slave", "port", "count"}
 FAULT_KINDS = ("break_link", "power_off", "corrupt")
-_SEGMENT_KEYS = {"drop_probability", "seed", "drift_ppm", "drift_seed"}
+_SEGMENT_KEYS = {"drop_probability", "seed", "drift_ppm", "drift_seed", "ring"}
 #: Oscillators of slaves without their own ``drift_ppm`` deviate by up to this
 #: (uniformly drawn with ``drift_seed``): the tolerance of common quartzes.
 DEFAULT_DRIFT_PPM = 100.0
@@ -136,6 +138,8 @@ class TopologyDoc:
     seed: int | None = None
     drift_ppm: float = DEFAULT_DRIFT_PPM
     drift_seed: int = 0
+    #: Cable redundancy: master port B cabled to the last slave (True) or to (slave, port).
+    ring: bool | tuple[str, int] = False
 
     def index(self, name: str) -> int:
         """Position of slave ``name`` in the file (0 = first)."""
@@ -220,6 +224,8 @@ def parse_topology_text(text: str | dict[str, Any], source: str = "<topology>") 
         doc.drift_ppm = abs(_number(seg["drift_ppm"], f"{source}: [segment] drift_ppm"))
     if "drift_seed" in seg:
         doc.drift_seed = to_int(seg["drift_seed"], f"{source}: [segment] drift_seed")
+    if "ring" in seg:
+        doc.ring = _ring(seg["ring"], f"{source}: [segment] ring")
     slaves = _table_list(raw, "slave", source)
     if not slaves:
         raise ConfigError(f"{source}: no [[slave]] tables: a segment needs at least one slave")
@@ -229,6 +235,8 @@ def parse_topology_text(text: str | dict[str, Any], source: str = "<topology>") 
         raise ConfigError(f"{source}: slave {doc.slaves[0].name!r}: the first slave is connected "
                           "to the master, it has no parent")
     names = [s.name for s in doc.slaves]
+    if isinstance(doc.ring, tuple) and doc.ring[0] not in names:
+        raise ConfigError(f"{source}: [segment] ring: no slave named {doc.ring[0]!r}")
     for i, s in enumerate(doc.slaves):
         if s.parent is not None and s.parent not in names[:i]:
             where = f"{source}: slave {s.name!r}"
@@ -341,3 +349,14 @@ def _fault(raw: dict[str, Any], i: int, doc: TopologyDoc) -> FaultEntry:
                               "with the control socket instead)")
     count = to_int(raw.get("count", 1), f"{where}: count", 1)
     return FaultEntry(kind, slave, port, count)
+
+
+def _ring(value: Any, where: str) -> bool | tuple[str, int]:
+    """``ring = true`` (the last slave's free port) or ``ring = "NAME:PORT"``."""
+    if isinstance(value, bool):
+        return value
+    text = _str(value, where)
+    name, sep, port = text.rpartition(":")
+    if not sep or not name:
+        raise ConfigError(f"{where}: {text!r}: use true or \"SLAVE:PORT\"")
+    return name, to_int(port, f"{where} port", 1, 3)

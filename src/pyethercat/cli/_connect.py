@@ -1,11 +1,13 @@
 """Opening a master from the command line's global options.
 
-``--iface IF`` and ``--udp HOST:PORT`` open a real link; ``--sim
+``--iface IF`` and ``--udp HOST:PORT`` open a real link, with
+``--redundant-iface``/``--redundant-udp`` the second port of a ring; ``--sim
 TOPOLOGY.toml`` builds the simulated segment and joins it to the master: in
 this process through the in-process pair link (the segment answers each
-frame synchronously, so nothing waits on timers), or with ``child=True`` in
-a child process over a Unix socketpair. The master package never imports
-the simulator; this module is where the two meet.
+frame synchronously, so nothing waits on timers; a topology with
+``ring`` in its ``[segment]`` gets both ports), or with ``child=True`` in a
+child process over a Unix socketpair. The master package never imports the
+simulator; this module is where the two meet.
 """
 
 from __future__ import annotations
@@ -45,6 +47,10 @@ def connect(obj: dict[str, Any] | None, *, child: bool = False, pcap: str | None
     if sum(x is not None for x in (iface, udp, sim)) != 1:
         raise ConfigError("say where the segment is: give one of --iface IF, --udp HOST:PORT "
                           "or --sim TOPOLOGY.toml (before the command)")
+    second_iface, second_udp = obj.get("redundant_iface"), obj.get("redundant_udp")
+    if (second_iface or second_udp) and sim is not None:
+        raise ConfigError("--sim makes its ring from the topology ([segment] ring = true): "
+                          "no --redundant-iface/--redundant-udp with it")
     conn: Connection
     if sim is not None and not child:
         from pyethercat.clock import VirtualClock
@@ -52,14 +58,21 @@ def connect(obj: dict[str, Any] | None, *, child: bool = False, pcap: str | None
         from pyethercat.sim.topology import load_topology
 
         segment = load_topology(sim).build()
-        link: Any = PairLink.responder_link(segment.process, name=f"sim:{sim}")
+        link: Any
+        if segment.ring is not None:
+            from pyethercat.sim.ring import ring_link
+
+            link = ring_link(segment, name=f"sim:{sim}")
+        else:
+            link = PairLink.responder_link(segment.process, name=f"sim:{sim}")
         link = _capture(link, pcap)
         options.setdefault("clock", VirtualClock())
         conn = Connection(Master(link, **options), segment=segment)
     elif sim is not None:
         from pyethercat.sim.server import start_sim_process
+        from pyethercat.sim.topology import load_topology
 
-        process = start_sim_process(sim, link="unix")
+        process = start_sim_process(sim, link="unix", ring=bool(load_topology(sim).ring))
         try:
             assert process.link is not None
             # The handle closes its link itself when it stops.
@@ -75,6 +88,15 @@ def connect(obj: dict[str, Any] | None, *, child: bool = False, pcap: str | None
         from pyethercat.link.registry import open_link
 
         link = open_link(f"raw:{iface}" if iface is not None else f"udp:{udp}")
+        if second_iface or second_udp:
+            from pyethercat.link.redundant import RedundantLink
+
+            try:
+                link = RedundantLink(link, open_link(
+                    f"raw:{second_iface}" if second_iface else f"udp:{second_udp}"))
+            except BaseException:
+                link.close()
+                raise
         conn = Connection(Master(_capture(link, pcap), **options))
     try:
         yield conn
@@ -88,6 +110,20 @@ def _capture(link: Any, pcap: str | None) -> Any:
     if pcap is None:
         return link
     from pyethercat.link.capture import CaptureLink
+    from pyethercat.link.redundant import RedundantLink
+
+    if isinstance(link, RedundantLink):
+        # One capture per port: FILE for A, FILE-b for B (pcapng keeps the order per file).
+        from pathlib import Path
+
+        p = Path(pcap)
+        second = str(p.with_name(f"{p.stem}-b{p.suffix}"))
+        try:
+            return RedundantLink(CaptureLink(link.primary, pcap), CaptureLink(link.secondary, second),
+                                 name=link.name)
+        except OSError as exc:
+            link.close()
+            raise ConfigError(f"cannot write the capture {pcap}: {exc.strerror or exc}") from None
 
     try:
         return CaptureLink(link, pcap)

@@ -27,7 +27,7 @@ __all__ = ["cli", "main", "parse_int", "normalize_argv", "EXIT_FAILURE"]
 EXIT_FAILURE = 1
 
 #: Global options that take a value, and flags; accepted anywhere on the line.
-_GLOBAL_VALUE = frozenset({"--iface", "--udp", "--sim"})
+_GLOBAL_VALUE = frozenset({"--iface", "--udp", "--sim", "--redundant-iface", "--redundant-udp"})
 _GLOBAL_FLAG = frozenset({"--direct"})
 #: Verbs with options of their own by those names (``sim --iface`` serves there).
 _OWN_GLOBALS = frozenset({"sim"})
@@ -181,11 +181,14 @@ def _one_line(text: str) -> str:
 @click.option("--iface", metavar="IF", help="Network interface of the EtherCAT segment (raw socket).")
 @click.option("--udp", metavar="HOST:PORT", help="EtherCAT over UDP peer.")
 @click.option("--sim", metavar="TOPOLOGY.toml", help="Simulated segment from a topology file.")
+@click.option("--redundant-iface", metavar="IF",
+              help="Second port of a ring (cable redundancy): cabled to the last slave.")
+@click.option("--redundant-udp", metavar="HOST:PORT", help="Second port of a ring over UDP.")
 @click.option("--direct", is_flag=True,
               help="Open the segment directly even when a master runs on it (warns).")
 @click.pass_context
 def cli(ctx: click.Context, iface: str | None, udp: str | None, sim: str | None,
-        direct: bool) -> None:
+        redundant_iface: str | None, redundant_udp: str | None, direct: bool) -> None:
     """EtherCAT master, simulator and tools.
 
     Commands can be abbreviated; options may come before or after the
@@ -196,6 +199,8 @@ def cli(ctx: click.Context, iface: str | None, udp: str | None, sim: str | None,
     ctx.obj["iface"] = iface
     ctx.obj["udp"] = udp
     ctx.obj["sim"] = sim
+    ctx.obj["redundant_iface"] = redundant_iface
+    ctx.obj["redundant_udp"] = redundant_udp
     ctx.obj["direct"] = direct
 
 

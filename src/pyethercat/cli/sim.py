@@ -14,8 +14,12 @@ __all__ = ["register", "sim_command", "check_control_path"]
 @click.command("sim")
 @click.argument("topology", type=click.Path(dir_okay=False))
 @click.option("--iface", "sim_iface", metavar="IF", help="Serve on this network interface (raw socket).")
-@click.option("--udp", "sim_udp", metavar="HOST:PORT", help="Serve EtherCAT over UDP on this address.")
-@click.option("--fd", "sim_fd", type=int, hidden=True, help="Serve on an inherited Unix socket fd.")
+@click.option("--redundant-iface", "sim_iface_b", metavar="IF",
+              help="Close the ring: master port B (the last slave's free port) on this interface.")
+@click.option("--udp", "sim_udp", metavar="HOST:PORT", multiple=True,
+              help="Serve EtherCAT over UDP on this address (twice: master ports A and B of a ring).")
+@click.option("--fd", "sim_fd", type=int, multiple=True, hidden=True,
+              help="Serve on an inherited Unix socket fd (twice: a ring).")
 @click.option("--pcap", metavar="FILE", help="Record every frame in and out (pcapng, or pcap for *.pcap).")
 @click.option("--control", metavar="PATH", help="Unix socket for the JSON control channel (faults).")
 @click.option("--check", is_flag=True, help="Only load and check the topology, print it and exit.")
@@ -28,8 +32,9 @@ def sim_command(
     ctx: click.Context,
     topology: str,
     sim_iface: str | None,
-    sim_udp: str | None,
-    sim_fd: int | None,
+    sim_iface_b: str | None,
+    sim_udp: tuple[str, ...],
+    sim_fd: tuple[int, ...],
     pcap: str | None,
     control: str | None,
     check: bool,
@@ -40,6 +45,10 @@ def sim_command(
 
     Runs until interrupted (Ctrl-C / SIGTERM). Frames that are not EtherCAT are
     ignored. Example: pyethercat sim examples/demo.toml --iface pyecat-0a
+
+    A ring (cable redundancy): --iface A --redundant-iface B, or --udp twice;
+    the last slave's free port is cabled to the second one (or where the
+    topology's [segment] ring = "SLAVE:PORT" says).
     """
     from pyethercat.sim.server import open_link, serve
     from pyethercat.sim.topology import load_topology
@@ -60,25 +69,51 @@ def sim_command(
     # The global --iface/--udp (before the command) work too.
     obj = ctx.obj or {}
     iface = sim_iface or obj.get("iface")
-    udp = sim_udp or obj.get("udp")
-    if sum(x is not None for x in (iface, udp, sim_fd)) != 1:
+    iface_b = sim_iface_b or obj.get("redundant_iface")
+    udps = list(sim_udp) or ([obj["udp"]] if obj.get("udp") else [])
+    fds = list(sim_fd)
+    kinds = sum(bool(x) for x in (iface, udps, fds))
+    if kinds != 1:
         raise ConfigError("sim: give exactly one of --iface IF or --udp HOST:PORT (or --check)")
+    if iface_b is not None and not iface:
+        raise ConfigError("sim: --redundant-iface goes with --iface (the ring's port A)")
+    if len(udps) > 2 or len(fds) > 2:
+        raise ConfigError("sim: a ring has two master ports: give --udp at most twice")
+    spec_b: dict[str, object] | None = None
+    if iface_b is not None:
+        spec_b = {"iface": iface_b}
+    elif len(udps) == 2:
+        spec_b = {"udp": udps[1]}
+    elif len(fds) == 2:
+        spec_b = {"fd": fds[1]}
     log = None if quiet else (lambda msg: click.echo(f"pyethercat sim: {msg}", err=True))
     # Load the topology before opening the link: a bad file fails fast.
     load_topology(topology)
     if control is not None:
         check_control_path(control)
-    link = open_link(iface=iface, udp=udp, fd=sim_fd, pcap=pcap)
+    link = open_link(iface=iface, udp=udps[0] if udps else None, fd=fds[0] if fds else None,
+                     pcap=pcap)
+    link_b = None
     try:
-        stats = serve(topology, link, control=control, log=log, realtime=realtime)
+        if spec_b is not None:
+            link_b = open_link(**spec_b, pcap=None if pcap is None else _port_b_capture(pcap))  # type: ignore[arg-type]
+        stats = serve(topology, link, control=control, log=log, realtime=realtime, link_b=link_b)
     finally:
         link.close()
+        if link_b is not None:
+            link_b.close()
     if log is not None:
         d = stats.as_dict()
         log(
             f"stopped: {d['frames']} frames, {d['replies']} replies, {d['lost']} lost, "
             f"mean {d['mean_process_us']} us, max {d['max_process_us']} us per frame"
         )
+
+
+def _port_b_capture(pcap: str) -> str:
+    """The capture file of port B beside port A's: ``x.pcapng`` -> ``x-b.pcapng``."""
+    p = Path(pcap)
+    return str(p.with_name(f"{p.stem}-b{p.suffix}"))
 
 
 def check_control_path(path: str) -> None:

@@ -21,6 +21,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterable
+from typing import Self
 
 from pyethercat.errors import LinkClosedError, LinkError
 from pyethercat.link.base import MIN_FRAME, Link
@@ -49,7 +50,7 @@ class PairLink(Link):
         self.dropped = 0
 
     @classmethod
-    def pair(cls, name_a: str = "pair-a", name_b: str = "pair-b") -> tuple[PairLink, PairLink]:
+    def pair(cls, name_a: str = "pair-a", name_b: str = "pair-b") -> tuple[Self, Self]:
         """Two joined ends."""
         a, b = cls(name_a), cls(name_b)
         a._peer, b._peer = b, a

@@ -148,7 +148,9 @@ class Master:
              timeout: float = DEFAULT_TIMEOUT, retries: int = DEFAULT_RETRIES,
              max_in_flight: int = DEFAULT_MAX_IN_FLIGHT, clock: Clock | None = None,
              src: bytes = MASTER_MAC, station_base: int = scanning.DEFAULT_STATION_BASE,
-             mailbox_timeout: float = DEFAULT_MAILBOX_TIMEOUT, control: bool = True) -> Master:
+             mailbox_timeout: float = DEFAULT_MAILBOX_TIMEOUT, control: bool = True,
+             redundant: str | None = None, redundant_iface: str | None = None,
+             redundant_udp: str | None = None) -> Master:
         """Open a master on a link named as :func:`pyethercat.link.open_link` takes it.
 
         ``where`` is ``"raw:eth1"`` (or just ``"eth1"``), ``"udp:HOST[:PORT]"``,
@@ -160,17 +162,39 @@ class Master:
         (:mod:`pyethercat.master.control`); a second master on the same link
         is refused with :class:`ConfigError`. When the socket cannot be made (no
         writable runtime directory) the master still opens, with a warning logged.
+
+        A ring (cable redundancy, ``docs/redundancy.md``): ``redundant`` names
+        the second port as ``where`` does (``redundant_iface="eth2"`` and
+        ``redundant_udp=...`` are the same as ``raw:``/``udp:``), the port
+        cabled to the last slave's free port; both ports become one
+        :class:`~pyethercat.link.redundant.RedundantLink`.
         """
         from pyethercat.link.registry import open_link
 
         given = [x for x in (where, iface, udp, link) if x is not None]
         if len(given) != 1:
             raise ConfigError("give exactly one of a link name, iface, udp or link")
+        seconds = [x for x in (redundant, redundant_iface, redundant_udp) if x is not None]
+        if len(seconds) > 1:
+            raise ConfigError("give one second port: redundant, redundant_iface or redundant_udp")
+        if seconds and link is not None:
+            raise ConfigError("a given link cannot take a second port: give a RedundantLink")
         name = None
         if link is None:
             name = where if where is not None else (f"raw:{iface}" if iface is not None
                                                     else f"udp:{udp}")
             link = open_link(name)
+            if seconds:
+                from pyethercat.link.redundant import RedundantLink
+
+                second = redundant if redundant is not None else (
+                    f"raw:{redundant_iface}" if redundant_iface is not None
+                    else f"udp:{redundant_udp}")
+                try:
+                    link = RedundantLink(link, open_link(second))
+                except BaseException:
+                    link.close()
+                    raise
         master = cls(link, timeout=timeout, retries=retries, max_in_flight=max_in_flight,
                      clock=clock, src=src, station_base=station_base,
                      mailbox_timeout=mailbox_timeout)

@@ -35,13 +35,15 @@ source MAC (a slave sets the locally administered bit of the source MAC in
 the frames it returns, ETG.1000.4 section 5.1) when ``drop_own_frames`` is
 set.
 
-Where a redundant link plugs in: a frame sent on both ports of a ring comes
-back twice, each copy processed by the slaves on one side of the break. The
-copies of one index are to be merged before ``_complete`` hands the reply
-out (reads OR-ed, logical read-writes combined by the FMMU direction, working
-counters added; ETG.1000.4 section 5.4 and SOEM ``ecx_outframe_red``). The
-core keeps the sent frame (``_InFlight.sent``) and completes a frame in one
-place (``_complete``/``_complete_prepared``), which is where that merge goes.
+Cable redundancy (a ring on a two-port link): with ``redundancy`` set (a
+:class:`~pyethercat.master.redundancy.Redundancy`), the driver asks
+:meth:`route` on which ports to send each frame, passes the port a frame
+came in on to :meth:`on_frame`, and sends what :meth:`take_forwards` hands
+out. A frame sent on both ports comes back twice, each copy processed by
+the slaves on one side of a break; the copies of one index are merged
+(``master.redundancy.merge_copies``) before the reply is matched and handed
+out, so everything above sees one reply. Requests and tickets keep the
+copies by port (``copies``) for diagnostics.
 """
 
 from __future__ import annotations
@@ -54,6 +56,7 @@ from typing import Protocol
 
 from pyethercat.errors import EtherCATError, FrameError, FrameTooLargeError, LinkError
 from pyethercat.errors import TimeoutError as EcTimeoutError
+from pyethercat.master.redundancy import CopySet, Redundancy, hand_copies
 from pyethercat.wire.datagram import (
     HEADER_SIZE,
     LEN_MASK,
@@ -143,7 +146,8 @@ class Request:
     request failed with.
     """
 
-    __slots__ = ("datagram", "reply", "error", "attempts", "retries", "queued_at", "_waiter")
+    __slots__ = ("datagram", "reply", "error", "attempts", "retries", "queued_at", "_waiter",
+                 "copies")
 
     def __init__(self, waiter: Waiter | None, datagram: Datagram, retries: int) -> None:
         self._waiter = waiter
@@ -154,6 +158,8 @@ class Request:
         self.attempts = 0
         self.retries = retries
         self.queued_at = 0.0
+        #: On a ring: this datagram as each copy brought it back, by port (A = 0, B = 1).
+        self.copies: dict[int, Datagram] | None = None
 
     def done(self) -> bool:
         """Whether the request has a reply or an error."""
@@ -186,7 +192,7 @@ class CyclicFrame:
     """
 
     __slots__ = ("_waiter", "count", "replies", "raw", "template", "lost", "error", "sent_at",
-                 "received_at", "carried")
+                 "received_at", "carried", "copies")
 
     def __init__(self, waiter: Waiter | None, count: int,
                  template: CyclicTemplate | None = None) -> None:
@@ -203,6 +209,8 @@ class CyclicFrame:
         self.received_at = 0.0
         #: Number of acyclic datagrams that rode in this frame.
         self.carried = 0
+        #: On a ring: the copies of the reply frame by the port they came in on.
+        self.copies: dict[int, bytes] | None = None
 
     def done(self) -> bool:
         return self.replies is not None or self.raw is not None or self.lost
@@ -241,7 +249,7 @@ class CyclicTemplate:
     """
 
     __slots__ = ("frame", "datagrams", "data_offsets", "wkc_offsets", "lengths", "size", "end",
-                 "index_offsets", "checks", "last_header")
+                 "index_offsets", "checks", "last_header", "ordered")
 
     def __init__(self, datagrams: Sequence[Datagram], src: bytes = MASTER_MAC) -> None:
         self.datagrams = tuple(Datagram(d.command, 0, d.address, bytes(d.data), d.irq)
@@ -275,6 +283,9 @@ class CyclicTemplate:
         self.checks = tuple(checks)
         #: Offset of the last datagram's header (its "more follows" bit).
         self.last_header = last
+        #: The frame must pass the slaves in bus order (cross traffic): on a ring
+        #: it goes out on one port and on through the other (master.redundancy).
+        self.ordered = False
 
     def wkc(self, raw: bytes, i: int) -> int:
         """Working counter of datagram ``i`` in a reply."""
@@ -313,7 +324,7 @@ class _InFlight:
     """A frame on the wire: its index, requests and deadline."""
 
     __slots__ = ("index", "datagrams", "requests", "cyclic", "deadline", "sent_at", "template",
-                 "sent")
+                 "sent", "copies")
 
     def __init__(self, index: int, datagrams: list[Datagram], requests: list[Request],
                  cyclic: CyclicFrame | None, deadline: float, sent_at: float) -> None:
@@ -328,6 +339,8 @@ class _InFlight:
         self.template: CyclicTemplate | None = None
         #: The frame as sent (prepared frames; decoded only to explain a bad reply).
         self.sent = b""
+        #: On a ring: how the frame went out and the copies back so far.
+        self.copies: CopySet | None = None
 
 
 def _reply_matches(sent: Datagram, got: Datagram) -> str | None:
@@ -384,6 +397,9 @@ class PduCore:
         #: Indices answered recently (duplicates are told apart from stale replies).
         self._answered: deque[int] = deque(maxlen=64)
         self._closed: LinkError | None = None
+        #: Cable redundancy (a ring on a two-port link), or None.
+        self.redundancy: Redundancy | None = None
+        self._forwards: list[tuple[int, bytes]] = []
 
     # -- state ------------------------------------------------------------------------
 
@@ -521,6 +537,50 @@ class PduCore:
         stats.datagrams_sent += ticket.count + len(carried)
         return ticket, idx, raw
 
+    # -- a ring (see the module text) ---------------------------------------------------
+
+    def route(self, index: int, raw: bytes) -> list[int]:
+        """The ports to send the frame ``index`` (bytes ``raw``) on; it is a ring's now."""
+        red = self.redundancy
+        entry = self._in_flight.get(index)
+        if red is None or entry is None:
+            return [0]
+        ordered = entry.template is not None and entry.template.ordered
+        entry.copies, ports = red.plan(raw, ordered)
+        entry.sent = raw
+        return ports
+
+    def port_refused(self, index: int, port: int) -> None:
+        """The link refused the frame ``index`` on ``port`` (sent on the others)."""
+        entry = self._in_flight.get(index)
+        if self.redundancy is not None and entry is not None and entry.copies is not None:
+            self.redundancy.refused(entry.copies, port)
+
+    def take_forwards(self) -> list[tuple[int, bytes]]:
+        """Frames to send on (port, frame): chain frames that came back on their own port."""
+        out, self._forwards = self._forwards, []
+        return out
+
+    def _copy(self, raw: bytes, port: int) -> bytes | None:
+        """A frame came in on ``port`` of a ring: the reply to match now, or None (wait, forward)."""
+        red = self.redundancy
+        assert red is not None
+        red.seen(port)
+        idx = first_index(raw)
+        entry = self._in_flight.get(idx) if idx is not None else None
+        if entry is None or entry.copies is None:
+            return raw
+        action, out, target = red.arrived(entry.copies, port, raw, entry.sent)
+        if action == "forward":
+            assert out is not None
+            self._forwards.append((target, out))
+            return None
+        if action == "wait":
+            return None
+        if not entry.copies.got:
+            entry.copies.got[port] = raw
+        return raw if out is None else out
+
     def send_failed(self, index: int, error: EtherCATError) -> None:
         """The link refused the frame with ``index``: fail what it carried."""
         entry = self._in_flight.pop(index, None)
@@ -601,7 +661,15 @@ class PduCore:
             return False
         requeue: list[Request] = []
         stats = self.stats
+        red = self.redundancy
         for f in expired:
+            if red is not None and f.copies is not None and not everything:
+                # A ring frame with fewer copies back than awaited: what came may do.
+                out = red.expired(f.copies, f.sent)
+                if out is not None:
+                    self._deliver(out, now)
+                    if self._in_flight.get(f.index) is not f:
+                        continue
             del self._in_flight[f.index]
             stats.frames_lost += 1
             if f.cyclic is not None:
@@ -626,11 +694,20 @@ class PduCore:
 
     # -- receiving ----------------------------------------------------------------------
 
-    def on_frame(self, raw: bytes, now: float) -> bool:
-        """Handle one received frame; returns whether a request or ticket completed."""
+    def on_frame(self, raw: bytes, now: float, port: int = 0) -> bool:
+        """Handle one received frame (on ``port`` of a ring); whether a request or ticket completed."""
         if self.drop_own_frames and raw[6:12] == self.src:
             self.stats.looped_back += 1
             return False
+        if self.redundancy is not None:
+            got = self._copy(raw, port)
+            if got is None:
+                return False
+            raw = got
+        return self._deliver(raw, now)
+
+    def _deliver(self, raw: bytes, now: float) -> bool:
+        """Match a reply (a ring's copies merged) to its frame in flight."""
         if len(raw) > _FIRST_INDEX_AT + 4 and raw[12] == _ETHERTYPE_HI and raw[13] == _ETHERTYPE_LO:
             entry = self._in_flight.get(raw[_FIRST_INDEX_AT])
             if entry is not None and entry.template is not None and \
@@ -679,8 +756,10 @@ class PduCore:
         return True
 
     def _complete(self, entry: _InFlight, got: list[Datagram], raw: bytes, now: float) -> None:
-        """Hand a matched reply out (a redundant link merges its copies before this)."""
+        """Hand a matched reply out (a ring's copies were merged before this)."""
         del self._in_flight[entry.index]
+        if entry.copies is not None:
+            hand_copies(entry.copies, entry.cyclic, entry.requests)
         self._answered.append(entry.index)
         self.stats.frames_received += 1
         ncyc = entry.cyclic.count if entry.cyclic is not None else 0
@@ -720,6 +799,8 @@ class PduCore:
         del self._in_flight[idx]
         self._answered.append(idx)
         self.stats.frames_received += 1
+        if entry.copies is not None:
+            hand_copies(entry.copies, entry.cyclic, entry.requests)
         ticket = entry.cyclic
         assert ticket is not None
         ticket.raw = raw

@@ -18,6 +18,12 @@ is never retried: the next cycle is the retry. ``acyclic_hold`` makes
 acyclic requests wait that long for a cyclic frame before they get frames of
 their own.
 
+A ring (a link with two ports, ``link.redundant.RedundantLink``): the core
+chooses the ports of every frame (:meth:`PduCore.route`), the scheduler
+sends on them, hands each received frame to the core with the port it came
+in on and sends what the core passes on (``take_forwards``); the core
+merges the copies (``master.redundancy``).
+
 Time comes from a :mod:`pyethercat.clock` clock. With a
 :class:`~pyethercat.clock.VirtualClock` the scheduler runs in virtual time,
 for links that answer inside ``send`` (the in-process pair link with a
@@ -39,6 +45,7 @@ from pyethercat.clock import Clock, VirtualClock, WallClock, is_virtual
 from pyethercat.errors import EtherCATError
 from pyethercat.errors import TimeoutError as EcTimeoutError
 from pyethercat.link.base import Link
+from pyethercat.link.redundant import RedundantLink
 from pyethercat.master.pdu import (
     DEFAULT_MAX_IN_FLIGHT,
     DEFAULT_RETRIES,
@@ -50,6 +57,7 @@ from pyethercat.master.pdu import (
     Request,
     describe_datagram,
 )
+from pyethercat.master.redundancy import Redundancy
 from pyethercat.wire.datagram import MAX_PAYLOAD, Datagram
 from pyethercat.wire.frame import MASTER_MAC, MIN_FRAME_SIZE
 
@@ -123,6 +131,10 @@ class Scheduler:
         self._receiving = False
         #: Threads blocked in the condition's wait (nobody to wake: skip the notify).
         self._sleepers = 0
+        #: The link's ports when it is a ring's (RedundantLink), else None.
+        self._ring = link if isinstance(link, RedundantLink) else None
+        if self._ring is not None:
+            self.core.redundancy = Redundancy(2)
 
     # -- the core's settings and counters -------------------------------------------
 
@@ -308,7 +320,10 @@ class Scheduler:
         vclock = self._vclock
         before = vclock.now_ns() if vclock is not None else 0
         try:
-            self.link.send(raw)
+            if self._ring is None:
+                self.link.send(raw)
+            else:
+                self._transmit_ring_locked(idx, raw)
         except EtherCATError as exc:
             self.core.send_failed(idx, exc)
             self._notify()
@@ -316,6 +331,47 @@ class Scheduler:
         if vclock is not None and vclock.now_ns() == before:
             # The frame takes its wire time (unless the responder moved the clock).
             vclock.advance((max(len(raw), MIN_FRAME_SIZE) + _WIRE_EXTRA) * _BYTE_NS)
+
+    def _transmit_ring_locked(self, idx: int, raw: bytes) -> None:
+        """Send on the ports the core chooses; raises only when none took the frame."""
+        ring = self._ring
+        assert ring is not None
+        core = self.core
+        red = core.redundancy
+        assert red is not None
+        for p in (0, 1):
+            red.carrier[p] = ring.port_carrier(p)
+        error: EtherCATError | None = None
+        sent = False
+        for port in core.route(idx, raw):
+            try:
+                ring.send_on(port, raw)
+                sent = True
+            except EtherCATError as exc:
+                core.port_refused(idx, port)
+                error = exc
+        if not sent and error is not None:
+            raise error
+
+    def _forward_locked(self) -> None:
+        """Send on what the core passes on (ring frames back on their own port)."""
+        ring = self._ring
+        red = self.core.redundancy
+        if ring is None or red is None:
+            return
+        for port, frame in self.core.take_forwards():
+            try:
+                ring.send_on(port, frame)
+            except EtherCATError:
+                red.carrier[port] = False  # the frame's deadline settles it
+
+    def _recv_locked(self, wait: float) -> tuple[bytes, int] | None:
+        """One frame and its port (0 on a one-port link), lock released by the caller."""
+        ring = self._ring
+        if ring is not None:
+            return ring.recv_from(wait)
+        raw = self.link.recv(wait)
+        return None if raw is None else (raw, 0)
 
     def _notify(self) -> None:
         """Wake the threads waiting for another receiver (lock held)."""
@@ -395,10 +451,10 @@ class Scheduler:
         self._receiving = True
         lock = self._lock
         lock.release()
-        got: bytes | None = None
+        got: tuple[bytes, int] | None = None
         error: EtherCATError | None = None
         try:
-            got = self.link.recv(wait)
+            got = self._recv_locked(wait)
         except EtherCATError as exc:
             error = exc
         finally:
@@ -409,7 +465,8 @@ class Scheduler:
             self._notify()
             raise error
         if got is not None:
-            core.on_frame(got, now)
+            core.on_frame(got[0], now, got[1])
+            self._forward_locked()
         if now >= first:
             core.expire(now)
         if core.queued:
@@ -419,9 +476,10 @@ class Scheduler:
     def _receive_virtual_locked(self, now: float) -> None:
         """Virtual time: take what the responder queued, else jump to the next deadline."""
         core = self.core
-        raw = self.link.recv(0)
-        if raw is not None:
-            core.on_frame(raw, now)
+        got = self._recv_locked(0)
+        if got is not None:
+            core.on_frame(got[0], now, got[1])
+            self._forward_locked()
         else:
             # The responder already answered everything it will ever answer.
             vclock = self._vclock

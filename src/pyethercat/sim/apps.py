@@ -54,19 +54,30 @@ class DeviceApps:
 
     def add(self, app: DeviceApp | None, model: DeviceModel | None, instance: int) -> None:
         self.apps.append(app)
-        mid = -1
-        if model is not None:
-            if model not in self.models:
-                self.models.append(model)
-                if model.output_events:
-                    self._output_models.append(len(self.models) - 1)
-                if model.sync_events:
-                    self._sync_models.append(len(self.models) - 1)
-            mid = self.models.index(model)
-        self.model_id = np.append(self.model_id, mid)
+        self.model_id = np.append(self.model_id, self._model_index(model))
         self.instance = np.append(self.instance, instance)
         self.wants_outputs = np.append(self.wants_outputs, bool(app is not None and app.wants_output_events))
         self._groups.clear()
+
+    def replace(self, slave: int, app: DeviceApp | None, model: DeviceModel | None,
+                instance: int) -> None:
+        """Slave ``slave`` is another device now (hot swap); its old model instance is left idle."""
+        self.apps[slave] = app
+        self.model_id[slave] = self._model_index(model)
+        self.instance[slave] = instance
+        self.wants_outputs[slave] = bool(app is not None and app.wants_output_events)
+        self._groups.clear()
+
+    def _model_index(self, model: DeviceModel | None) -> int:
+        if model is None:
+            return -1
+        if model not in self.models:
+            self.models.append(model)
+            if model.output_events:
+                self._output_models.append(len(self.models) - 1)
+            if model.sync_events:
+                self._sync_models.append(len(self.models) - 1)
+        return self.models.index(model)
 
     def _group(self, slaves: I64) -> _Groups:
         key = slaves.tobytes()

@@ -133,7 +133,9 @@ class Commands:
         self._wcols: dict[tuple[int, int, int], I64] = {}
         self._fast_ok: dict[tuple[int, int], bool] = {}
         #: BRD plans by (lo, hi, passes) and, for the frame path, by an int key.
-        self.brd_plans: dict[tuple[int, int, int] | int, BrdPlan] = {}
+        self.brd_plans: dict[tuple[int, int, int, int] | int, BrdPlan] = {}
+        #: The master port frames now enter at (a ring's two routes have plans of their own).
+        self.route_tag = 0
         #: Longest route on which small BRDs take the Python-int path (0: numpy only).
         self.brd_py_max = _BRD_PY_MAX
         #: BRDs of 1/2/4/8-byte registers handled by the frame path itself
@@ -145,6 +147,14 @@ class Commands:
             self.profiles.append(esc.profile)
             self._profile_esc.append(esc)
         self.profile_id = np.append(self.profile_id, self.profiles.index(esc.profile))
+
+    def replace_slave(self, index: int, esc: Esc) -> None:
+        """Slave ``index`` is another chip now (hot swap)."""
+        if esc.profile not in self.profiles:
+            self.profiles.append(esc.profile)
+            self._profile_esc.append(esc)
+        self.profile_id[index] = self.profiles.index(esc.profile)
+        self.invalidate()
 
     def invalidate(self, sm_changed: bool = False) -> None:
         """Forget cached plans (slaves or power changed; ``sm_changed``: SM areas only)."""
@@ -309,14 +319,14 @@ class Commands:
                     wkc += 2
             return wkc
         # BRD
-        key = (lo, hi, len(passes))
+        key = (lo, hi, len(passes), self.route_tag)
         plan = self.brd_plans.get(key)
         if plan is None:
             plan = self._brd_plan(route, passes, lo, hi)
             self.brd_plans[key] = plan
             if plan.column is not None and not plan.slow and not plan.systime and self.brd_fast:
                 # Also under the int key the frame path looks up (ado, length, passes).
-                self.brd_plans[(ado << 16) | n | (len(passes) << 32)] = plan
+                self.brd_plans[(ado << 16) | n | (len(passes) << 32) | (self.route_tag << 48)] = plan
         if plan.slow:
             wkc = 0
             for s in passes.tolist():

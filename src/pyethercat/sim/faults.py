@@ -14,6 +14,9 @@ A malformed EtherCAT frame (datagrams running past the frame) is not
 processed at all and counted by the first slave's processing-unit error
 counter 0x030C.
 
+A bad cable (``rates``) corrupts each frame arriving over it with a given
+probability, in both directions.
+
 Dropped frames (``drop_probability``) are lost before any slave sees them.
 """
 
@@ -39,11 +42,25 @@ class Faults:
         self.memory = memory
         #: Frames still to corrupt, by (slave, port) of arrival.
         self.corrupt: dict[tuple[int, int], int] = {}
+        #: Probability that a frame arriving at (slave, port) carries a CRC error.
+        self.rates: dict[tuple[int, int], float] = {}
         self.drop_p = 0.0
         self._rng = random.Random()
+        self._crc_rng = random.Random()
 
     def corrupt_frames(self, slave: int, port: int, count: int) -> None:
         self.corrupt[(slave, port)] = self.corrupt.get((slave, port), 0) + count
+
+    def set_crc_rate(self, slave: int, port: int, rate: float, seed: int | None = None) -> None:
+        """Frames arriving at ``slave``'s ``port`` get a CRC error with probability ``rate`` (0: none)."""
+        if not 0.0 <= rate <= 1.0:
+            raise ConfigError(f"CRC error rate {rate} is not within 0..1")
+        if rate:
+            self.rates[(slave, port)] = rate
+        else:
+            self.rates.pop((slave, port), None)
+        if seed is not None:
+            self._crc_rng.seed(seed)
 
     def set_drop_probability(self, p: float, seed: int | None = None) -> None:
         if not 0.0 <= p <= 1.0:
@@ -65,18 +82,21 @@ class Faults:
         mem = self.memory.mem
         corrupted = False
         cut, at = -1, NEVER
+        rates = self.rates
         for i, (s, p, _t, before) in enumerate(route.arrivals):
             if not corrupted:
                 left = self.corrupt.get((s, p), 0)
                 if left:
-                    corrupted = True
-                    cut, at = before, i
                     if left == 1:
                         del self.corrupt[(s, p)]
                     else:
                         self.corrupt[(s, p)] = left - 1
-                    a = R.RX_ERROR_COUNTER + 2 * p
-                    mem[s, a] = min(255, int(mem[s, a]) + 1)
+                elif not (rates and (s, p) in rates and self._crc_rng.random() < rates[(s, p)]):
+                    continue
+                corrupted = True
+                cut, at = before, i
+                a = R.RX_ERROR_COUNTER + 2 * p
+                mem[s, a] = min(255, int(mem[s, a]) + 1)
             else:
                 a = R.FORWARDED_RX_ERROR_COUNTER + p
                 mem[s, a] = min(255, int(mem[s, a]) + 1)

@@ -14,6 +14,18 @@ receive times), the total forwarding delay and whether the frame returns.
 :meth:`Ports.update` also brings DL status 0x0110 (link, loop, communication
 per port) and the lost-link counters up to date.
 
+A ring (cable redundancy): the master has a second port B cabled to a free
+port of a slave, normally the last one (``Ports.ring``). A frame can then
+enter at either master port and leave at either: :meth:`Ports.update`
+computes one route per entry. A frame entering at B travels the ring
+backwards without passing any processing unit (a port other than 0 forwards
+without processing) until it finds a closed port 0 (a broken ring): that
+slave loops it into its processing unit, and every slave after it processes
+the frame on its way back to B. In an intact ring the copy sent on A is
+processed by every slave and leaves at B, the copy sent on B comes back at A
+untouched (ETG.1000.4 section 5.4; ET1100 datasheet section I, "Frame
+processing order").
+
 Auto-close (loop control value 1): a port whose link went down stays closed
 when the link comes back, until the master writes 1 again after link up, or
 a valid frame arrives at it (ESC datasheet section II, DL control 0x0101;
@@ -33,13 +45,16 @@ from pyethercat.sim.esc import Esc
 from pyethercat.sim.memory import EscMemory
 from pyethercat.wire import registers as R
 
-__all__ = ["MASTER", "NEXT_PORT", "Ports", "Route"]
+__all__ = ["MASTER", "NEXT_PORT", "PORT_A", "PORT_B", "Ports", "Route"]
 
 I64 = npt.NDArray[np.int64]
 
 #: Next port in the forwarding order 0 -> 3 -> 1 -> 2 -> 0.
 NEXT_PORT = (3, 2, 0, 1)
 MASTER = -1
+#: The master's ports: A feeds the first slave's port 0, B closes the ring.
+PORT_A = 0
+PORT_B = 1
 _AUTO_CLOSE = int(R.LoopControl.AUTO_CLOSE)
 
 
@@ -53,12 +68,15 @@ class Route:
     arrivals: list[tuple[int, int, int, int]]
     arrive_ns: I64             # (slaves x 4) first arrival time per port, -1 = not visited
     epu_ns: I64                # per slave: time of its (first) processing-unit pass, -1 = none
-    returned: bool             # the frame comes back to the master
+    returned: bool             # the frame comes back to the master (at either port)
     delay_ns: int              # forwarding + cable delays of the whole walk
     contiguous: bool           # passes == arange(len(passes)) (fast slicing)
     #: (slave, port, arrival index) of arrivals at an auto-close port held closed
     #: after its link came back: a valid frame there re-opens it.
     reopen: list[tuple[int, int, int]]
+    #: The master port the frame entered at and the one it leaves by (-1: lost).
+    entry: int = PORT_A
+    exit: int = PORT_A
     #: Pass indices where the slave's port 0 is closed (derived, for the frame path).
     closed_idx: list[int] = field(init=False)
     #: len(passes), and whether the frame is processed at all (derived).
@@ -94,6 +112,11 @@ class Ports:
         self.broken: set[tuple[int, int]] = set()
         self.autoclose_latched: set[tuple[int, int]] = set()
         self._had_link: dict[tuple[int, int], bool] = {}
+        #: The slave port cabled to the master's port B (a ring), or None.
+        self.ring: tuple[int, int] | None = None
+        #: Whether something listens at the master's port B (a second master
+        #: NIC); without it the ring cable has no link partner.
+        self.master_b = False
 
     # --- building --------------------------------------------------------------------
 
@@ -127,9 +150,36 @@ class Ports:
     def free_port(self, slave: int) -> int:
         prof = self.escs[slave].profile
         for p in (1, 2, 3):
-            if p in prof.implemented_ports and self.links[slave][p] is None:
+            if p in prof.implemented_ports and self.links[slave][p] is None and (slave, p) != self.ring:
                 return p
         raise ConfigError(f"slave {self.escs[slave].name!r} has no free port for the next slave")
+
+    def set_ring(self, slave: int | None = None, port: int | None = None) -> tuple[int, int]:
+        """Cable the master's port B to ``slave``'s ``port``.
+
+        Default: the free port of the last slave in bus order (the last one a
+        frame from port A passes; in a tree that is not the last one added)."""
+        n = len(self.escs)
+        if n == 0:
+            raise ConfigError("a ring needs at least one slave")
+        if slave is None:
+            # The walk with every cable up and every port on auto (as cabled).
+            up = [[self._port_exists(i, p) and (self.links[i][p] is not None or (i, p) == (0, 0))
+                   for p in range(4)] for i in range(n)]
+            closed = [[not x for x in row] for row in up]
+            passes = self.walk(up, closed).passes
+            slave = int(passes[-1]) if len(passes) else n - 1
+        s = slave
+        if not 0 <= s < n:
+            raise ConfigError(f"ring: no slave {s} (the segment has {n})")
+        p = self.free_port(s) if port is None else port
+        name = self.escs[s].name
+        if p == 0 or p not in self.escs[s].profile.implemented_ports:
+            raise ConfigError(f"ring: slave {name!r} has no usable port {p}")
+        if self.links[s][p] is not None:
+            raise ConfigError(f"ring: port {p} of slave {name!r} is already connected")
+        self.ring = (s, p)
+        return s, p
 
     # --- links -----------------------------------------------------------------------
 
@@ -141,6 +191,8 @@ class Ports:
             return False
         if s == 0 and p == 0:
             return (0, 0) not in self.broken
+        if (s, p) == self.ring:
+            return self.master_b and (s, p) not in self.broken
         peer = self.links[s][p]
         if peer is None or (s, p) in self.broken or peer in self.broken:
             return False
@@ -172,9 +224,18 @@ class Ports:
         if port not in ports:
             raise ConfigError(f"{name} has no port {port} (ports {', '.join(map(str, ports))})")
         peer = self.links[slave][port]
-        if peer is None and not (slave == 0 and port == 0):
+        if peer is None and not (slave == 0 and port == 0) and (slave, port) != self.ring:
             raise ConfigError(f"{name}: port {port} has no cable")
         return peer
+
+    def master_port_key(self, port: int) -> tuple[int, int]:
+        """The slave port cabled to master port A (0) or B (1)."""
+        if port == PORT_A:
+            return 0, 0
+        if port == PORT_B and self.ring is not None:
+            return self.ring
+        raise ConfigError(f"the master has no port {'AB'[port] if port in (0, 1) else port} "
+                          f"in this segment" + (" (no ring)" if port == PORT_B else ""))
 
     def break_link(self, slave: int, port: int) -> None:
         self.peer_key(slave, port)
@@ -218,8 +279,10 @@ class Ports:
 
     # --- the walk --------------------------------------------------------------------
 
-    def update(self) -> Route:
-        """DL status of every slave (raising its DL-status event on a change) and the new walk."""
+    def update(self) -> list[Route]:
+        """DL status of every slave (raising its DL-status event on a change) and the new walks.
+
+        One route per master port: [A] or, with a ring, [A, B]."""
         n = len(self.escs)
         links = [[self.link_up(s, p) for p in range(4)] for s in range(n)]
         closed = [[self._loop_closed(s, p, links[s][p]) for p in range(4)] for s in range(n)]
@@ -246,20 +309,28 @@ class Ports:
             if dl != esc.u16(R.DL_STATUS):
                 esc.set_u16(R.DL_STATUS, dl)
                 esc.set_ecat_event(int(R.EcatEvent.DL_STATUS))
-        return self.walk(links, closed)
+        routes = [self.walk(links, closed, PORT_A)]
+        if self.ring is not None:
+            routes.append(self.walk(links, closed, PORT_B))
+        return routes
 
-    def walk(self, links: list[list[bool]], closed: list[list[bool]]) -> Route:
+    def walk(self, links: list[list[bool]], closed: list[list[bool]], entry: int = PORT_A) -> Route:
+        """The route of a frame entering at master port ``entry`` (A: slave 0 port 0, B: the ring port)."""
         n = len(self.escs)
         passes: list[int] = []
         port0_closed: list[bool] = []
         arrivals: list[tuple[int, int, int, int]] = []
         arrive = np.full((n, 4), -1, np.int64)
         epu = np.full(n, -1, np.int64)
-        returned = False
+        exit_port = -1
         t = 0
-        if n == 0 or not links[0][0]:
-            return Route(np.zeros(0, np.int64), [], [], arrive, epu, False, 0, True, [])
-        s, p, via_link = 0, 0, True
+        start = (0, 0) if entry == PORT_A else self.ring
+        if n == 0 or start is None or not links[start[0]][start[1]]:
+            return Route(np.zeros(0, np.int64), [], [], arrive, epu, False, 0, True, [],
+                         entry, -1)
+        s, p = start
+        via_link = True
+        ring = self.ring
         limit = 16 * n + 16
         steps = 0
         reopen: list[tuple[int, int, int]] = []
@@ -289,7 +360,10 @@ class Ports:
                 break  # open port without link: the frame is lost
             t += self.fwd_delay[s]
             if s == 0 and q == 0:
-                returned = True
+                exit_port = PORT_A
+                break
+            if (s, q) == ring:
+                exit_port = PORT_B
                 break
             peer = self.links[s][q]
             assert peer is not None
@@ -297,4 +371,5 @@ class Ports:
             s, p, via_link = peer[0], peer[1], True
         arr = np.array(passes, dtype=np.int64)
         contiguous = bool(len(arr) == 0 or np.array_equal(arr, np.arange(len(arr))))
-        return Route(arr, port0_closed, arrivals, arrive, epu, returned, t, contiguous, reopen)
+        return Route(arr, port0_closed, arrivals, arrive, epu, exit_port >= 0, t, contiguous,
+                     reopen, entry, exit_port)

@@ -54,8 +54,9 @@ from pyethercat.sim.host import Dirty
 from pyethercat.sim.memory import EscMemory
 from pyethercat.sim.model import DeviceModel
 from pyethercat.sim.pdio import ProcessIo
-from pyethercat.sim.ports import MASTER, NEXT_PORT, Ports, Route
+from pyethercat.sim.ports import MASTER, NEXT_PORT, PORT_A, Ports, Route
 from pyethercat.sim.profiles import EscProfile
+from pyethercat.sim.ring import RingMixin
 from pyethercat.sim.syncman import SmAreas
 from pyethercat.sim.watchdog import Watchdogs
 from pyethercat.sim.wiring import Wiring
@@ -169,8 +170,11 @@ class SimSlave:
         return f"SimSlave({self.index}, {self.name!r}, {self.spec.profile.name})"
 
 
-class Segment:
-    """A segment of simulated slaves; :meth:`process` answers one frame."""
+class Segment(RingMixin):
+    """A segment of simulated slaves; :meth:`process` answers one frame.
+
+    With a ring (``sim.ring``) frames enter at master port A or B
+    (:meth:`process_from`)."""
 
     def __init__(self, clock: TimeSource | None = None, mac_wire_ns: int = 80) -> None:
         self.clock = clock if clock is not None else VirtualClock()
@@ -199,12 +203,23 @@ class Segment:
         self.pending_op: set[int] = set()
         # dirty flags (see sim.host.Dirty)
         self.topology_dirty = True
-        self.addressing_dirty = True
-        self.fmmu_dirty = True
         self.sm_dirty = True
-        self.irq_dirty = True
         self.watchdog_dirty = True
+        # The route-dependent kinds count their invalidations (see _use_entry).
+        self._inval = [0, 0, 0]
+        self._computed = [-1, -1, -1]
+        self._addressing_dirty = self._fmmu_dirty = self._irq_dirty = True
         self._route: Route | None = None
+        #: One route per master port (see sim.ports); ``_route`` is the entry's.
+        self._routes: list[Route] = []
+        #: The master port the current frame entered at, and per port the compiled
+        #: state saved when frames last entered there (a ring alternates A and B).
+        self._entry = PORT_A
+        self._saved: dict[int, tuple[dict[int, list[int]], LogicalMap | None, int, list[int]]] = {}
+        #: The master port the last processed frame left by (-1: lost).
+        self.last_exit = -1
+        #: Slaves unplugged by remove_slave (hot swap).
+        self._removed: set[int] = set()
         self._stations: dict[int, list[int]] = {}
         self._lmap: LogicalMap | None = None
         self._irq = 0
@@ -215,6 +230,7 @@ class Segment:
         # Shared with the parts (never rebound there): the frame path reads them directly.
         self._bplan = self.commands.brd_plans
         self._corrupt = self.faults.corrupt
+        self._rates = self.faults.rates
         self._sync = self.dc.sync_next
         self._drop_p = 0.0
         self._cur_passes: I64 = _EMPTY
@@ -300,9 +316,12 @@ class Segment:
 
     @property
     def route(self) -> Route:
-        """The current walk (recomputed after topology changes)."""
+        """The walk of frames entering at the current master port (recomputed after topology changes)."""
         if self.topology_dirty or self._route is None:
-            self._route = self.ports.update()
+            self._routes = self.ports.update()
+            if self._entry >= len(self._routes):
+                self._entry = PORT_A
+            self._route = self._routes[self._entry]
             self.topology_dirty = False
             self.addressing_dirty = self.fmmu_dirty = self.irq_dirty = self.sm_dirty = True
             self._bplan.clear()
@@ -368,6 +387,29 @@ class Segment:
                 "last_sync0": None if pulse is None else [pulse[0], pulse[1]],
             })
         return out
+    def replace_slave(self, index: int, spec: SlaveSpec) -> None:
+        """Another device (``spec``) in the place of slave ``index``, switched off.
+
+        Its cables stay where they were (ports the new chip lacks have no
+        link); :meth:`insert_slave` switches it on."""
+        self.power_off(index)
+        esc = Esc(self._host, self.memory, index, spec.name, spec.sii, spec.profile, spec.app,
+                  spec.alias, spec.initial_inputs, spec.sii_info)
+        self.escs[index] = esc
+        self.slaves[index] = SimSlave(spec.name, spec, index, esc)
+        self.ports.fwd_delay[index] = (spec.forwarding_delay_ns if spec.forwarding_delay_ns is not None
+                                       else spec.profile.default_forwarding_delay_ns)
+        self.commands.replace_slave(index, esc)
+        self.dc.add_slave(index, self.clock.now_ns(), spec.drift_ppm)
+        model, instance = spec.model, spec.instance
+        if model is not None:
+            if instance < 0:
+                instance = model.new_instance()
+            model.placed(instance, index, self.pdio)
+        self.apps.replace(index, spec.app, model, instance)
+        if spec.app is not None:
+            spec.app.attach(esc.pdi)
+        self._invalidate_all()
 
     def reset_slave(self, slave: int) -> None:
         """Power-on reset of one ESC (also the 'RES' sequence in 0x0040)."""
@@ -383,6 +425,14 @@ class Segment:
         """The next ``count`` frames arriving at ``slave``'s ``port`` carry a CRC error."""
         self.ports.peer_key(slave, port)
         self.faults.corrupt_frames(slave, port, count)
+
+    def crc_error_rate(self, slave: int, port: int, rate: float, seed: int | None = None) -> None:
+        """A bad cable: frames crossing the cable at ``slave``'s ``port`` (either way) get CRC
+        errors with probability ``rate`` (0 mends it)."""
+        peer = self.ports.peer_key(slave, port)
+        self.faults.set_crc_rate(slave, port, rate, seed)
+        if peer is not None:
+            self.faults.set_crc_rate(peer[0], peer[1], rate)
 
     def drop_probability(self, p: float, seed: int | None = None) -> None:
         """Lose each frame with probability ``p`` (before any slave sees it)."""
@@ -417,14 +467,17 @@ class Segment:
         if self.sm_dirty:
             self._refresh_sm_state()
         self._lmap = self.sm.logical_map(route, self.escs)
+        self._computed[1] = self._inval[1]
         self.fmmu_dirty = False
 
     def _refresh_addressing(self) -> None:
         self._stations = station_map(self.memory, self.route.passes)
+        self._computed[0] = self._inval[0]
         self.addressing_dirty = False
 
     def _refresh_irq(self) -> None:
         self._irq = irq_field(self.memory, self.route.passes)
+        self._computed[2] = self._inval[2]
         self.irq_dirty = False
 
     def invalidate(self, what: Dirty) -> None:
@@ -487,7 +540,10 @@ class Segment:
         return (max(frame_len, 60) + FCS_SIZE) * self.mac_wire_ns + self.route.delay_ns
 
     def process(self, frame: bytes | bytearray) -> bytes | None:
-        """Process one frame from the master; the returned frame, or None if it is lost."""
+        """Process one frame from the master (at port A unless :meth:`process_from` chose B).
+
+        The returned frame, or None if it is lost; ``last_exit`` says at which
+        master port it came back (in a ring: B when the ring is closed)."""
         vclock = self._vclock
         now = vclock.ns if vclock is not None else self._clock.now_ns()
         # tick() only when time-driven work can be due: watchdog configuration
@@ -498,6 +554,7 @@ class Segment:
         route = self._route
         if route is None or self.topology_dirty:
             route = self.route
+        self.last_exit = route.exit
         if self._drop_p and self.faults.drops():
             self.frames_lost += 1
             return None
@@ -507,7 +564,7 @@ class Segment:
         buf = bytearray(frame)
         # A single-datagram frame is fully described by bytes 12..25 (EtherType,
         # EtherCAT header, datagram header): its parse is looked up, not redone.
-        hit = None if self._corrupt else self._parsed.get(
+        hit = None if self._corrupt or self._rates else self._parsed.get(
             frame[12:26] if type(frame) is bytes else bytes(frame[12:26]))
         if hit is not None and hit[0] <= len(buf):
             heads, any_c = hit[1], hit[2]
@@ -544,10 +601,10 @@ class Segment:
                 self._crc_at = NEVER
         self.dc.frame_t0 = now
         self._cur_passes = passes
-        if self.irq_dirty:
+        if self._irq_dirty:
             self._refresh_irq()
         bplan = self._bplan
-        fast_key = count << 32
+        fast_key = (count << 32) | (self._entry << 48)
         for off, cmd, address, lw, irq, n in heads:
             doff = off + HEADER_SIZE
             if set_c:
@@ -580,7 +637,7 @@ class Segment:
                     continue
             if cmd in _CLASS:
                 add, address = self._datagram(cmd, address, np.frombuffer(buf, np.uint8, n, doff), n)
-                if self.irq_dirty:
+                if self._irq_dirty:
                     self._refresh_irq()
             else:
                 add = 0  # NOP and unknown commands pass untouched
@@ -611,7 +668,8 @@ class Segment:
             if len(route.passes) and self.memory.mem[route.passes[0], R.DL_CONTROL] & R.DL_CONTROL_FORWARDING_RULE:
                 return None
             return bytes(buf) if route.returned else None  # passed on unchanged
-        cut, cut_at = self.faults.apply_corruption(route) if self._corrupt else (-1, NEVER)
+        cut, cut_at = (self.faults.apply_corruption(route) if self._corrupt or self._rates
+                       else (-1, NEVER))
         word = buf[start] | (buf[start + 1] << 8)
         length = word & ECAT_LENGTH_MASK
         if word >> ECAT_TYPE_SHIFT != _DATAGRAMS:
@@ -667,7 +725,7 @@ class Segment:
                 return 0, new_address
             return self.commands.single(cmd, int(passes[pos]), ado, data, n), new_address
         if kind == 4:
-            if self.addressing_dirty:
+            if self._addressing_dirty:
                 self._refresh_addressing()
             hits = self._stations.get(adp)
             if cmd in RMW:
@@ -685,7 +743,7 @@ class Segment:
     def _logical(self, cmd: int, address: int, data: npt.NDArray[np.uint8], n: int) -> int:
         if self.sm_dirty:
             self._refresh_sm_state()
-        if self.fmmu_dirty or self._lmap is None:
+        if self._fmmu_dirty or self._lmap is None:
             self._refresh_fmmus()
         lmap = self._lmap
         assert lmap is not None

@@ -6,6 +6,12 @@ back. Frames that are not EtherCAT are ignored. Between frames it runs
 periodic work (:meth:`Segment.tick` when the segment has one, for watchdogs
 and SYNC events) and the commands of a control channel.
 
+A ring: with ``link_b`` the server is the segment's second master port too
+(``sim.ring``). A frame arriving on either link enters the segment at that
+master port (:meth:`Segment.process_from`) and leaves on the link of the
+port it comes out at: in a closed ring, a frame the master sent on A comes
+back on B.
+
 Control channel: with ``control=PATH`` the server listens on a Unix stream
 socket; each line a client writes is one JSON object, answered by one JSON
 line (``{"ok": true, ...}`` or ``{"ok": false, "error": "..."}``)::
@@ -16,6 +22,9 @@ line (``{"ok": true, ...}`` or ``{"ok": false, "error": "..."}``)::
     {"cmd": "restore_link", "slave": "di8", "port": 1}
     {"cmd": "power_off", "slave": "do8"}      {"cmd": "power_on", "slave": "do8"}
     {"cmd": "corrupt", "slave": "di8", "port": 0, "count": 1}
+    {"cmd": "crc_rate", "slave": "di8", "port": 0, "rate": 0.001, "seed": 1}
+    {"cmd": "port_fault", "port": "A", "broken": true}   (master port A or B of a ring)
+    {"cmd": "remove", "slave": "do8"}   {"cmd": "insert", "slave": "do8"[, "device": "builtin:di8"]}
     {"cmd": "drop", "probability": 0.1, "seed": 1}
     {"cmd": "set_inputs", "slave": "di8", "data": "ff"}
     {"cmd": "outputs", "slave": "do8"}                -> {"data": "hex"}
@@ -134,9 +143,17 @@ class SimServer:
         control: str | os.PathLike[str] | None = None,
         tick_s: float = DEFAULT_TICK_S,
         log: Callable[[str], None] | None = None,
+        link_b: Link | None = None,
     ) -> None:
         self.segment = segment
         self.link = link
+        #: The link of master port B (a ring), or None.
+        self.link_b = link_b
+        self._links = [link] if link_b is None else [link, link_b]
+        if link_b is not None:
+            if segment.ring is None:
+                segment.close_ring()
+            segment.attach_port_b()
         self.tick_s = tick_s
         self.stats = ServerStats()
         self._log = log or (lambda _msg: None)
@@ -189,21 +206,25 @@ class SimServer:
 
     def run(self) -> None:
         """Serve until stopped or the link closes."""
-        fd = self.link.fileno()
+        links = self._links
+        fds = [link.fileno() for link in links]
+        sel = [fd for fd in fds if fd is not None]
         next_tick = time.monotonic() + self.tick_s
         try:
             while not self._stop.is_set():
                 readers = self._readers()
-                if fd is None:
+                if None in fds:
                     # No descriptor (in-process pair link): poll in short steps.
-                    self._serve_frames(self.link.recv(min(self.tick_s, 0.0005)))
+                    step = min(self.tick_s, 0.0005) / len(links)
+                    for port, link in enumerate(links):
+                        self._serve_frames(link.recv(step), port)
                     self._run_calls()
                     if readers:
                         ready, _, _ = select.select(list(readers), [], [], 0)
                         for r in ready:
                             readers[r]()
                 else:
-                    rlist = [fd, self._wake_r]
+                    rlist = [*sel, self._wake_r]
                     if self._control is not None:
                         rlist.append(self._control.fileno())
                     rlist.extend(self._clients)
@@ -213,12 +234,13 @@ class SimServer:
                     for r in ready:
                         if r in readers:
                             readers[r]()
-                    if fd in ready:
-                        # Drain every frame that is waiting before anything else.
-                        frame = self.link.recv(0)
-                        while frame is not None:
-                            self._serve_frames(frame)
-                            frame = self.link.recv(0)
+                    for port, (fd, link) in enumerate(zip(fds, links, strict=True)):
+                        if fd in ready:
+                            # Drain every frame that is waiting before anything else.
+                            frame = link.recv(0)
+                            while frame is not None:
+                                self._serve_frames(frame, port)
+                                frame = link.recv(0)
                     if self._wake_r in ready:
                         with contextlib.suppress(OSError):
                             os.read(self._wake_r, 4096)
@@ -240,7 +262,7 @@ class SimServer:
             return {}
         return {fd: cb for server in self._eoe for fd, cb in server.readers()}
 
-    def _serve_frames(self, frame: bytes | None) -> None:
+    def _serve_frames(self, frame: bytes | None, port: int = 0) -> None:
         if frame is None:
             return
         if not is_ethercat(frame):
@@ -248,8 +270,15 @@ class SimServer:
             return
         self.stats.frames += 1
         t0 = time.perf_counter()
+        out = self.link
         try:
-            reply = self.segment.process(frame)
+            if self.link_b is None:
+                reply = self.segment.process(frame)
+            else:
+                got = self.segment.process_from(frame, port)
+                reply = None if got is None else got[1]
+                if got is not None:
+                    out = self._links[got[0]]
         except EtherCATError as exc:
             # A malformed frame dies in the first slave, as on a real wire.
             self.stats.errors += 1
@@ -263,7 +292,7 @@ class SimServer:
             self.stats.lost += 1
             return
         try:
-            self.link.send(reply)
+            out.send(reply)
         except LinkClosedError:
             raise
         except LinkError as exc:
@@ -360,6 +389,25 @@ class SimServer:
                 self._slave(request), int(request["port"]), int(request.get("count", 1))
             )
             return {}
+        if cmd == "crc_rate":
+            seed = request.get("seed")
+            seg.crc_error_rate(self._slave(request), int(request["port"]), float(request["rate"]),
+                               None if seed is None else int(seed))
+            return {}
+        if cmd == "port_fault":
+            seg.master_port_fault(_master_port(request["port"]), bool(request.get("broken", True)))
+            return {}
+        if cmd == "remove":
+            seg.remove_slave(self._slave(request))
+            return {}
+        if cmd == "insert":
+            index = self._slave(request)
+            device = request.get("device")
+            seg.insert_slave(index, None if device is None else _device_spec(
+                str(device), str(request.get("name", seg.slaves[index].name))))
+            return {}
+        if cmd == "ring":
+            return {"ring": None if seg.ring is None else list(seg.ring)}
         if cmd == "drop":
             seed = request.get("seed")
             seg.drop_probability(float(request["probability"]), None if seed is None else int(seed))
@@ -408,6 +456,23 @@ class SimServer:
         for fd in (self._wake_r, self._wake_w):
             with contextlib.suppress(OSError):
                 os.close(fd)
+
+
+def _master_port(value: Any) -> int:
+    """Master port A/B (or 0/1) of a control command."""
+    text = str(value).strip().upper()
+    if text in ("A", "0"):
+        return 0
+    if text in ("B", "1"):
+        return 1
+    raise ValueError(f"master port {value!r}: use A or B")
+
+
+def _device_spec(device: str, name: str) -> Any:
+    """A slave spec for a device named as in a topology file (``builtin:KEY``)."""
+    from pyethercat.sim.topology import device_spec
+
+    return device_spec(device, name)
 
 
 def _pdi(slave: Any) -> Any:
@@ -459,8 +524,11 @@ def serve(
     log: Callable[[str], None] | None = None,
     install_signals: bool = True,
     realtime: int = 0,
+    link_b: Link | None = None,
 ) -> ServerStats:
     """Load ``topology``, serve it on ``link`` with a wall clock until SIGINT/SIGTERM.
+
+    ``link_b``: master port B of a ring (see :class:`SimServer`).
 
     ``realtime`` > 0 serves under SCHED_FIFO with that priority where the
     process may (see :func:`set_realtime`); otherwise it is logged and ignored.
@@ -470,7 +538,7 @@ def serve(
 
     segment = load_topology(os.fspath(topology)).build(clock=WallClock())
     try:
-        server = SimServer(segment, link, control=control, log=log)
+        server = SimServer(segment, link, control=control, log=log, link_b=link_b)
     except BaseException:
         close_eoe(segment)
         raise
@@ -492,10 +560,11 @@ def serve(
             previous[int(sig)] = signal.signal(sig, on_signal)
     try:
         if log is not None:
-            log(
-                f"serving {len(segment.slaves)} simulated slaves from {topology} "
-                f"on {link.name}"
-            )
+            ring = segment.ring or (0, 0)
+            where = link.name if link_b is None else (
+                f"{link.name} (port A) and {link_b.name} (port B, ring at slave "
+                f"{ring[0]} port {ring[1]})")
+            log(f"serving {len(segment.slaves)} simulated slaves from {topology} on {where}")
             for line in eoe_lines(segment):
                 log(line)
         server.run()
@@ -643,6 +712,8 @@ def start_sim_process(
     pcap: str | os.PathLike[str] | None = None,
     ready_timeout: float = 20.0,
     realtime: int = 0,
+    ring: bool = False,
+    link_b: str | None = None,
 ) -> SimProcess:
     """Run ``pyethercat sim TOPOLOGY`` in a child process and wait until it serves.
 
@@ -650,6 +721,9 @@ def start_sim_process(
     end), ``"iface:NAME"`` (raw interface) or ``"udp:HOST:PORT"``. ``realtime``
     > 0 asks the child to serve under SCHED_FIFO with that priority (``--realtime``;
     needs root or CAP_SYS_NICE, else the child serves at normal priority).
+    A ring: ``link_b`` (``"iface:NAME"``, ``"udp:HOST:PORT"``) is master port B;
+    with ``link="unix"`` and ``ring`` two socketpairs are made and the
+    handle's ``link`` is a :class:`~pyethercat.link.redundant.RedundantLink`.
     """
     tmpdir = tempfile.TemporaryDirectory(prefix="pyecat-sim-")
     control_path = str(Path(tmpdir.name) / "control.sock")
@@ -660,14 +734,23 @@ def start_sim_process(
         args += ["--realtime", str(int(realtime))]
     pass_fds: tuple[int, ...] = ()
     master_end: Link | None = None
-    child_fd: int | None = None
+    child_fds: list[int] = []
     if link == "unix":
         from pyethercat.link.unix import UnixLink
 
-        master_end, child = UnixLink.pair("sim-master", "sim-child", inheritable=True)
-        child_fd = child.detach()
-        args += ["--fd", str(child_fd)]
-        pass_fds = (child_fd,)
+        ends: list[Link] = []
+        for port in ("A", "B") if ring else ("A",):
+            mine, child = UnixLink.pair(f"sim-master-{port}", f"sim-child-{port}", inheritable=True)
+            ends.append(mine)
+            child_fds.append(child.detach())
+            args += ["--fd", str(child_fds[-1])]
+        pass_fds = tuple(child_fds)
+        if ring:
+            from pyethercat.link.redundant import RedundantLink
+
+            master_end = RedundantLink(ends[0], ends[1], name="sim-master")
+        else:
+            master_end = ends[0]
     elif link.startswith("iface:"):
         args += ["--iface", link.removeprefix("iface:")]
     elif link.startswith("udp:"):
@@ -675,6 +758,15 @@ def start_sim_process(
     else:
         tmpdir.cleanup()
         raise ConfigError(f"link spec {link!r}: use 'unix', 'iface:NAME' or 'udp:HOST:PORT'")
+    if link_b is not None:
+        if link_b.startswith("iface:"):
+            args += ["--redundant-iface", link_b.removeprefix("iface:")]
+        elif link_b.startswith("udp:") and link.startswith("udp:"):
+            args += ["--udp", link_b.removeprefix("udp:")]
+        else:
+            tmpdir.cleanup()
+            raise ConfigError(f"link spec {link_b!r} for port B: use 'iface:NAME' (with an "
+                              f"iface port A) or 'udp:HOST:PORT' (with a udp port A)")
     # stderr goes to a file: a pipe nobody reads could fill up and stall the child.
     log_path = Path(tmpdir.name) / "stderr.log"
     try:
@@ -683,8 +775,8 @@ def start_sim_process(
                 args, pass_fds=pass_fds, stdout=subprocess.DEVNULL, stderr=log
             )
     finally:
-        if child_fd is not None:
-            os.close(child_fd)
+        for fd in child_fds:
+            os.close(fd)
     handle = SimProcess(process, control_path, link=master_end, _tmpdir=tmpdir)
     try:
         handle.wait_ready(ready_timeout)

@@ -128,6 +128,8 @@ class Topology:
     seed: int | None = None
     drift_ppm: float = DEFAULT_DRIFT_PPM
     drift_seed: int = 0
+    #: Cable redundancy: master port B cabled to the last slave (True) or to (slave, port).
+    ring: bool | tuple[str, int] = False
 
     def index(self, name: str) -> int:
         """Position of slave ``name`` (0 = first slave)."""
@@ -162,7 +164,8 @@ def parse_topology(
     """Parse topology TOML text (or an already-parsed dict) and resolve its slaves."""
     doc = parse_topology_text(text, source)
     topo = Topology(source=source, drop_probability=doc.drop_probability, seed=doc.seed,
-                    drift_ppm=doc.drift_ppm, drift_seed=doc.drift_seed)
+                    drift_ppm=doc.drift_ppm, drift_seed=doc.drift_seed,
+                    ring=doc.ring)
     base = Path(base_dir)
     for entry in doc.slaves:
         topo.slaves.append(_resolve_slave(entry, topo, base))
@@ -441,6 +444,18 @@ def build_segment(topo: Topology, clock: TimeSource | None = None) -> Segment:
         except ConfigError as exc:
             raise ConfigError(f"{where}: {exc}") from None
         index[s.name] = idx
+    if topo.ring:
+        where = f"{topo.source}: [segment] ring"
+        try:
+            if not isinstance(topo.ring, tuple):
+                seg.close_ring()
+            else:
+                name, port = topo.ring
+                if name not in index:
+                    raise ConfigError(f"no slave named {name!r}")
+                seg.close_ring(index[name], port)
+        except ConfigError as exc:
+            raise ConfigError(f"{where}: {exc}") from None
     for w in topo.wires:
         seg.wire(index[w.src], w.src_bit, index[w.dst], w.dst_bit, w.bits)
     if topo.drop_probability:
@@ -485,6 +500,14 @@ def close_eoe(segment: Segment) -> None:
         server = slave.spec.app.eoe_server if slave.spec.app is not None else None
         if server is not None:
             server.close()
+
+
+def device_spec(device: str, name: str, base_dir: str | Path = ".") -> Any:
+    """The slave spec of one device as a topology entry names it (``builtin:di8``,
+    ``sii = PATH`` is not meant here), for plugging into a running segment."""
+    topo = parse_topology({"slave": [{"name": name, "device": device}]}, base_dir,
+                          source=f"device {device!r}")
+    return build_segment(topo).slaves[0].spec
 
 
 def default_profile(builtin: BuiltinDevice | None, info: SiiInfo) -> str:

@@ -1,0 +1,329 @@
+"""Cable redundancy in the PDU core: where a frame goes, and how its two copies become one.
+
+A ring: the master's port A feeds the first slave, port B the last slave's
+free port. This module is pure (bytes and port numbers in, decisions out);
+:class:`~pyethercat.master.pdu.PduCore` asks it, the scheduler does the I/O
+on :class:`~pyethercat.link.redundant.RedundantLink`.
+
+Routing (the rules of a ring master with ports A and B, as in SOEM's
+``ecx_outframe_red``/``ecx_waitinframe_red`` and KickCAT's ``Link``):
+
+- most frames go out on both ports at once ("both"). Every slave processes
+  exactly one copy: in an intact ring the copy sent on A passes every
+  processing unit and comes back on B, the copy sent on B travels backwards
+  through ports that only forward and comes back on A untouched; with a
+  broken cable or a dead node each copy is processed by the slaves on its
+  side of the break and loops back to its own port; with port A or B dead
+  the other copy goes round the whole ring and loops back at the far end.
+  The copies are merged (:func:`merge_copies`), so nothing above sees two;
+- frames whose effect depends on the order the slaves see them in
+  (auto-increment addressing counts slaves from the first one that
+  processes the copy; ARMW/FRMW carry the first reader's value to the
+  writers behind it; cross traffic in the logical image) go out on one port
+  only ("chain"): on A, and when they come back on A (the ring is broken)
+  the returned frame is sent on through B, so the slaves behind the break
+  process it next, in bus order; when port A is dead it goes out on B and
+  comes back on B having passed every slave. This is SOEM's resend through
+  the secondary port.
+
+Merging, per datagram: the data is the sent data with every bit changed by
+either copy (``S ^ ((A ^ S) | (B ^ S))``): a read ORs (a BRD's OR survives,
+an FPRD answered on one side comes from that side), a logical read-write
+takes each half's inputs from the copy whose slaves wrote them (outputs are
+unchanged in both), writes are echoes; working counters are added, IRQ
+fields ORed, and the ADP of auto-increment and broadcast datagrams grows by
+both copies' increments. This is exact whenever every slave processed one
+copy, which the ring guarantees for all but order-dependent datagrams (sent
+"chain").
+
+Which ports work ("returning") is learnt from the copies: a port that
+delivered no copy of a frame by its deadline stops being waited for, and
+any frame that arrives on a port brings it back; a port whose link says it
+has no carrier is not waited for either. A copy that went through no slave
+(working counters all 0) while only one copy was awaited makes the core
+wait for the other port too: the ring may have closed again.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+from pyethercat.errors import FrameError
+from pyethercat.wire.datagram import HEADER_SIZE, LEN_MASK, MORE_BIT, WKC_SIZE, Command
+from pyethercat.wire.frame import ECAT_HEADER_SIZE, NotEtherCATError, decode_frame, ecat_offset
+
+if TYPE_CHECKING:
+    from pyethercat.master.pdu import CyclicFrame, Request
+
+__all__ = [
+    "PORT_A",
+    "PORT_B",
+    "PORT_NAMES",
+    "CopySet",
+    "Redundancy",
+    "copy_wkcs",
+    "hand_copies",
+    "merge_copies",
+    "order_dependent",
+]
+
+PORT_A = 0
+PORT_B = 1
+PORT_NAMES = ("A", "B")
+
+#: Commands whose result depends on which slaves processed the frame before.
+_ORDERED = frozenset({int(Command.APRD), int(Command.APWR), int(Command.APRW), int(Command.ARMW),
+                      int(Command.FRMW)})
+#: Commands whose ADP every processing slave increments.
+_ADP_GROWS = frozenset({int(Command.APRD), int(Command.APWR), int(Command.APRW),
+                        int(Command.ARMW), int(Command.BRD), int(Command.BWR), int(Command.BRW)})
+_HEAD = struct.Struct("<BBHHHH")  # cmd, idx, adp, ado, length word, irq
+_U16 = struct.Struct("<H")
+
+
+def _datagram_offsets(frame: bytes | bytearray) -> list[tuple[int, int, int]]:
+    """(header offset, command, data length) of every datagram; [] when malformed."""
+    start = ecat_offset(frame)
+    if start is None:
+        return []
+    end = start + ECAT_HEADER_SIZE + (_U16.unpack_from(frame, start)[0] & LEN_MASK)
+    if end > len(frame):
+        return []
+    out: list[tuple[int, int, int]] = []
+    at = start + ECAT_HEADER_SIZE
+    while at + HEADER_SIZE + WKC_SIZE <= end:
+        cmd = frame[at]
+        word = frame[at + 6] | (frame[at + 7] << 8)
+        n = word & LEN_MASK
+        if at + HEADER_SIZE + n + WKC_SIZE > end:
+            return []
+        out.append((at, cmd, n))
+        at += HEADER_SIZE + n + WKC_SIZE
+        if not word & MORE_BIT:
+            break
+    return out
+
+
+def order_dependent(frame: bytes | bytearray) -> bool:
+    """Whether a frame carries a datagram that must pass the slaves in bus order (sent "chain")."""
+    return any(cmd in _ORDERED for _, cmd, _ in _datagram_offsets(frame))
+
+
+def copy_wkcs(frame: bytes | bytearray) -> list[int]:
+    """The working counter of every datagram of a frame, in order."""
+    return [_U16.unpack_from(frame, at + HEADER_SIZE + n)[0]
+            for at, _, n in _datagram_offsets(frame)]
+
+
+def merge_copies(sent: bytes | bytearray, copies: Sequence[bytes | bytearray]) -> bytes | None:
+    """One reply from the copies of a frame (see the module text); None if they do not fit.
+
+    ``sent`` is the frame as sent; every copy must have its length.
+    """
+    if not copies:
+        return None
+    if len(copies) == 1:
+        return bytes(copies[0])
+    size = len(sent)
+    if any(len(c) != size for c in copies):
+        return None
+    s = int.from_bytes(sent, "little")
+    changed = 0
+    for c in copies:
+        changed |= int.from_bytes(c, "little") ^ s
+    out = bytearray((s ^ changed).to_bytes(size, "little"))
+    first = copies[0]
+    start = ecat_offset(sent)
+    if start is None:
+        return None
+    out[:start + ECAT_HEADER_SIZE] = first[:start + ECAT_HEADER_SIZE]
+    for at, cmd, n in _datagram_offsets(sent):
+        s_cmd, s_idx, s_adp, s_ado, s_word, s_irq = _HEAD.unpack_from(sent, at)
+        heads = [_HEAD.unpack_from(c, at) for c in copies]
+        adp = s_adp
+        if cmd in _ADP_GROWS:
+            adp = (s_adp + sum(h[2] - s_adp for h in heads)) & 0xFFFF
+        irq = s_irq
+        for h in heads:
+            irq |= h[5]
+        _HEAD.pack_into(out, at, s_cmd, s_idx, adp, s_ado, s_word, irq)
+        w = at + HEADER_SIZE + n
+        _U16.pack_into(out, w, sum(_U16.unpack_from(c, w)[0] for c in copies) & 0xFFFF)
+    return bytes(out)
+
+
+def _worked(frame: bytes | bytearray) -> bool:
+    """Whether any slave processed a datagram of this copy."""
+    return any(copy_wkcs(frame))
+
+
+@dataclass(slots=True)
+class CopySet:
+    """The copies of one frame in flight (see :class:`Redundancy`)."""
+
+    #: Sent on one port and passed on through the other when it comes back ("chain").
+    chain: bool
+    #: The port a chain frame was sent on.
+    tx: int = PORT_A
+    #: Ports whose copy completes a "both" frame; ``need0``: as planned at sending.
+    need: set[int] = field(default_factory=set)
+    need0: frozenset[int] = frozenset()
+    #: Copies received, by the port they came in on.
+    got: dict[int, bytes] = field(default_factory=dict)
+    #: A chain frame was sent on through the other port; ``held`` is what came back first.
+    forwarded: bool = False
+    held: bytes | None = None
+
+
+@dataclass(slots=True)
+class PortCounters:
+    """What went through one master port."""
+
+    sent: int = 0
+    received: int = 0
+    #: Frames passed on through this port after coming back on the other (chain).
+    forwarded: int = 0
+    #: Frames whose copy on this port did not come back by the deadline.
+    missing: int = 0
+    refused: int = 0
+
+
+class Redundancy:
+    """Port state and the routing decisions of a ring master (see the module text).
+
+    ``carrier[p]`` is what the link says (None: it cannot tell);
+    ``returning`` the ports that delivered frames lately.
+    """
+
+    def __init__(self, ports: int = 2) -> None:
+        self.ports = ports
+        self.carrier: list[bool | None] = [None] * ports
+        self.returning: set[int] = set(range(ports))
+        self.counters = [PortCounters() for _ in range(ports)]
+        #: Frames whose copies were merged, completed with fewer copies than
+        #: awaited (at their deadline), and chain frames passed on.
+        self.merged = 0
+        self.partial = 0
+        self.forwards = 0
+
+    def _alive(self) -> list[int]:
+        return [p for p in range(self.ports) if self.carrier[p] is not False]
+
+    def usable(self) -> list[int]:
+        """Ports to count on now: with carrier (or unknown) and returning frames, A first."""
+        alive = self._alive()
+        ok = [p for p in alive if p in self.returning]
+        return ok or alive or list(range(self.ports))
+
+    def state(self) -> str:
+        """'redundant' (both ports work), 'port A only', 'port B only' or 'no port'."""
+        ok = [p for p in self._alive() if p in self.returning]
+        if len(ok) == self.ports:
+            return "redundant"
+        if not ok:
+            return "no port"
+        return f"port {PORT_NAMES[ok[0]]} only"
+
+    # -- sending ----------------------------------------------------------------------
+
+    def plan(self, frame: bytes | bytearray, ordered: bool = False) -> tuple[CopySet, list[int]]:
+        """How to send ``frame``: its copy set and the ports to send it on now."""
+        usable = self.usable()
+        if ordered or order_dependent(frame):
+            tx = usable[0]
+            self.counters[tx].sent += 1
+            return CopySet(True, tx), [tx]
+        need = set(usable)
+        # Probe the silent ports too: a copy coming back there brings them back.
+        ports = self._alive() or list(range(self.ports))
+        for p in ports:
+            self.counters[p].sent += 1
+        return CopySet(False, need=need, need0=frozenset(need)), ports
+
+    def refused(self, copies: CopySet, port: int) -> None:
+        """The link refused to send on ``port`` (no carrier, interface down)."""
+        self.counters[port].refused += 1
+        self.carrier[port] = False
+        copies.need.discard(port)
+
+    # -- receiving ----------------------------------------------------------------------
+
+    def seen(self, port: int) -> None:
+        """A frame came in on ``port`` (any frame: the port works)."""
+        self.counters[port].received += 1
+        self.returning.add(port)
+
+    def arrived(self, copies: CopySet, port: int, raw: bytes,
+                sent: bytes) -> tuple[str, bytes | None, int]:
+        """A copy came in on ``port``: ('done', reply, -1), ('forward', frame, port) or ('wait', None, -1)."""
+        self.returning.add(port)
+        if copies.chain:
+            if not copies.forwarded:
+                other = PORT_B if port == PORT_A else PORT_A
+                passed_on = (port == copies.tx and self.carrier[other] is not False
+                             and other in self.returning)
+                # Sent on B and back on A: it went round backwards, untouched, so A works.
+                went_round_backwards = port != copies.tx and copies.tx == PORT_B
+                if passed_on or went_round_backwards:
+                    copies.forwarded = True
+                    copies.held = raw if passed_on else None
+                    self.forwards += 1
+                    target = other if passed_on else PORT_A
+                    self.counters[target].forwarded += 1
+                    return "forward", raw, target
+            return "done", raw, -1
+        copies.got.setdefault(port, raw)
+        if len(copies.need) == 1 and len(copies.got) == 1 and not _worked(raw):
+            # The only copy awaited went through no slave: the ring may be closed
+            # again, so the processed copy comes on the other port.
+            copies.need.update(self._alive())
+        if copies.need <= copies.got.keys():
+            return "done", self._merge(sent, copies), -1
+        return "wait", None, -1
+
+    def expired(self, copies: CopySet, sent: bytes) -> bytes | None:
+        """The frame's deadline passed: the reply to hand out, or None (lost)."""
+        for p in (copies.need if not copies.chain else ()):
+            if p not in copies.got:
+                self.counters[p].missing += 1
+                self.returning.discard(p)
+        if copies.chain:
+            if copies.forwarded:
+                target = PORT_B if copies.tx == PORT_A else PORT_A
+                self.counters[target].missing += 1
+                self.returning.discard(target)
+            return copies.held
+        if not copies.got:
+            return None
+        if not copies.need0 <= copies.got.keys() and not any(map(_worked, copies.got.values())):
+            return None  # the copies that came went through no slave: nothing learnt
+        self.partial += 1
+        return self._merge(sent, copies)
+
+    def _merge(self, sent: bytes, copies: CopySet) -> bytes | None:
+        got = list(copies.got.values())
+        if len(got) > 1:
+            self.merged += 1
+        return merge_copies(sent, got)
+
+
+def hand_copies(copies: CopySet, ticket: CyclicFrame | None, requests: Sequence[Request]) -> None:
+    """Give a completed ring frame's ticket and requests its copies by port (for diagnostics)."""
+    got = dict(copies.got)
+    if ticket is not None:
+        ticket.copies = got
+    if not requests:
+        return
+    ncyc = ticket.count if ticket is not None else 0
+    for port, c in got.items():
+        try:
+            dgs = decode_frame(c).datagrams[ncyc:]
+        except (FrameError, NotEtherCATError):
+            continue
+        for r, d in zip(requests, dgs, strict=False):
+            if r.copies is None:
+                r.copies = {}
+            r.copies[port] = d
