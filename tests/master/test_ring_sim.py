@@ -69,7 +69,7 @@ def test_scan_without_the_failed_node_keeps_bus_order() -> None:
 def start(seg, m):
     m.scan()
     cfg = m.configure()
-    m._bring_up(m.slaves, 2.0)
+    m.pd.bring_up(m.slaves, 2.0)
     r = CyclicRunner(m.scheduler, cfg, m.images, m.slaves, clock=VirtualClock(), check_interval=0)
     r.run(cycles=2)
     m.set_state("OP")
