@@ -176,3 +176,24 @@ def test_alternating_ports_keep_separate_compiled_state() -> None:
     send(seg, PORT_B, brd())
     _, (d,) = send(seg, PORT_A, Datagram.device(Command.FPRD, 0x2000, R.TYPE, 1))
     assert d.wkc == 1
+
+
+def test_topology_ring_key_closes_the_ring_where_it_says() -> None:
+    from pyethercat.sim.topology import parse_topology
+
+    text = '''
+[segment]
+ring = "%s"
+[[slave]]
+name = "a"
+device = "builtin:coupler"
+[[slave]]
+name = "b"
+device = "builtin:di8"
+'''
+    assert parse_topology(text % "b:1").build().ring == (1, 1)
+    assert parse_topology(text.replace('"%s"', "true")).build().ring == (1, 1)
+    with pytest.raises(ConfigError, match="no slave named 'x'"):
+        parse_topology(text % "x:1")
+    with pytest.raises(ConfigError, match="port"):
+        parse_topology(text % "b:7")

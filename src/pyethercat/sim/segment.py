@@ -387,7 +387,7 @@ class Segment(RingMixin):
                 "last_sync0": None if pulse is None else [pulse[0], pulse[1]],
             })
         return out
-    def replace_slave(self, index: int, spec: SlaveSpec) -> None:
+    def replace_slave(self, index: int, spec: SimSlaveSpec) -> None:
         """Another device (``spec``) in the place of slave ``index``, switched off.
 
         Its cables stay where they were (ports the new chip lacks have no
