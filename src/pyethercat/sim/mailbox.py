@@ -45,7 +45,7 @@ from typing import Protocol
 from pyethercat.errors import MailboxError, MailboxErrorReply
 from pyethercat.sim.device import DeviceApp, Pdi
 from pyethercat.wire import registers as R
-from pyethercat.wire.al import AlState
+from pyethercat.wire.al import AlState, AlStatusCode
 from pyethercat.wire.mailbox.header import (
     MAILBOX_HEADER_SIZE,
     MailboxErrorCode,
@@ -57,6 +57,7 @@ from pyethercat.wire.mailbox.header import (
     mailbox_error_name,
     next_counter,
 )
+from pyethercat.wire.mailbox.objects import StandardObject, SyncMode, SyncSub
 
 __all__ = ["MailboxDevice", "MailboxEngine", "MailboxHandler", "ProcessDataLayout", "ProtocolServer",
            "service_error"]
@@ -260,6 +261,32 @@ class MailboxDevice(DeviceApp):
 
     def process_data_sizes(self) -> tuple[int, int] | None:
         return self.layout.sizes() if self.layout is not None else None
+
+    def check_transition(self, current: AlState, requested: AlState) -> int:
+        """PREOP -> SAFEOP of a CoE device set to a DC sync mode needs its SYNC0.
+
+        0x1C32 sub 1 = 2 or 3 (DC SYNC0/SYNC1) with the cyclic unit not
+        running SYNC0 (0x0981) is "invalid DC SYNC configuration" (0x0030, as
+        drives answer a master that did not start DC); a SYNC0 cycle below
+        0x1C32 sub 5 (minimum cycle time) is 0x0036.
+        """
+        if not (current == AlState.PREOP and requested == AlState.SAFEOP) or self.pdi is None:
+            return 0
+        coe = self.protocols.get(int(MailboxType.COE))
+        od = getattr(coe, "od", None)
+        if od is None or od.find(StandardObject.SM_OUTPUT_SYNC) is None:
+            return 0
+        mode = int(od.value(StandardObject.SM_OUTPUT_SYNC, SyncSub.SYNC_MODE))
+        if mode not in (SyncMode.DC_SYNC0, SyncMode.DC_SYNC1):
+            return 0
+        act = self.pdi.read(R.DC_ACTIVATION, 1)[0]
+        if not (act & R.DcActivation.CYCLIC and act & R.DcActivation.SYNC0):
+            return int(AlStatusCode.INVALID_DC_SYNC_CONFIG)
+        cycle = int.from_bytes(self.pdi.read(R.DC_SYNC0_CYCLE, 4), "little")
+        minimum = int(od.value(StandardObject.SM_OUTPUT_SYNC, SyncSub.MIN_CYCLE_TIME))
+        if cycle and cycle < minimum:
+            return int(AlStatusCode.DC_INVALID_SYNC0_CYCLE_TIME)
+        return 0
 
     def on_mailbox(self, data: bytes) -> None:
         self.mailbox.receive(data)

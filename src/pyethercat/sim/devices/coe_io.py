@@ -215,6 +215,7 @@ COE_IO = BuiltinDevice(
     coe_details=_COE_ALL,
     mailbox_protocols=int(MailboxProtocol.COE),
     model=CoeIoModel,
+    dc_modes=True,  # 0x1C32 offers DC SYNC0
 )
 
 
