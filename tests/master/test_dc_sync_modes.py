@@ -8,6 +8,7 @@ SAFEOP without SYNC0 with its AL status code.
 from __future__ import annotations
 
 import struct
+
 import pytest
 
 from pyethercat.clock import VirtualClock
