@@ -76,7 +76,11 @@ class Bus:
 
 def test_setup_on_the_corpus_slaves() -> None:
     bus = Bus()
-    report = run_dc_setup(bus, SLAVES, DcSettings(static_sync=1000), master_time=lambda: 0)
+    waits: list[float] = []
+    report = run_dc_setup(bus, SLAVES, DcSettings(static_sync=1000), master_time=lambda: 0,
+                          sleep=waits.append)
+    # the compensation's requests (2 frames each) are spaced by 2 ms of master time
+    assert waits == [0.002] * 6
     first = bus.sent[0]
     assert len(first) == 1 and (first[0].command, first[0].ado, len(first[0].data)) == (
         Command.BWR, R.DC_RECEIVE_TIME_PORT0, 4)

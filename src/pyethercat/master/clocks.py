@@ -109,10 +109,12 @@ class DistributedClocks:
     """
 
     def __init__(self, transact: Transact, slaves: Callable[[], list[Slave]], *,
-                 master_time: Callable[[], int] = ecat_time_ns) -> None:
+                 master_time: Callable[[], int] = ecat_time_ns,
+                 sleep: Callable[[float], None] | None = None) -> None:
         self._transact = transact
         self._slaves = slaves
         self.master_time = master_time
+        self._sleep = sleep
         #: Result of the last :meth:`setup` (None before).
         self.report: DcReport | None = None
         #: SYNC settings per slave position, applied before SAFE-OP.
@@ -126,8 +128,9 @@ class DistributedClocks:
         slaves = self._slaves()
         if not slaves:
             raise ConfigError("no slaves: scan first")
+        kw = {} if self._sleep is None else {"sleep": self._sleep}
         self.report = run_dc_setup(self._transact, [dc_slave_info(s) for s in slaves], settings,
-                                   master_time=self.master_time, progress=progress)
+                                   master_time=self.master_time, progress=progress, **kw)
         return self.report
 
     def _need_report(self) -> DcReport:

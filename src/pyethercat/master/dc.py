@@ -117,6 +117,11 @@ class DcSettings:
     reference: int | None = None
     static_sync: int = DEFAULT_STATIC_SYNC
     max_difference_ns: int = MAX_SYNC_DIFF_NS
+    #: Time between two requests of the compensation (2 frames each): 203 frames
+    #: then take about 0.2 s, long enough for the slaves' loops to learn their
+    #: clock's rate (in 30 ms of back-to-back frames they learn a fraction of it).
+    #: 0: as fast as the link goes.
+    static_spacing_ns: int = 2_000_000
     #: Read every following slave's 0x092C after each this many FRMW of the
     #: compensation (0: not at all); kept in ``DcReport.trace`` for plots.
     trace_every: int = 0
@@ -211,6 +216,8 @@ class DcRequest:
     datagrams: list[Datagram]
     done: int = 0
     total: int = 0
+    #: Wait this long (ns of master time) before sending.
+    wait_ns: int = 0
 
 
 class DcSetup:
@@ -288,10 +295,11 @@ class DcSetup:
             ref = self.results[self._ref()].station_address
             dgs = [Datagram.device(Command.FRMW, ref, R.DC_SYSTEM_TIME, bytes(self._frmw_size))
                    for _ in range(n)]
+            wait = self.settings.static_spacing_ns if self._static_frames else 0
             self._static_frames += -(-n // per_frame)
             self._pending = stage
             total = self.settings.static_sync
-            return DcRequest(stage.value, dgs, total - self._static_left, total)
+            return DcRequest(stage.value, dgs, total - self._static_left, total, wait)
         else:  # CHECK
             dgs = self._difference_reads()
         self._pending = stage
@@ -446,14 +454,22 @@ Progress = Callable[[str, int, int], None]
 def run_dc_setup(transact: Transact, slaves: Sequence[DcSlaveInfo],
                  settings: DcSettings | None = None, *,
                  master_time: Callable[[], int] = ecat_time_ns,
-                 progress: Progress | None = None) -> DcReport:
-    """Drive :class:`DcSetup` with a datagram transport (e.g. ``scheduler.transact``)."""
+                 progress: Progress | None = None,
+                 sleep: Callable[[float], None] = time.sleep) -> DcReport:
+    """Drive :class:`DcSetup` with a datagram transport (e.g. ``scheduler.transact``).
+
+    ``sleep(seconds)`` waits where a request asks for it (the master passes
+    its scheduler's, which moves a virtual clock instead)."""
     setup = DcSetup(slaves, settings)
-    while (req := setup.next_request(master_time())) is not None:
+    while True:
+        req = setup.next_request(master_time())
+        if req is None:
+            return setup.report
+        if req.wait_ns > 0:
+            sleep(req.wait_ns / 1e9)
         if progress is not None:
             progress(req.stage, req.done, req.total)
         setup.receive(transact(req.datagrams))
-    return setup.report
 
 
 # --- SYNC0 / SYNC1 ---------------------------------------------------------------------

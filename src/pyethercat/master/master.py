@@ -125,7 +125,8 @@ class Master:
         self.mailboxes = MailboxService(self.scheduler, runner=lambda: self.pd.runner,
                                         timeout=mailbox_timeout)
         #: Distributed clocks: set-up, SYNC pulses, the cyclic plan (:class:`DistributedClocks`).
-        self.dc = DistributedClocks(self.scheduler.transact, lambda: self.slaves)
+        self.dc = DistributedClocks(self.scheduler.transact, lambda: self.slaves,
+                                    sleep=self._sleep)
         self.coe_setup = CoeSetup(self.mailboxes,
                                   bring_to_preop=self._to_preop,
                                   mapping_changed=lambda: self.pd.invalidate())

@@ -1,9 +1,10 @@
 """Distributed clocks of a simulated segment: oscillators, latches, the time-control loop, SYNC.
 
 Every slave with a DC unit has a local clock driven by its own oscillator:
-``local(t) = local0 + (t - t0) * rate * (1 + trim)``, where ``rate`` is
-``1 + drift_ppm * 1e-6`` (the quartz) and ``trim`` the speed correction of
-the time-control loop; registers read it in 10 ns ticks. All slaves' clock
+``local(t) = local0 + (t - t0) * rate * (1 + correction)``, where ``rate``
+is ``1 + drift_ppm * 1e-6`` (the quartz) and ``correction`` the speed
+correction of the time-control loop: a learned part that stays, plus a phase
+part for a while after each update; registers read it in 10 ns ticks. All slaves' clock
 state lives in arrays indexed by slave, so the DC work of a frame is a fixed
 number of array operations whatever the slave count. The registers follow
 the ESC datasheet section I, "Distributed Clocks" (the master's side: SOEM
@@ -107,11 +108,13 @@ class DcClocks:
         self.escs = escs
         self._route = route
         self.n = 0
-        # clock: local(t) = local0 + (t - t0) * rate * (1 + trim)
+        # clock: local(t) = local0 + rate * ((t - t0) * (1 + learned)
+        #                                  + min(t - t0, until) * (trim - learned))
         self.t0: I64 = np.zeros(0, np.int64)
         self.local0: F64 = np.zeros(0, np.float64)
         self.rate: F64 = np.zeros(0, np.float64)
-        self.trim: F64 = np.zeros(0, np.float64)
+        self.trim: F64 = np.zeros(0, np.float64)       # speed correction until ``until``
+        self.until: F64 = np.zeros(0, np.float64)      # ns after t0 the phase part ends
         self.wide = np.zeros(0, bool)           # 64-bit system time
         # time-control loop
         self.filtered: F64 = np.zeros(0, np.float64)   # 0x092C before encoding
@@ -144,7 +147,7 @@ class DcClocks:
 
     def add_slave(self, index: int, now: int, drift_ppm: float) -> None:
         n = index + 1
-        for name, fill in (("t0", 0), ("local0", 0.0), ("rate", 1.0), ("trim", 0.0),
+        for name, fill in (("t0", 0), ("local0", 0.0), ("rate", 1.0), ("trim", 0.0), ("until", 0.0),
                            ("wide", True), ("filtered", 0.0), ("learned", 0.0),
                            ("last_update", np.nan), ("period", 0.0), ("next0", 0), ("cycle0", 0), ("cycle1", 0),
                            ("sync0_on", False), ("sync1_on", False), ("pulses", 0),
@@ -171,6 +174,7 @@ class DcClocks:
         self.t0[index] = now
         self.local0[index] = 0.0
         self.trim[index] = self.learned[index] = self.filtered[index] = self.period[index] = 0.0
+        self.until[index] = 0.0
         self.last_update[index] = np.nan
         self.sync_drop(index)
 
@@ -189,12 +193,17 @@ class DcClocks:
     # --- clocks ----------------------------------------------------------------------
 
     def _exact(self, slaves: I64, t: I64 | int) -> F64:
+        """Local time (ns, not yet in ticks) of ``slaves`` at segment time ``t`` (any shapes)."""
         dt = np.asarray(t, np.int64) - self.t0[slaves]
-        return self.local0[slaves] + dt * (self.rate[slaves] * (1.0 + self.trim[slaves]))
+        window = np.clip(dt, 0, self.until[slaves])
+        out: F64 = self.local0[slaves] + self.rate[slaves] * (
+            dt * (1.0 + self.learned[slaves]) + window * (self.trim[slaves] - self.learned[slaves]))
+        return out
 
     def _reanchor(self, slaves: I64, t: I64 | int) -> None:
         """Make ``t`` the anchor of the clocks (before their speed changes)."""
         self.local0[slaves] = self._exact(slaves, t)
+        self.until[slaves] = np.maximum(self.until[slaves] - (np.asarray(t, np.int64) - self.t0[slaves]), 0)
         self.t0[slaves] = t
 
     def local_time(self, slaves: I64, t_ns: I64 | int) -> I64:
@@ -251,8 +260,7 @@ class DcClocks:
         mem = self.memory.mem
         arrive = route.arrive_ns[slaves]  # (k, 4)
         t = self.frame_t0 + np.maximum(arrive, 0)
-        exact = self.local0[slaves, None] + (t - self.t0[slaves, None]) * (
-            self.rate[slaves, None] * (1.0 + self.trim[slaves, None]))
+        exact = self._exact(slaves[:, None], t)
         local = (np.floor(exact / TICK_NS) * TICK_NS).astype(np.int64)
         cur = mem[slaves, R.DC_RECEIVE_TIME_PORT0: R.DC_RECEIVE_TIME_PORT0 + 16].copy().view("<u4")
         new = np.where(arrive >= 0, (local & 0xFFFFFFFF).astype("<u4"), cur)
@@ -290,6 +298,7 @@ class DcClocks:
             raw = mag | np.where(filt >= 0, np.uint32(0x80000000), np.uint32(0))
             _put(mem, slaves, R.DC_SYSTEM_TIME_DIFFERENCE, raw, "<u4")
             self.trim[slaves] = np.clip(self.learned[slaves] - filt / horizon_r, -bound_r, bound_r)
+            self.until[slaves] = horizon_r
             return
         t = self.pass_time(slaves)
         own = self.system_time(slaves, t)
@@ -322,7 +331,11 @@ class DcClocks:
         since = np.maximum(np.where(np.isnan(last), 0.0, exact - last), 0.0)
         # The time to the next update is guessed from the spacing of the updates;
         # writes bunched in one frame (static compensation) keep the last guess.
-        period = np.where(since > 0.1 * tau, since, self.period[slaves])
+        # A burst of frames (two close together, then a pause) is as far apart as
+        # its longest gap: the guess follows longer spacings at once and shorter
+        # ones slowly.
+        prev = self.period[slaves]
+        period = np.where(since > 0.1 * tau, np.maximum(since, 0.75 * prev), prev)
         since = np.minimum(since, 16 * tau)  # (a long pause teaches the speed no more)
         self.period[slaves] = period
         horizon = np.maximum(tau, period)
@@ -331,7 +344,9 @@ class DcClocks:
                           -bound, bound)
         self.learned[slaves] = learned
         self._reanchor(slaves, t)
+        # the phase part runs over the horizon; the learned part stays
         self.trim[slaves] = np.clip(learned + prop, -bound, bound)
+        self.until[slaves] = horizon
         self.last_update[slaves] = exact
         counts = np.clip(np.rint(learned / _TRIM_PER_COUNT), -0x7FFF, 0x7FFF)
         _put(mem, slaves, R.DC_SPEED_COUNTER_DIFF, counts, "<i2")
@@ -344,7 +359,7 @@ class DcClocks:
             return
         self._reanchor(slaves, self.pass_time(slaves))
         self.trim[slaves] = self.learned[slaves] = self.filtered[slaves] = 0.0
-        self.period[slaves] = 0.0
+        self.period[slaves] = self.until[slaves] = 0.0
         self.last_update[slaves] = np.nan
         mem = self.memory.mem
         mem[slaves, R.DC_SYSTEM_TIME_DIFFERENCE: R.DC_SYSTEM_TIME_DIFFERENCE + 4] = 0
@@ -401,8 +416,11 @@ class DcClocks:
             target = np.where(self.wide[slaves], target, base + d)
         # the register reaches the value at the tick where the local time gets there
         local = np.ceil(target / TICK_NS) * TICK_NS
-        speed = self.rate[slaves] * (1.0 + self.trim[slaves])
-        return self.t0[slaves] + (local - self.local0[slaves]) / speed
+        rate, until, t0 = self.rate[slaves], self.until[slaves], self.t0[slaves]
+        fast = rate * (1.0 + self.trim[slaves])
+        knee = self.local0[slaves] + until * fast
+        return np.where(local <= knee, t0 + (local - self.local0[slaves]) / fast,
+                        t0 + until + (local - knee) / (rate * (1.0 + self.learned[slaves])))
 
     def run_sync(self, now: int) -> None:
         """Fire the SYNC0/SYNC1 pulses due by segment time ``now``.

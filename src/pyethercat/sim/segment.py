@@ -381,7 +381,7 @@ class Segment(RingMixin):
                 # the true delays are the differences of these
                 "epu_ns": int(epu[s]),
                 "drift_ppm": float((dc.rate[s] - 1.0) * 1e6),
-                "correction_ppm": float(dc.trim[s] * 1e6),
+                "correction_ppm": float(dc.learned[s] * 1e6),
                 "difference_ns": float(abs(dc.filtered[s])),
                 "sync0_pulses": int(dc.pulses[s]),
                 "last_sync0": None if pulse is None else [pulse[0], pulse[1]],
