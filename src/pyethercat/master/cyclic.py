@@ -364,6 +364,8 @@ class CyclicRunner:
         self.dc_events: deque[SyncEvent] = deque(maxlen=200)
         self._dc_shift = 0
         self._dc_brd: Request | None = None
+        #: Where the next run() continues the cycle grid (with DC).
+        self._resume_ns: int | None = None
         if dc is not None and dc.cycle_ns != self.period_ns:
             raise ConfigError(f"DC cycle {dc.cycle_ns} ns differs from the loop period "
                               f"{self.period_ns} ns")
@@ -461,6 +463,10 @@ class CyclicRunner:
         clock = self.clock
         period = self.period_ns
         start = clock.now_ns() + period
+        resume = self._resume_ns
+        if self.dc is not None and resume is not None and clock.now_ns() <= resume < start:
+            # A run after a run keeps the cycle grid the DC phase lock found.
+            start = resume
         end = None if seconds is None else start + int(seconds * 1e9)
         k = 0
         done = 0
@@ -507,6 +513,8 @@ class CyclicRunner:
             done += 1
             with self._cond:
                 self._cond.notify_all()
+        self._resume_ns = start + self._dc_shift + k * period
+        self._dc_shift = 0
         return stats
 
     def _due(self, k: int) -> tuple[int, ...]:
