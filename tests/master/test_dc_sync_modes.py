@@ -54,7 +54,7 @@ def test_slaves_with_sync0_get_dc_mode_and_their_cyclic_unit() -> None:
     m.dc.setup(DcSettings(static_sync=300))
     sync = m.dc.configure_sync(1_000_000, 50_000)
     assert len(sync) == 2 and all(st.assign_activate == 0x0300 for st in sync.values())
-    m._bring_up(m.slaves, 5.0)
+    m.pd.bring_up(m.slaves, 5.0)
     a = coe_io(m)
     assert a.al_state == AlState.SAFEOP
     assert a.sdo_read(OUT, SyncSub.SYNC_MODE, "uint16") == SyncMode.DC_SYNC0
@@ -74,7 +74,7 @@ def test_a_slave_needing_dc_without_it_is_refused_with_its_al_code() -> None:
     m.set_state("PREOP")
     a.sdo_write(OUT, SyncSub.SYNC_MODE, int(SyncMode.DC_SYNC0), "uint16")
     with pytest.raises(AlStatusError) as err:
-        m._bring_up(m.slaves, 5.0)
+        m.pd.bring_up(m.slaves, 5.0)
     assert err.value.code == AlStatusCode.INVALID_DC_SYNC_CONFIG
 
 
@@ -85,7 +85,7 @@ def test_a_slave_left_in_dc_mode_goes_back_to_sm_event_when_it_gets_no_pulses() 
     a.sdo_write(OUT, SyncSub.SYNC_MODE, int(SyncMode.DC_SYNC0), "uint16")
     m.dc.setup(DcSettings(static_sync=0))
     m.dc.configure_sync(1_000_000, slaves=[s for s in m.slaves[1:] if s is not a])
-    m._bring_up(m.slaves, 5.0)
+    m.pd.bring_up(m.slaves, 5.0)
     assert a.al_state == AlState.SAFEOP
     assert a.sdo_read(OUT, SyncSub.SYNC_MODE, "uint16") == SyncMode.SM_EVENT
 
@@ -96,5 +96,5 @@ def test_sync0_cycle_below_the_device_minimum_is_refused() -> None:
     a = coe_io(m)
     m.dc.configure_sync(50_000, slaves=[a])  # 50 us; the device's minimum is 100 us
     with pytest.raises(AlStatusError) as err:
-        m._bring_up(m.slaves, 5.0)
+        m.pd.bring_up(m.slaves, 5.0)
     assert err.value.code == AlStatusCode.DC_INVALID_SYNC0_CYCLE_TIME

@@ -126,7 +126,7 @@ class Master:
                                         timeout=mailbox_timeout)
         #: Distributed clocks: set-up, SYNC pulses, the cyclic plan (:class:`DistributedClocks`).
         self.dc = DistributedClocks(self.scheduler.transact, lambda: self.slaves,
-                                    sleep=self._sleep)
+                                    sleep=self.scheduler.sleep)
         self.coe_setup = CoeSetup(self.mailboxes,
                                   bring_to_preop=self._to_preop,
                                   mapping_changed=lambda: self.pd.invalidate())
