@@ -171,6 +171,9 @@ def test_sync_objects(slave: CoeSlave) -> None:
     assert slave.upload(0x1C33, 1) == u16(0x22)
     assert slave.upload(0x1C32, 4) == u16(0x0007)
     slave.download(0x1C32, 1, u16(2))
+    assert slave.upload(0x1C32, 1) == u16(2)
+    # (DC SYNC0 mode without a running SYNC0 would refuse SAFEOP: back to SM event)
+    slave.download(0x1C32, 1, u16(1))
     assert slave.abort_code(slave.download, 0x1C32, 1, u16(5)) == SdoAbortCode.VALUE_RANGE
     assert slave.abort_code(slave.download, 0x1C32, 2, u32(1000)) == SdoAbortCode.READ_ONLY
     to_op(slave, 7, 7)
