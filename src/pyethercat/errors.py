@@ -11,11 +11,28 @@ import builtins
 
 __all__ = [
     "AlStatusError",
+    "BootMailboxConfigError",
+    "BootstrapNotSupportedError",
     "CaptureError",
     "ConfigError",
     "EsiError",
     "EtherCATError",
     "FrameError",
+    "FoeAbort",
+    "FoeAccessDenied",
+    "FoeAlreadyExists",
+    "FoeBootstrapOnly",
+    "FoeChecksumError",
+    "FoeDiskFull",
+    "FoeIllegal",
+    "FoeNoRights",
+    "FoeNoUser",
+    "FoeNotDefined",
+    "FoeNotFound",
+    "FoeNotInBootstrap",
+    "FoePacketNumberWrong",
+    "FoeProgramError",
+    "FoeTimeoutError",
     "FrameTooLargeError",
     "LinkClosedError",
     "LinkError",
@@ -24,6 +41,8 @@ __all__ = [
     "PermissionError",
     "SdoAbort",
     "SiiError",
+    "SoeAbort",
+    "SoeTimeoutError",
     "StateTimeoutError",
     "TimeoutError",
     "TopologyMismatchError",
@@ -88,6 +107,132 @@ class SdoAbort(MailboxError):
         super().__init__(f"SDO abort 0x{code:08X} at 0x{index:04X}:{subindex:02X}: {name}")
 
 
+class FoeAbort(MailboxError):
+    """An FoE transfer ended with an FoE error (ERR opcode), sent by the slave or by us.
+
+    ``code`` is the FoE error code (0x8000-0x800C), ``name`` its text from
+    the shared table, ``text`` the optional text the sender added. Each
+    standard code has its own subclass (:class:`FoeNotFound`, ...);
+    :meth:`for_code` picks it.
+    """
+
+    #: The FoE error code the subclass stands for (None: any).
+    CODE: int | None = None
+
+    def __init__(self, code: int, name: str, text: str = "", *, by_master: bool = False) -> None:
+        self.code = code
+        self.name = name
+        self.text = text
+        self.by_master = by_master
+        who = "we aborted" if by_master else "slave says"
+        extra = f": {text}" if text else ""
+        super().__init__(f"FoE error 0x{code:04X} ({who}: {name}){extra}")
+
+    @classmethod
+    def for_code(cls, code: int, name: str, text: str = "", *,
+                 by_master: bool = False) -> FoeAbort:
+        """The subclass instance for ``code`` (plain :class:`FoeAbort` for other codes)."""
+        sub = _FOE_CLASSES.get(code, FoeAbort)
+        return sub(code, name, text, by_master=by_master)
+
+
+class FoeNotDefined(FoeAbort):
+    """FoE error 0x8000: not defined (vendor-specific failure)."""
+
+    CODE = 0x8000
+
+
+class FoeNotFound(FoeAbort):
+    """FoE error 0x8001: the file does not exist."""
+
+    CODE = 0x8001
+
+
+class FoeAccessDenied(FoeAbort):
+    """FoE error 0x8002: access denied."""
+
+    CODE = 0x8002
+
+
+class FoeDiskFull(FoeAbort):
+    """FoE error 0x8003: disk full (the file is larger than the slave takes)."""
+
+    CODE = 0x8003
+
+
+class FoeIllegal(FoeAbort):
+    """FoE error 0x8004: illegal (request out of sequence, or refused)."""
+
+    CODE = 0x8004
+
+
+class FoePacketNumberWrong(FoeAbort):
+    """FoE error 0x8005: packet number wrong."""
+
+    CODE = 0x8005
+
+
+class FoeAlreadyExists(FoeAbort):
+    """FoE error 0x8006: the file already exists."""
+
+    CODE = 0x8006
+
+
+class FoeNoUser(FoeAbort):
+    """FoE error 0x8007: no user."""
+
+    CODE = 0x8007
+
+
+class FoeBootstrapOnly(FoeAbort):
+    """FoE error 0x8008: allowed in BOOT (bootstrap) state only."""
+
+    CODE = 0x8008
+
+
+class FoeNotInBootstrap(FoeAbort):
+    """FoE error 0x8009: not allowed in BOOT (bootstrap) state."""
+
+    CODE = 0x8009
+
+
+class FoeNoRights(FoeAbort):
+    """FoE error 0x800A: no rights (wrong password)."""
+
+    CODE = 0x800A
+
+
+class FoeProgramError(FoeAbort):
+    """FoE error 0x800B: program error (the slave failed to store the file)."""
+
+    CODE = 0x800B
+
+
+class FoeChecksumError(FoeAbort):
+    """FoE error 0x800C: checksum error (a firmware image failed its check)."""
+
+    CODE = 0x800C
+
+
+_FOE_CLASSES: dict[int, type[FoeAbort]] = {
+    c.CODE: c for c in (FoeNotDefined, FoeNotFound, FoeAccessDenied, FoeDiskFull, FoeIllegal,
+                        FoePacketNumberWrong, FoeAlreadyExists, FoeNoUser, FoeBootstrapOnly,
+                        FoeNotInBootstrap, FoeNoRights, FoeProgramError, FoeChecksumError)
+    if c.CODE is not None}
+
+
+class SoeAbort(MailboxError):
+    """An SoE service failed: the drive answered with the error bit and an SoE error code."""
+
+    def __init__(self, code: int, name: str, idn: str = "", drive: int = 0) -> None:
+        self.code = code
+        self.name = name
+        self.idn = idn
+        self.drive = drive
+        where = f" at {idn}" if idn else ""
+        super().__init__(f"SoE error 0x{code:04X}{where} (drive {drive}): {name}")
+
+
 class EsiError(EtherCATError, ValueError):
     """An ESI (or ENI) XML file is malformed, unsafe or not understood."""
 
@@ -136,12 +281,39 @@ class WorkingCounterError(EtherCATError):
 
 
 class AlStatusError(EtherCATError):
-    """A slave refused or left a requested AL state; carries the AL status code."""
+    """A slave refused or left a requested AL state; carries the AL status code.
+
+    :meth:`for_code` gives the subclass of the codes that have one (the
+    bootstrap refusals 0x0013 and 0x0015).
+    """
 
     def __init__(self, message: str, code: int, code_name: str) -> None:
         self.code = code
         self.code_name = code_name
         super().__init__(f"{message}: AL status code 0x{code:04X} ({code_name})")
+
+    @classmethod
+    def for_code(cls, message: str, code: int, code_name: str) -> AlStatusError:
+        """An :class:`AlStatusError`, of the code's own subclass where there is one."""
+        sub: type[AlStatusError] = {0x0013: BootstrapNotSupportedError,
+                                    0x0015: BootMailboxConfigError}.get(code, AlStatusError)
+        return sub(message, code, code_name)
+
+
+class FoeTimeoutError(TimeoutError):
+    """An FoE packet was not answered within its time-out (the transfer is abandoned)."""
+
+
+class SoeTimeoutError(TimeoutError):
+    """An SoE request was not answered in time."""
+
+
+class BootstrapNotSupportedError(AlStatusError):
+    """The slave refused BOOT: AL status code 0x0013, bootstrap not supported."""
+
+
+class BootMailboxConfigError(AlStatusError):
+    """The slave refused BOOT: AL status code 0x0015, invalid mailbox configuration (BOOT)."""
 
 
 class StateTimeoutError(TimeoutError):

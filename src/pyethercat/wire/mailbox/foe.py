@@ -261,5 +261,13 @@ def foe_split(data: bytes, mailbox_size: int, first_packet: int = 1) -> list[Foe
 
 
 def foe_packet_matches(expected: int, received: int) -> bool:
-    """Compare packet numbers on their low 16 bits (some stacks send a u16)."""
-    return (expected & 0xFFFF) == (received & 0xFFFF)
+    """``received`` (as on the wire) is packet ``expected``, in any width senders use.
+
+    The field is a u32 (IgH, SOES), Wireshark and KickCAT read a u16, and
+    devices in the field wrap at 256 (ribalda/ethercat issue 10): the number
+    matches modulo 2^32, 2^16 or 2^8.
+    """
+    return any(received == expected % m for m in _PACKET_WIDTHS)
+
+
+_PACKET_WIDTHS = (1 << 32, 1 << 16, 1 << 8)
