@@ -28,6 +28,8 @@ Format::
                                     #   (esi = "builtin:NAME": an ESI shipped with pyethercat)
     alias, profile, drift_ppm, forwarding_delay_ns, cable_delay_ns, inputs,
     serial, parent + port           # optional (see docs/simulator.md)
+    foe, foe_dir, foe_password, foe_busy_every, foe_wrap, foe_max_size,
+    firmware_password, soe          # FoE/SoE servers (docs/foe.md, docs/soe.md)
 
     [[wire]]  from = "do8:0"  to = "di8:0"  bits = 8
     [[fault]] kind = "break_link" | "power_off" | "corrupt", slave, port, count
@@ -59,7 +61,12 @@ SourceKind = Literal["device", "sii", "esi"]
 _SLAVE_KEYS = {
     "name", "device", "sii", "esi", "product", "revision", "alias", "profile", "drift_ppm",
     "forwarding_delay_ns", "cable_delay_ns", "inputs", "parent", "port", "serial", "eoe",
+    "foe", "foe_dir", "foe_password", "foe_busy_every", "foe_wrap", "foe_max_size",
+    "firmware_password", "soe",
 }
+#: Keys that tune the FoE server (meaningless with ``foe = false``).
+_FOE_TUNING = ("foe_dir", "foe_password", "foe_busy_every", "foe_wrap", "foe_max_size",
+               "firmware_password")
 #: Keys of a slave's ``eoe = {...}`` table (its IP side; see docs/eoe.md).
 _EOE_KEYS = {"ip", "gateway", "mac", "netns", "http_port"}
 _WIRE_KEYS = {"from", "to", "bits"}
@@ -98,6 +105,16 @@ class SlaveEntry:
     port: int | None = None
     #: ``eoe = {...}`` as written (keys checked; the simulator reads the values).
     eoe: dict[str, Any] | None = None
+    #: FoE/SoE servers: None as the SII announces (see docs/foe.md, docs/soe.md).
+    foe: bool | None = None
+    soe: bool | None = None
+    #: ``foe_dir`` as written (relative to the file's folder).
+    foe_dir: str | None = None
+    foe_password: int = 0
+    foe_busy_every: int = 0
+    foe_wrap: int | None = None
+    foe_max_size: int | None = None
+    firmware_password: int = 0
 
     @property
     def written_source(self) -> str:
@@ -305,8 +322,38 @@ def _slave(raw: dict[str, Any], i: int, doc: TopologyDoc) -> SlaveEntry:
             raise ConfigError(f"{where}: eoe: expected a table like {{ ip = \"192.168.100.10/24\" }}")
         _check_keys(raw["eoe"], _EOE_KEYS, f"{where}: eoe")
         opt["eoe"] = dict(raw["eoe"])
+    opt.update(_mailbox_keys(raw, where))
     serial = to_int(raw.get("serial", i + 1), f"{where}: serial", 0, 0xFFFFFFFF)
     return SlaveEntry(name, kind, source, serial, **opt)
+
+
+def _flag(value: Any, where: str) -> bool:
+    if not isinstance(value, bool):
+        raise ConfigError(f"{where}: expected true or false, got {value!r}")
+    return value
+
+
+def _mailbox_keys(raw: dict[str, Any], where: str) -> dict[str, Any]:
+    """The ``foe*``/``soe`` keys of a slave, checked."""
+    opt: dict[str, Any] = {}
+    for key in ("foe", "soe"):
+        if key in raw:
+            opt[key] = _flag(raw[key], f"{where}: {key}")
+    if "foe_dir" in raw:
+        opt["foe_dir"] = _str(raw["foe_dir"], f"{where}: foe_dir")
+    for key in ("foe_password", "firmware_password"):
+        if key in raw:
+            opt[key] = to_int(raw[key], f"{where}: {key}", 0, 0xFFFFFFFF)
+    if "foe_busy_every" in raw:
+        opt["foe_busy_every"] = to_int(raw["foe_busy_every"], f"{where}: foe_busy_every", 0)
+    if "foe_wrap" in raw:
+        opt["foe_wrap"] = to_int(raw["foe_wrap"], f"{where}: foe_wrap", 2, 1 << 32)
+    if "foe_max_size" in raw:
+        opt["foe_max_size"] = to_int(raw["foe_max_size"], f"{where}: foe_max_size", 0)
+    tuned = [k for k in _FOE_TUNING if k in raw]
+    if tuned and opt.get("foe") is False:
+        raise ConfigError(f"{where}: {', '.join(sorted(tuned))} given with foe = false")
+    return opt
 
 
 def _endpoint(text: Any, where: str, doc: TopologyDoc) -> tuple[str, int]:

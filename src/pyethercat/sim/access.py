@@ -155,6 +155,9 @@ class EscRegisters:
         self.index = index
         self.profile = prof
         self.impl, self.writable = register_masks(prof)
+        # The enabled SMs as last decoded, and the register bytes they came from.
+        self._sm_raw = b""
+        self._sm_enabled: list[SmView] = []
 
     @property
     def row(self) -> npt.NDArray[np.uint8]:
@@ -199,12 +202,15 @@ class EscRegisters:
 
     def sms_overlapping(self, lo: int, hi: int) -> list[SmView]:
         """The enabled SMs whose area overlaps [lo, hi)."""
-        out = []
-        for n in range(self.profile.sm_count):
-            s = self.sm(n)
-            if s.enabled and s.start < hi and s.end > lo:
-                out.append(s)
-        return out
+        # Decoding every SM on each access was most of a mailbox frame's cost: decode
+        # them again only when their register bytes changed (one slice compare tells).
+        raw = self.row[R.SM_BASE: R.SM_BASE + R.SM_SIZE * self.profile.sm_count].tobytes()
+        if raw != self._sm_raw:
+            self._sm_raw = raw
+            views = (SmView(n, raw[R.SM_SIZE * n: R.SM_SIZE * (n + 1)])
+                     for n in range(self.profile.sm_count))
+            self._sm_enabled = [v for v in views if v.enabled]
+        return [s for s in self._sm_enabled if s.start < hi and s.end > lo]
 
     def set_ecat_event(self, bits: int) -> None:
         """Set ECAT event request bits (0x0210); the host recomputes the IRQ field."""

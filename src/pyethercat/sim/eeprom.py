@@ -207,6 +207,20 @@ class SiiInterface:
         # a 0x0201 write command); without a command it stays.
         regs.set_u16(R.SII_CONTROL, status | (0 if cmd else we))
 
+    def firmware_write(self, word: int, data: bytes) -> None:
+        """Words the slave's firmware writes through the PDI's EEPROM access (0x0500 bit 0).
+
+        Not a master command: no busy time, no write-enable bit. The parsed
+        image follows (this slave's own copy from then on).
+        """
+        off = 2 * word
+        if word < 0 or len(data) % 2 or off + len(data) > max(len(self.image), _CATEGORIES):
+            raise ValueError(f"SII write of {len(data)} bytes at word 0x{word:04X} outside "
+                             f"the {len(self.image)}-byte EEPROM")
+        self.image[off: off + len(data)] = data
+        self.info = _parse(bytes(self.image))
+        self.output_sm, self.input_sm = self._pd_sms()
+
     def _write_word(self, address: int, now: int) -> None:
         off = 2 * address
         image = self.image

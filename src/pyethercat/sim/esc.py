@@ -326,6 +326,10 @@ class Esc(EscRegisters):
 
     # --- PDI side --------------------------------------------------------------------------
 
+    def pdi_sii_write(self, word: int, data: bytes) -> None:
+        """The firmware rewrites EEPROM words (see :meth:`SiiInterface.firmware_write`)."""
+        self.eeprom.firmware_write(word, data)
+
     def pdi_read(self, address: int, length: int) -> bytes:
         lo, hi = address, address + length
         if lo < 0 or hi > R.ADDRESS_SPACE:

@@ -27,7 +27,9 @@ from pyethercat.sim.devices import get_builtin
 from pyethercat.sim.devices.builtin import BuiltinDevice
 from pyethercat.sim.devices.esi_device import EsiSlave, load_esi_device
 from pyethercat.sim.eoe import EchoEndpoint, EoeSettings
+from pyethercat.sim.foe import FoeOptions
 from pyethercat.sim.profiles import DEVICE_PROFILES, PROFILES, EscProfile
+from pyethercat.sim.protocols import MailboxOptions
 from pyethercat.topology import (
     DEFAULT_DRIFT_PPM,
     FaultEntry,
@@ -78,6 +80,8 @@ class SlaveConfig:
     esi: EsiSlave | None = None
     #: The IP side of an EoE slave (``eoe = {...}``); None: the Python echo stack.
     eoe: EoeSettings | None = None
+    #: FoE/SoE servers (the ``foe*``/``soe`` keys).
+    mailbox: MailboxOptions = field(default_factory=MailboxOptions)
 
     @property
     def input_bits(self) -> int:
@@ -229,11 +233,29 @@ def _resolve_slave(entry: SlaveEntry, topo: Topology, base: Path) -> SlaveConfig
             raise ConfigError(
                 f"{where}: inputs has {len(cfg.inputs)} bytes, the device has {limit} input bytes"
             )
+    cfg.mailbox = _mailbox_options(entry, base, where)
     if entry.eoe is not None:
         cfg.eoe = _eoe_settings(entry.eoe, f"{where}: eoe")
         if not info.mailbox_protocols & MailboxProtocol.EOE:
             raise ConfigError(f"{where}: eoe given, but the device does not speak EoE")
     return cfg
+
+
+def _mailbox_options(entry: SlaveEntry, base: Path, where: str) -> MailboxOptions:
+    """The FoE/SoE settings of a slave, ``foe_dir`` taken from the file's folder."""
+    foe = FoeOptions(password=entry.foe_password, busy_every=entry.foe_busy_every,
+                     firmware_password=entry.firmware_password)
+    if entry.foe_wrap is not None:
+        foe.wrap = entry.foe_wrap
+    if entry.foe_max_size is not None:
+        foe.max_size = entry.foe_max_size
+    if entry.foe_dir is not None:
+        folder = Path(entry.foe_dir)
+        folder = folder if folder.is_absolute() else base / folder
+        if not folder.is_dir():
+            raise ConfigError(f"{where}: foe_dir {folder} is not a folder")
+        foe.directory = folder
+    return MailboxOptions(foe=entry.foe, soe=entry.soe, foe_options=foe)
 
 
 def _esi_file(source: str, base: Path, where: str) -> Path:
@@ -396,6 +418,7 @@ def build_segment(topo: Topology, clock: TimeSource | None = None) -> Segment:
     from pyethercat.sim.devices import Behaviour, behaviour
     from pyethercat.sim.devices.esi_device import esi_model
     from pyethercat.sim.model import DeviceModel
+    from pyethercat.sim.protocols import add_mailbox_protocols
     from pyethercat.sim.segment import Segment, SimSlaveSpec
 
     seg = Segment(clock=clock)
@@ -421,11 +444,12 @@ def build_segment(topo: Topology, clock: TimeSource | None = None) -> Segment:
             run = behaviour(s.builtin, s.info, models)
         if s.eoe is not None:
             _eoe_endpoint(run.app, s.eoe, s.name, where)
+        app = add_mailbox_protocols(run.app, s.info, s.mailbox, where=where)
         spec = SimSlaveSpec(
             name=s.name,
             sii=s.sii,
             profile=s.profile,
-            app=run.app,
+            app=app,
             alias=s.alias,
             drift_ppm=drawn if s.drift_ppm is None else s.drift_ppm,
             forwarding_delay_ns=s.forwarding_delay_ns,
