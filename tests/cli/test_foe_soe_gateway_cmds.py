@@ -1,0 +1,128 @@
+"""``foe_read``/``foe_write`` (with ``--boot``), ``soe_read``/``soe_write`` and ``gateway``."""
+
+from __future__ import annotations
+
+import socket
+import struct
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner, Result
+
+from pyethercat.cli.main import cli
+from pyethercat.sim.firmware import build_firmware_image
+
+TOPOLOGY = """
+[[slave]]
+name = "io"
+device = "builtin:coe-io"
+foe = true
+foe_dir = "files"
+soe = true
+[[slave]]
+name = "di"
+device = "builtin:di8"
+"""
+
+
+@pytest.fixture
+def topo(tmp_path: Path) -> str:
+    (tmp_path / "files").mkdir()
+    path = tmp_path / "foe.toml"
+    path.write_text(TOPOLOGY)
+    return str(path)
+
+
+def run(topo: str, *args: str, stdin: bytes | None = None) -> Result:
+    return CliRunner().invoke(cli, ["--sim", topo, *args], input=stdin)
+
+
+def test_foe_write_then_read(topo: str, tmp_path: Path) -> None:
+    blob = bytes((i * 7) & 0xFF for i in range(30_000))
+    local = tmp_path / "local.bin"
+    local.write_bytes(blob)
+    r = run(topo, "foe_write", "-p", "0", str(local))
+    assert r.exit_code == 0, r.output
+    assert (tmp_path / "files" / "local.bin").read_bytes() == blob  # the base name, as IgH
+    r = run(topo, "foe_write", "-p", "0", str(local), "-o", "other.bin")
+    assert (tmp_path / "files" / "other.bin").read_bytes() == blob
+    out = tmp_path / "back.bin"
+    r = run(topo, "foe_read", "-p", "0", "other.bin", "-o", str(out))
+    assert r.exit_code == 0, r.output
+    assert out.read_bytes() == blob
+    # stdin / stdout as IgH's '-'
+    r = run(topo, "foe_write", "-p", "0", "-", "--name", "piped.txt", stdin=b"hello")
+    assert r.exit_code == 0, r.output
+    r = run(topo, "foe_read", "-p", "0", "piped.txt")
+    assert r.exit_code == 0 and r.stdout_bytes == b"hello"
+
+
+def test_foe_errors_are_one_line(topo: str, tmp_path: Path) -> None:
+    r = run(topo, "foe_read", "-p", "0", "missing.bin")
+    assert r.exit_code == 1
+    assert r.output.strip().count("\n") == 0
+    assert "FoE error 0x8001 (slave says: not found)" in r.output
+    r = run(topo, "foe_write", "-p", "0", "-", stdin=b"x")
+    assert r.exit_code == 1 and "give the file name on the slave with --name" in r.output
+    r = run(topo, "foe_read", "-p", "1", "x")
+    assert r.exit_code == 1 and "has no mailbox: no FoE" in r.output
+    r = run(topo, "foe_read", "-p", "0", "x", "5", "--password", "6")
+    assert r.exit_code == 1 and "give the password once" in r.output
+
+
+def test_foe_write_boot_updates_firmware(topo: str, tmp_path: Path) -> None:
+    image = tmp_path / "fw.efw"
+    image.write_bytes(build_firmware_image(0x00504543, 0x00050001, 0x00030000, "v3", bytes(900)))
+    r = run(topo, "foe_write", "-p", "0", "--boot", str(image))
+    assert r.exit_code == 0, r.output
+    # each --sim invocation builds the segment anew, so check the refusal path too
+    bad = tmp_path / "bad.efw"
+    bad.write_bytes(build_firmware_image(1, 2, 3, "x", b""))
+    r = run(topo, "foe_write", "-p", "0", "--boot", str(bad))
+    assert r.exit_code == 1 and "FoE error 0x8004" in r.output and "image is for vendor" in r.output
+
+
+def test_soe_read_and_write_as_igh(topo: str) -> None:
+    r = run(topo, "soe_read", "-p", "0", "S-0-0024")
+    assert r.exit_code == 0, r.output
+    assert r.output == "S-0-0036 S-0-0047\n"
+    assert run(topo, "soe_read", "-p", "0", "0", "1", "-e", "name").output == \
+        "Control unit cycle time (TNcyc)\n"
+    assert run(topo, "soe_read", "-p", "0", "1").output == "1000\n"
+    # with --type the CANopen-style rendering of upload
+    assert run(topo, "soe_read", "-p", "0", "1", "--type", "uint16").output == "0x03e8 1000\n"
+    assert run(topo, "soe_write", "-p", "0", "36", "-500").exit_code == 0
+    r = run(topo, "soe_write", "-p", "0", "36", "99999")
+    assert r.exit_code == 1 and "SoE error 0x7007" in r.output
+    r = run(topo, "soe_write", "-p", "0", "S-0-0024", "S-0-0036 S-0-0040")
+    assert r.exit_code == 0, r.output
+    r = run(topo, "soe_read", "-p", "0", "9", "1")
+    assert r.exit_code == 1 and "drive 9 out of range" in r.output
+
+
+def test_gateway_command_serves_and_reports(topo: str) -> None:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "pyethercat", "--sim", topo, "gateway", "--bind",
+         f"127.0.0.1:{port}", "--seconds", "20"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        first = proc.stdout.readline()
+        assert f"mailbox gateway on udp 127.0.0.1:{port}" in first, proc.stderr
+        coe = struct.pack("<HBHBI", 2 << 12, 0x40, 0x1018, 1, 0)
+        body = struct.pack("<HHBB", len(coe), 1000, 0, 0x13) + coe
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+            sock.settimeout(10)
+            sock.sendto(struct.pack("<H", len(body) | 0x5000) + body, ("127.0.0.1", port))
+            reply, _ = sock.recvfrom(1024)
+        assert struct.unpack_from("<I", reply, 14)[0] == 0x00504543
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+    time.sleep(0)  # the process is gone either way
