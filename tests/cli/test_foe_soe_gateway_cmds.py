@@ -14,6 +14,7 @@ from click.testing import CliRunner, Result
 
 from pyethercat.cli.main import cli
 from pyethercat.sim.firmware import build_firmware_image
+from pyethercat.wire.al import AlState
 
 TOPOLOGY = """
 [[slave]]
@@ -126,3 +127,38 @@ def test_gateway_command_serves_and_reports(topo: str) -> None:
         proc.terminate()
         proc.wait(timeout=10)
     time.sleep(0)  # the process is gone either way
+
+
+def test_foe_and_soe_reach_a_running_master(topo: str, tmp_path: Path) -> None:
+    """The verbs go through the control socket of a master cycling in OP."""
+    from pyethercat.link.pair import PairLink
+    from pyethercat.master.control.endpoint import link_spec
+    from pyethercat.master.control.server import serve
+    from pyethercat.master.master import Master
+    from pyethercat.sim.topology import load_topology
+
+    segment = load_topology(topo).build()
+    m = Master(PairLink.responder_link(segment.process))
+    m.scan()
+    m.configure()
+    runner = m.start(0.002)
+    server = serve(m, link_spec(sim=topo))
+    try:
+        blob = bytes(range(256)) * 20
+        local = tmp_path / "cycle.bin"
+        local.write_bytes(blob)
+        r = run(topo, "foe_write", "-p", "0", str(local))
+        assert r.exit_code == 0, r.output
+        assert (tmp_path / "files" / "cycle.bin").read_bytes() == blob
+        r = run(topo, "foe_read", "-p", "0", "cycle.bin")
+        assert r.exit_code == 0 and r.stdout_bytes == blob
+        assert run(topo, "soe_read", "-p", "0", "S-0-0024").output == "S-0-0036 S-0-0047\n"
+        r = run(topo, "soe_write", "-p", "0", "S-0-0001", "500")  # PRE-OP only
+        assert r.exit_code == 1 and "SoE error 0x7005" in r.output
+        assert runner.running and runner.stats.wkc_errors == 0
+        assert runner.stats.lost_frames == 0
+        assert m.read_states()[0].state == AlState.OP
+    finally:
+        server.close()
+        runner.stop()
+        m.close()

@@ -87,10 +87,13 @@ class Session:
     """Requests to the segment's master; ``remote`` tells whether it is a running one."""
 
     def __init__(self, spec: str, call: Callable[[Request], Any], remote: bool,
-                 pid: int | None = None) -> None:
+                 pid: int | None = None, context: MasterContext | None = None) -> None:
         self.spec = spec
         self.remote = remote
         self.pid = pid
+        #: The in-process master's context (direct sessions only): a command may hand
+        #: it callbacks such as ``transfer_progress``.
+        self.context = context
         self._call = call
         self._aliases: list[int] | None = None
         self._slaves: list[Slave] | None = None
@@ -170,7 +173,7 @@ def open_session(obj: dict[str, Any] | None, *, direct_only: bool = False) -> It
         def call(req: Request) -> Any:
             return _round_trip(req, dispatch(ctx, req))
 
-        yield Session(spec, call, False)
+        yield Session(spec, call, False, context=ctx)
 
 
 def _check_alone(obj: dict[str, Any] | None, spec: str) -> None:

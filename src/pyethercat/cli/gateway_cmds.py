@@ -6,7 +6,8 @@
 
 The master scans the segment, brings the slaves to ``--state`` (PRE-OP: the
 mailbox works from there) and forwards gateway requests until Ctrl-C (or
-``--seconds``). It listens on loopback unless ``--bind`` says otherwise,
+``--seconds``); meanwhile other ``pyethercat`` commands on the same link
+reach it through its control socket. It listens on loopback unless ``--bind`` says otherwise,
 IgH's ``ethercat_mbg`` and TwinCAT's gateway use the same port, 34980. On exit
 it prints what it served.
 """
@@ -18,7 +19,7 @@ from typing import Any
 
 import click
 
-from pyethercat.cli._connect import connect
+from pyethercat.cli._session import own_master, serving
 from pyethercat.master.gateway import MailboxGateway, parse_bind
 from pyethercat.wire.al import AlState
 
@@ -39,7 +40,8 @@ def register(cli: click.Group) -> None:
     def gateway_cmd(obj: dict[str, Any], bind: str, state: str, seconds: float | None) -> None:
         """Forward ETG.8200 mailbox requests (UDP) to the slaves."""
         address = parse_bind(bind)
-        with connect(obj) as conn:
+        with own_master(obj) as conn, serving(obj, conn.master):
+            # other commands reach this master through its control socket meanwhile
             m = conn.master
             m.scan()
             m.set_state(AlState.parse(state))

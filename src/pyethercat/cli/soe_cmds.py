@@ -19,17 +19,17 @@ from typing import Any
 
 import click
 
-from pyethercat.cli._connect import connect
+from pyethercat.cli._select import selection_options
+from pyethercat.cli._session import Session, open_session
+from pyethercat.cli._types import encode_download, format_upload, upload_type
 from pyethercat.cli._util import number
-from pyethercat.cli.coe_cmds import encode_download, format_upload, upload_type
-from pyethercat.errors import ConfigError
-from pyethercat.master.master import Master
-from pyethercat.master.soe import SoeClient, decode_soe_value, format_soe_value
-from pyethercat.wire.al import AlState
+from pyethercat.errors import ConfigError, MailboxError
+from pyethercat.master.control import messages as msg
+from pyethercat.master.soe import decode_soe_value, encode_soe_value, format_soe_value
 from pyethercat.wire.mailbox.soe import SoeElement, format_idn, parse_idn
 from pyethercat.wire.mailbox.soe_transfer import SoeAttribute, SoeDataType, decode_soe_text
 
-__all__ = ["register", "soe_client"]
+__all__ = ["register"]
 
 _ELEMENTS = {"value": SoeElement.VALUE, "name": SoeElement.NAME,
              "attribute": SoeElement.ATTRIBUTE, "unit": SoeElement.UNIT,
@@ -37,15 +37,9 @@ _ELEMENTS = {"value": SoeElement.VALUE, "name": SoeElement.NAME,
              "default": SoeElement.DEFAULT, "data-state": SoeElement.DATA_STATE}
 
 
-def soe_client(m: Master, position: int) -> SoeClient:
-    """The SoE client of the slave at ``position`` (scanning first; PRE-OP if in INIT)."""
-    m.scan(reset=False)
-    s = m.slave(position)
-    if s.al_state in (AlState.INIT, AlState.NONE, AlState.BOOT) and s.has_mailbox:
-        m.set_state(AlState.PREOP, [s])
-    if s.mbx is None:
-        raise ConfigError(f"{s.describe()} has no mailbox: no SoE")
-    return SoeClient(s.mbx)
+def _attribute(session: Session, position: int, idn: int, drive: int) -> SoeAttribute:
+    raw = session.call(msg.SoeRead(position, idn, SoeElement.ATTRIBUTE, drive)).data
+    return SoeAttribute.decode(raw)
 
 
 def _drive_idn(args: tuple[str, ...], n_after: int) -> tuple[int, int, tuple[str, ...]]:
@@ -59,7 +53,7 @@ def _drive_idn(args: tuple[str, ...], n_after: int) -> tuple[int, int, tuple[str
         raise click.UsageError(f"expected {want}")
     try:
         idn = parse_idn(idn_text)
-    except Exception as exc:  # noqa: BLE001 - MailboxError from the parser
+    except MailboxError as exc:
         raise ConfigError(str(exc)) from None
     return number(drive, "drive", 7), idn, rest
 
@@ -81,21 +75,21 @@ def register(cli: click.Group) -> None:
     """Add ``soe_read`` and ``soe_write``."""
 
     @cli.command("soe_read")
-    @click.option("-p", "--position", metavar="POS", required=True, help="Ring position.")
+    @selection_options
     @click.option("-t", "--type", "dtype", metavar="T",
                   help="Data type as for upload (default: from the IDN's attribute).")
     @click.option("-e", "--element", type=click.Choice(sorted(_ELEMENTS)), default="value",
                   show_default=True, help="Element of the IDN to read.")
     @click.argument("args", nargs=-1, required=True, metavar="[DRIVE] IDN")
     @click.pass_obj
-    def soe_read_cmd(obj: dict[str, Any], position: str, dtype: str | None, element: str,
-                     args: tuple[str, ...]) -> None:
+    def soe_read_cmd(obj: dict[str, Any], position: str | None, alias: str | None,
+                     dtype: str | None, element: str, args: tuple[str, ...]) -> None:
         """Read an IDN of a drive over SoE and print it."""
         drive, idn, _rest = _drive_idn(args, 0)
         flag = _ELEMENTS[element]
-        with connect(obj) as conn:
-            client = soe_client(conn.master, number(position, "position", 0xFFFF))
-            raw = client.read(idn, elements=flag, drive=drive)
+        with open_session(obj) as session:
+            pos = session.single(position, alias, "soe_read")
+            raw = session.call(msg.SoeRead(pos, idn, flag, drive)).data
             if dtype is not None and flag not in (SoeElement.NAME, SoeElement.UNIT,
                                                   SoeElement.ATTRIBUTE):
                 click.echo(format_upload(upload_type(dtype), raw))
@@ -103,45 +97,47 @@ def register(cli: click.Group) -> None:
             attr = None
             if flag in (SoeElement.VALUE, SoeElement.MINIMUM, SoeElement.MAXIMUM,
                         SoeElement.DEFAULT):
-                attr = client.attribute(idn, drive=drive)
+                attr = _attribute(session, pos, idn, drive)
             click.echo(_format_element(flag, raw, attr))
 
     # negative values ("-500") are values, not options
     @cli.command("soe_write", context_settings={"ignore_unknown_options": True})
-    @click.option("-p", "--position", metavar="POS", required=True, help="Ring position.")
+    @selection_options
     @click.option("-t", "--type", "dtype", metavar="T",
                   help="Data type of VALUE as for download (default: from the attribute).")
     @click.argument("args", nargs=-1, required=True, metavar="[DRIVE] IDN VALUE")
     @click.pass_obj
-    def soe_write_cmd(obj: dict[str, Any], position: str, dtype: str | None,
-                      args: tuple[str, ...]) -> None:
+    def soe_write_cmd(obj: dict[str, Any], position: str | None, alias: str | None,
+                      dtype: str | None, args: tuple[str, ...]) -> None:
         """Write VALUE to an IDN of a drive over SoE."""
         drive, idn, rest = _drive_idn(args, 1)
         text = rest[0]
-        with connect(obj) as conn:
-            client = soe_client(conn.master, number(position, "position", 0xFFFF))
+        with open_session(obj) as session:
+            pos = session.single(position, alias, "soe_write")
             if dtype is not None:
-                client.write(idn, encode_download(upload_type(dtype), text), drive=drive)
-                return
-            attr = client.attribute(idn, drive=drive)
-            value: Any
-            kind = attr.data_type
-            if attr.is_list and kind != SoeDataType.STRING:
-                items = text.replace(",", " ").split()
-                value = [parse_idn(t) if kind == SoeDataType.IDN else number(t, "value")
-                         for t in items]
-            elif kind == SoeDataType.STRING:
-                value = text
-            elif kind == SoeDataType.FLOAT:
-                try:
-                    value = float(text)
-                except ValueError:
-                    raise ConfigError(f"{text!r} is not a number") from None
-            elif kind == SoeDataType.IDN:
-                value = parse_idn(text)
+                data = encode_download(upload_type(dtype), text)
             else:
-                try:
-                    value = int(text, 0)
-                except ValueError:
-                    raise ConfigError(f"{format_idn(idn)}: {text!r} is not a number") from None
-            client.write_value(idn, value, drive=drive, attribute=attr)
+                attr = _attribute(session, pos, idn, drive)
+                data = encode_soe_value(_parse_value(text, idn, attr), attr)
+            session.call(msg.SoeWrite(pos, idn, data, SoeElement.VALUE, drive))
+
+
+def _parse_value(text: str, idn: int, attr: SoeAttribute) -> Any:
+    """VALUE as the attribute's type takes it (lists space- or comma-separated)."""
+    kind = attr.data_type
+    if attr.is_list and kind != SoeDataType.STRING:
+        items = text.replace(",", " ").split()
+        return [parse_idn(t) if kind == SoeDataType.IDN else number(t, "value") for t in items]
+    if kind == SoeDataType.STRING:
+        return text
+    if kind == SoeDataType.FLOAT:
+        try:
+            return float(text)
+        except ValueError:
+            raise ConfigError(f"{text!r} is not a number") from None
+    if kind == SoeDataType.IDN:
+        return parse_idn(text)
+    try:
+        return int(text, 0)
+    except ValueError:
+        raise ConfigError(f"{format_idn(idn)}: {text!r} is not a number") from None

@@ -31,7 +31,7 @@ from pyethercat.master.scheduler import Scheduler
 from pyethercat.master.slave import Slave
 from pyethercat.wire.al import AlState
 
-__all__ = ["BootMaster", "boot_mailbox", "bootstrap_update"]
+__all__ = ["BootMaster", "boot_mailbox", "bootstrap_update", "foe_client"]
 
 _log = logging.getLogger("pyethercat.foe")
 
@@ -84,3 +84,18 @@ def bootstrap_update(master: BootMaster, slave: Slave | int, firmware: bytes, *,
     client.write(name, firmware, password=password, progress=progress)
     if back_to_init:
         master.set_state(AlState.INIT, [s], timeout=state_timeout)
+
+
+def foe_client(scheduler: Scheduler, slave: Slave) -> FoeClient:
+    """The FoE client of ``slave`` as its state allows: the bootstrap mailbox in BOOT.
+
+    Outside BOOT the slave's standard mailbox (it must be in PRE-OP or above).
+    """
+    if slave.al_state == AlState.BOOT:
+        rx_off, rx_size, tx_off, tx_size = boot_mailbox(slave)
+        return FoeClient(Mailbox(scheduler, slave.station_address, slave.describe(),
+                                 rx_offset=rx_off, rx_size=rx_size, tx_offset=tx_off,
+                                 tx_size=tx_size))
+    if slave.mbx is None:
+        raise ConfigError(f"{slave.describe()} has no mailbox: no FoE")
+    return FoeClient(slave.mbx)

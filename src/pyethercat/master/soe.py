@@ -33,7 +33,8 @@ from pyethercat.wire.mailbox.soe_transfer import (
     encode_soe_list,
 )
 
-__all__ = ["DEFAULT_SOE_TIMEOUT", "IdnLike", "SoeClient", "SoeValue", "format_soe_value"]
+__all__ = ["DEFAULT_SOE_TIMEOUT", "IdnLike", "SoeClient", "SoeValue", "decode_soe_value",
+           "encode_soe_value", "format_soe_value"]
 
 #: An IDN as a number (0x8001) or as text ("S-0-0024", "P-0-0001").
 IdnLike = int | str
@@ -183,15 +184,18 @@ class SoeClient:
                     attribute: SoeAttribute | None = None) -> None:
         """Write ``value`` to ``idn``, encoded by its attribute (read first unless given)."""
         attr = attribute if attribute is not None else self.attribute(idn, drive=drive)
-        if isinstance(value, bytes):
-            raw = value
-        elif isinstance(value, str):
-            raw = encode_soe_list(value.encode("latin-1")) if attr.is_list else \
-                value.encode("latin-1")
-        elif isinstance(value, list):
-            if not attr.is_list:
-                raise ConfigError(f"{format_idn(_idn(idn))} is no list")
-            raw = encode_soe_list(b"".join(_encode_scalar(v, attr) for v in value))
-        else:
-            raw = _encode_scalar(value, attr)
-        self.write(idn, raw, drive=drive)
+        self.write(idn, encode_soe_value(value, attr), drive=drive)
+
+
+def encode_soe_value(value: SoeValue, attr: SoeAttribute) -> bytes:
+    """The bytes of a value element as the attribute describes it (lists with their lengths)."""
+    if isinstance(value, bytes):
+        return value
+    if isinstance(value, str):
+        raw = value.encode("latin-1")
+        return encode_soe_list(raw) if attr.is_list else raw
+    if isinstance(value, list):
+        if not attr.is_list:
+            raise ConfigError("the IDN holds no list")
+        return encode_soe_list(b"".join(_encode_scalar(v, attr) for v in value))
+    return _encode_scalar(value, attr)

@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 from pyethercat.errors import ConfigError, SdoAbort
 from pyethercat.master import diag
+from pyethercat.master.bootstrap import bootstrap_update, foe_client
 from pyethercat.master.control import messages as msg
 from pyethercat.master.control.protocol import PROTOCOL_VERSION, Request
 from pyethercat.master.control.snapshot import snapshot
@@ -32,6 +33,7 @@ from pyethercat.master.listing import alias_positions
 from pyethercat.master.scan import Progress
 from pyethercat.master.sii_write import SiiWriteReport
 from pyethercat.master.slave import Slave
+from pyethercat.master.soe import SoeClient
 from pyethercat.wire.al import AlState
 from pyethercat.wire.datagram import MAX_PAYLOAD, OVERHEAD, Command, Datagram
 from pyethercat.wire.mailbox.datatypes import DataType
@@ -63,6 +65,9 @@ class MasterContext:
         self.direct = direct
         self.progress = progress
         self.started = time.time()
+        #: Called with the progress of FoE transfers this context serves (the command
+        #: line's bar, when it serves its own requests).
+        self.transfer_progress: Callable[[Any], None] | None = None
         self._t0 = time.monotonic()
         self._scanned = False
         #: (monotonic time, frames sent, received, lost), sampled for the rates.
@@ -479,4 +484,63 @@ def _eoe_set_ip(ctx: MasterContext, req: msg.EoeSetIp) -> msg.Done:
     params = EoeIpParameters(q.mac, addr(q.ip), addr(q.subnet), addr(q.gateway),
                              addr(q.dns_server), q.dns_name)
     _eoe_slave(ctx, req.position).set_ip(params)
+    return msg.Done()
+
+
+# --- FoE and SoE ----------------------------------------------------------------------------
+
+
+def _mailbox_slave(ctx: MasterContext, position: int, what: str) -> Slave:
+    s = ctx.slave(position)
+    if not s.has_mailbox:
+        raise ConfigError(f"{s.describe()} has no mailbox: no {what}")
+    if s.al_state in (AlState.INIT, AlState.NONE):
+        if not ctx.direct:
+            raise ConfigError(f"{s.describe()} is in {s.al_state_name}: no mailbox there "
+                              "(the running master keeps it in that state)")
+        ctx.master.set_state(AlState.PREOP, [s])
+    return s
+
+
+@handler(msg.FoeRead)
+def _foe_read(ctx: MasterContext, req: msg.FoeRead) -> msg.Data:
+    s = _mailbox_slave(ctx, req.position, "FoE")
+    data = foe_client(ctx.master.scheduler, s).read(
+        req.name, password=req.password, max_size=req.max_size,
+        progress=ctx.transfer_progress)
+    return msg.Data(data)
+
+
+@handler(msg.FoeWrite)
+def _foe_write(ctx: MasterContext, req: msg.FoeWrite) -> msg.Done:
+    if req.boot:
+        bootstrap_update(ctx.master, ctx.slave(req.position), req.data, name=req.name,
+                         password=req.password, progress=ctx.transfer_progress)
+        return msg.Done()
+    s = _mailbox_slave(ctx, req.position, "FoE")
+    foe_client(ctx.master.scheduler, s).write(req.name, req.data, password=req.password,
+                                              progress=ctx.transfer_progress)
+    return msg.Done()
+
+
+def _soe(ctx: MasterContext, position: int) -> SoeClient:
+    s = _mailbox_slave(ctx, position, "SoE")
+    if s.al_state == AlState.BOOT:
+        if not ctx.direct:
+            raise ConfigError(f"{s.describe()} is in BOOT: no SoE there")
+        ctx.master.set_state(AlState.PREOP, [s])
+    if s.mbx is None:
+        raise ConfigError(f"{s.describe()} has no mailbox: no SoE")
+    return SoeClient(s.mbx)
+
+
+@handler(msg.SoeRead)
+def _soe_read(ctx: MasterContext, req: msg.SoeRead) -> msg.Data:
+    return msg.Data(_soe(ctx, req.position).read(req.idn, elements=req.elements,
+                                                 drive=req.drive))
+
+
+@handler(msg.SoeWrite)
+def _soe_write(ctx: MasterContext, req: msg.SoeWrite) -> msg.Done:
+    _soe(ctx, req.position).write(req.idn, req.data, elements=req.elements, drive=req.drive)
     return msg.Done()

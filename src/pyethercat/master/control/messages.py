@@ -23,7 +23,7 @@ __all__ = [
     "EoeHandler", "EoeHandlers", "EoeList", "EoeIp", "EoeGetIp", "EoeSetIp",
     "CounterList", "MasterInfoRequest", "RateSet", "MasterInfo", "Domains", "DomainFmmu",
     "DomainInfo", "DomainList", "GetConfig", "StartupSdo", "ConfigReply", "Rescan",
-    "RescanReply",
+    "RescanReply", "FoeRead", "FoeWrite", "SoeRead", "SoeWrite",
 ]
 
 
@@ -494,3 +494,52 @@ class EoeGetIp(Request):
 class EoeSetIp(Request):
     position: int
     params: EoeIp
+
+
+# --- FoE and SoE ---------------------------------------------------------------------------
+
+
+@request("foe_read", Data)
+@dataclass(frozen=True)
+class FoeRead(Request):
+    """Read file ``name`` over FoE (through the bootstrap mailbox when the slave is in BOOT)."""
+
+    position: int
+    name: str
+    password: int = 0
+    max_size: int | None = None
+
+
+@request("foe_write", Done)
+@dataclass(frozen=True)
+class FoeWrite(Request):
+    """Write ``data`` as file ``name`` over FoE; ``boot``: firmware update through BOOT."""
+
+    position: int
+    name: str
+    data: bytes
+    password: int = 0
+    boot: bool = False
+
+
+@request("soe_read", Data)
+@dataclass(frozen=True)
+class SoeRead(Request):
+    """Read elements ``elements`` (SoE element flags) of IDN ``idn`` of drive ``drive``."""
+
+    position: int
+    idn: int
+    elements: int = 0x40
+    drive: int = 0
+
+
+@request("soe_write", Done)
+@dataclass(frozen=True)
+class SoeWrite(Request):
+    """Write raw ``data`` to elements ``elements`` of IDN ``idn`` of drive ``drive``."""
+
+    position: int
+    idn: int
+    data: bytes
+    elements: int = 0x40
+    drive: int = 0
