@@ -20,7 +20,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TypeVar
 
-from pyethercat.errors import AlStatusError, ConfigError, StateTimeoutError, WorkingCounterError
+from pyethercat.errors import AlStatusError, StateTimeoutError, WorkingCounterError
 from pyethercat.master.diag import multiple_read, multiple_write
 from pyethercat.master.scheduler import Scheduler
 from pyethercat.master.slave_info import SlaveInfo
@@ -277,14 +277,6 @@ def setup_mailboxes(scheduler: Scheduler, step: AlState, slaves: Sequence[SlaveI
     """Before INIT -> PREOP/BOOT: write the mailbox sync managers of slaves still in INIT."""
     if step not in (AlState.PREOP, AlState.BOOT):
         return
-    if step == AlState.BOOT:
-        # A slave without a bootstrap mailbox cannot be reached in BOOT: refuse here
-        # rather than leave it to the slave (AL status 0x0013 or 0x0015).
-        lacking = [s for s in slaves if s.sii is not None and not mailbox_sm_writes(s, boot=True)]
-        if lacking:
-            names = ", ".join(s.describe() for s in lacking[:5])
-            raise ConfigError(f"BOOT refused: no bootstrap mailbox in the SII (words "
-                              f"0x0014-0x0017) of {names}")
     wanted = [(s, w) for s in slaves if (w := mailbox_sm_writes(s, boot=step == AlState.BOOT))]
     if not wanted:
         return  # no mailbox among them: nothing to write, nothing to read
