@@ -93,7 +93,7 @@ def _case(args: list[str], fragment: str) -> tuple[list[str], str]:
 CASES = [
     # usage: unknown, ambiguous, missing, malformed
     (["nosuch"], "No such command 'nosuch'"),
-    (["s"], "ambiguous command 's': it matches sdos, sii_read, sii_write, sim, slaves, states"),
+    (["s"], "ambiguous command 's': it matches sdos, sii_read, sii_write, sim, slaves, soe_read, soe_write, states"),
     (["--sim", DEMO, "reg_read", "-p", "0"], "Missing argument 'ADDRESS'"),
     (["--sim", DEMO, "reg_read", "-p", "zz", "0x130", "2"], "invalid character 'z'"),
     (["decode"], "Missing argument 'CAPTURE'"),
