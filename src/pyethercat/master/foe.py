@@ -29,8 +29,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from pyethercat.errors import EtherCATError, FoeAbort, FoeTimeoutError, MailboxError
-from pyethercat.errors import TimeoutError as EcTimeoutError
 from pyethercat.master.mailbox import Mailbox, MailboxMessage
+from pyethercat.master.transfer import answer_by_deadline
 from pyethercat.wire.mailbox.foe import FoeMessage, decode_foe
 from pyethercat.wire.mailbox.foe_transfer import (
     DEFAULT_PACKET_TIMEOUT,
@@ -129,7 +129,7 @@ class FoeClient:
                         packets += 1
                     if sm.done:
                         break
-                    reply = self._answer(sm, what)
+                    reply = answer_by_deadline(mbx, _is_foe, what, sm, sm.packet_timeout)
                     msg = sm.receive(decode_foe(reply.payload), clock())
                     if progress is not None:
                         progress(sm.progress)
@@ -144,17 +144,6 @@ class FoeClient:
                 self.stats.packets = packets
                 self.stats.busy = sm.busy_count
                 self.stats.seconds = clock() - started
-
-    def _answer(self, sm: FoeWriteClient | FoeReadClient, what: str) -> MailboxMessage:
-        """The slave's next FoE message, within the packet's deadline."""
-        mbx = self.mailbox
-        deadline = sm.deadline if sm.deadline is not None else mbx.clock() + sm.packet_timeout
-        try:
-            return mbx.receive(_is_foe, what=f"answer to {what}",
-                               timeout=max(0.0, deadline - mbx.clock()))
-        except EcTimeoutError:
-            sm.check_deadline(max(mbx.clock(), deadline))
-            raise  # not reached: check_deadline raised
 
     def _send_abort(self, sm: FoeWriteClient | FoeReadClient) -> None:
         """Tell the slave we gave up (best effort: the link may be what failed)."""

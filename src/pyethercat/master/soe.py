@@ -18,8 +18,8 @@ from __future__ import annotations
 import struct
 
 from pyethercat.errors import ConfigError, MailboxError
-from pyethercat.errors import TimeoutError as EcTimeoutError
 from pyethercat.master.mailbox import Mailbox, MailboxMessage
+from pyethercat.master.transfer import answer_by_deadline
 from pyethercat.wire.mailbox.header import MailboxType
 from pyethercat.wire.mailbox.soe import SoeElement, decode_soe, format_idn, parse_idn
 from pyethercat.wire.mailbox.soe_transfer import (
@@ -132,7 +132,7 @@ class SoeClient:
             mbx.send(MailboxType.SOE, sm.start(mbx.clock()).encode(), what=what,
                      timeout=sm.timeout)
             while not sm.done:
-                sm.receive(decode_soe(self._answer(sm, what).payload), mbx.clock())
+                sm.receive(decode_soe(answer_by_deadline(mbx, _is_soe, what, sm, sm.timeout).payload), mbx.clock())
         return sm.data
 
     def write(self, idn: IdnLike, data: bytes, *, elements: int = SoeElement.VALUE,
@@ -148,17 +148,7 @@ class SoeClient:
                 # SM0 refuses the next fragment until the drive took the last one.
                 mbx.send(MailboxType.SOE, frag.encode(), what=what, timeout=sm.timeout)
             sm.deadline = mbx.clock() + sm.timeout
-            sm.receive(decode_soe(self._answer(sm, what).payload), mbx.clock())
-
-    def _answer(self, sm: SoeReadClient | SoeWriteClient, what: str) -> MailboxMessage:
-        mbx = self.mailbox
-        deadline = sm.deadline if sm.deadline is not None else mbx.clock() + sm.timeout
-        try:
-            return mbx.receive(_is_soe, what=f"answer to {what}",
-                               timeout=max(0.0, deadline - mbx.clock()))
-        except EcTimeoutError:
-            sm.check_deadline(max(mbx.clock(), deadline))
-            raise
+            sm.receive(decode_soe(answer_by_deadline(mbx, _is_soe, what, sm, sm.timeout).payload), mbx.clock())
 
     # -- typed access ------------------------------------------------------------------
 

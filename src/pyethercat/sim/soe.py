@@ -246,14 +246,20 @@ class SoeProtocol:
         self._send(soe_error_response(opcode, msg.idn, code, drive=msg.drive,
                                       elements=msg.elements).encode())
 
-    def _read(self, msg: SoeMessage) -> None:
+    def _parameter(self, opcode: int, msg: SoeMessage) -> SoeParameter | None:
+        """The IDN a request addresses; None after answering that drive or IDN is missing."""
         drive = self.drives.get(msg.drive)
         if drive is None:
-            self._error(SoeOpCode.READ_RESPONSE, msg, INVALID_DRIVE)
-            return
+            self._error(opcode, msg, INVALID_DRIVE)
+            return None
         param = drive.parameters.get(msg.idn)
         if param is None:
-            self._error(SoeOpCode.READ_RESPONSE, msg, NO_IDN)
+            self._error(opcode, msg, NO_IDN)
+        return param
+
+    def _read(self, msg: SoeMessage) -> None:
+        param = self._parameter(SoeOpCode.READ_RESPONSE, msg)
+        if param is None:
             return
         if not msg.elements:
             self._error(SoeOpCode.READ_RESPONSE, msg, NO_ELEMENT)
@@ -273,13 +279,8 @@ class SoeProtocol:
             self._send(frag.encode())
 
     def _write(self, msg: SoeMessage) -> None:
-        drive = self.drives.get(msg.drive)
-        if drive is None:
-            self._error(SoeOpCode.WRITE_RESPONSE, msg, INVALID_DRIVE)
-            return
-        param = drive.parameters.get(msg.idn)
+        param = self._parameter(SoeOpCode.WRITE_RESPONSE, msg)
         if param is None:
-            self._error(SoeOpCode.WRITE_RESPONSE, msg, NO_IDN)
             return
         if msg.elements != SoeElement.VALUE:
             flag = msg.elements & -msg.elements  # lowest element addressed
