@@ -145,6 +145,19 @@ class SmView:
     def end(self) -> int:
         return int(self.start + self.length)
 
+    def with_status(self, status: int) -> SmView:
+        """A copy of this view with another status byte (cheaper than decoding anew)."""
+        view = SmView.__new__(SmView)
+        view.n, view.start, view.length, view.control = self.n, self.start, self.length, self.control
+        view.status, view.activate, view.pdi_control = status, self.activate, self.pdi_control
+        return view
+
+
+#: Per SM register block: every byte but the status (byte 5), which the mailbox flips
+#: on each access and which does not decide whether or where an SM applies.
+_SM_STATIC = np.array([0 if b == R.SM_STATUS else 0xFF for b in range(R.SM_SIZE)] * 16,
+                      np.uint8)
+
 
 class EscRegisters:
     """One ESC's row of the segment memory, its profile and its host."""
@@ -203,14 +216,19 @@ class EscRegisters:
     def sms_overlapping(self, lo: int, hi: int) -> list[SmView]:
         """The enabled SMs whose area overlaps [lo, hi)."""
         # Decoding every SM on each access was most of a mailbox frame's cost: decode
-        # them again only when their register bytes changed (one slice compare tells).
-        raw = self.row[R.SM_BASE: R.SM_BASE + R.SM_SIZE * self.profile.sm_count].tobytes()
-        if raw != self._sm_raw:
-            self._sm_raw = raw
+        # them again only when their registers other than the status changed (one
+        # masked compare tells); the status is read fresh each time.
+        size = R.SM_SIZE * self.profile.sm_count
+        regs = self.row[R.SM_BASE: R.SM_BASE + size]
+        static = (regs & _SM_STATIC[:size]).tobytes()
+        if static != self._sm_raw:
+            self._sm_raw = static
+            raw = regs.tobytes()
             views = (SmView(n, raw[R.SM_SIZE * n: R.SM_SIZE * (n + 1)])
                      for n in range(self.profile.sm_count))
             self._sm_enabled = [v for v in views if v.enabled]
-        return [s for s in self._sm_enabled if s.start < hi and s.end > lo]
+        return [s.with_status(int(regs[R.SM_SIZE * s.n + R.SM_STATUS]))
+                for s in self._sm_enabled if s.start < hi and s.end > lo]
 
     def set_ecat_event(self, bits: int) -> None:
         """Set ECAT event request bits (0x0210); the host recomputes the IRQ field."""
