@@ -22,6 +22,7 @@ from pyethercat.errors import (
     MailboxErrorReply,
 )
 from pyethercat.link.pair import PairLink
+from pyethercat.master import states
 from pyethercat.master.bootstrap import bootstrap_update
 from pyethercat.master.foe import FoeClient
 from pyethercat.master.master import Master
@@ -55,9 +56,8 @@ def _foe(seg: Segment, i: int) -> FoeProtocol:
 
 
 def _client(m: Master, i: int = 0) -> FoeClient:
-    mbx = m.slaves[i].mbx
-    assert mbx is not None
-    return FoeClient(mbx)
+    # the master made it with the slave's mailbox (the client registry)
+    return m.slaves[i].client(FoeClient)
 
 
 IO = """
@@ -245,5 +245,6 @@ def test_boot_refused_without_bootstrap_mailbox_and_al_codes_typed() -> None:
     m2.set_state("INIT")
     m2.write(m2.slaves[0], reg.sm_address(0), bytes(8))
     with pytest.raises(BootMailboxConfigError) as info2:
-        m2.set_state("BOOT", prepare=None)
+        # requested without the master's mailbox set-up (states.set_state, prepare=None)
+        states.set_state(m2.scheduler, m2.slaves, AlState.BOOT, prepare=None)
     assert info2.value.code == 0x0015

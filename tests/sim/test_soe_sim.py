@@ -30,10 +30,8 @@ def drive() -> tuple[Master, SoeClient, SoeProtocol]:
     m = Master(PairLink.responder_link(seg.process), clock=VirtualClock())
     m.scan()
     m.set_state("PREOP")
-    mbx = m.slaves[0].mbx
-    assert mbx is not None
     server = seg.slaves[0].spec.app.protocols[MailboxType.SOE]  # type: ignore[union-attr]
-    return m, SoeClient(mbx), server  # type: ignore[return-value]
+    return m, m.slaves[0].client(SoeClient), server  # type: ignore[return-value]
 
 
 def test_the_profile_idns_with_their_elements(drive: tuple[Master, SoeClient, SoeProtocol]

@@ -96,6 +96,4 @@ def foe_client(scheduler: Scheduler, slave: Slave) -> FoeClient:
         return FoeClient(Mailbox(scheduler, slave.station_address, slave.describe(),
                                  rx_offset=rx_off, rx_size=rx_size, tx_offset=tx_off,
                                  tx_size=tx_size))
-    if slave.mbx is None:
-        raise ConfigError(f"{slave.describe()} has no mailbox: no FoE")
-    return FoeClient(slave.mbx)
+    return slave.client(FoeClient)

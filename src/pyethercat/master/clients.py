@@ -27,7 +27,9 @@ from __future__ import annotations
 from typing import ClassVar, Protocol, Self
 
 from pyethercat.master.coe import CoeClient
+from pyethercat.master.foe import FoeClient
 from pyethercat.master.mailbox import ClientContext, Mailbox
+from pyethercat.master.soe import SoeClient
 from pyethercat.wire.mailbox.header import MailboxType
 
 __all__ = ["DEFAULT_CLIENTS", "MailboxClient", "register_client", "registered_clients"]
@@ -45,7 +47,7 @@ class MailboxClient(Protocol):
 
 
 #: The clients every master makes, in this order.
-DEFAULT_CLIENTS: tuple[type[MailboxClient], ...] = (CoeClient,)
+DEFAULT_CLIENTS: tuple[type[MailboxClient], ...] = (CoeClient, FoeClient, SoeClient)
 
 _registry: dict[MailboxType, type[MailboxClient]] = {c.mailbox_type: c for c in DEFAULT_CLIENTS}
 

@@ -103,7 +103,7 @@ def eoe_frame_type(msg: ReceivedMessage) -> int | None:
     """EoE frame type of a mailbox message (None: not EoE or too short)."""
     if msg.header.type != MailboxType.EOE or len(msg.payload) < 4:
         return None
-    return msg.payload[0] & 0x0F
+    return int(msg.payload[0] & 0x0F)
 
 
 @dataclass

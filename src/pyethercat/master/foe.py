@@ -27,9 +27,10 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import ClassVar, Self
 
 from pyethercat.errors import EtherCATError, FoeAbort, FoeTimeoutError, MailboxError
-from pyethercat.master.mailbox import Mailbox, MailboxMessage
+from pyethercat.master.mailbox import ClientContext, Mailbox, ReceivedMessage
 from pyethercat.master.transfer import answer_by_deadline
 from pyethercat.wire.mailbox.foe import FoeMessage, decode_foe
 from pyethercat.wire.mailbox.foe_transfer import (
@@ -64,8 +65,8 @@ class FoeStats:
         return self.bytes / self.seconds if self.seconds > 0 else 0.0
 
 
-def _is_foe(msg: MailboxMessage) -> bool:
-    return msg.header.type == MailboxType.FOE
+def _is_foe(msg: ReceivedMessage) -> bool:
+    return bool(msg.header.type == MailboxType.FOE)
 
 
 class FoeClient:
@@ -75,8 +76,13 @@ class FoeClient:
     uses 3 s); methods take their own to override it.
     """
 
-    #: The mailbox type this client speaks (for the master's client registry).
-    mailbox_type = MailboxType.FOE
+    #: The mailbox type this client speaks (the registry key, see ``master.clients``).
+    mailbox_type: ClassVar[MailboxType] = MailboxType.FOE
+
+    @classmethod
+    def for_mailbox(cls, mailbox: Mailbox, context: ClientContext) -> Self:
+        """The client a master makes for a slave's mailbox (FoE has no unsolicited messages)."""
+        return cls(mailbox)
 
     def __init__(self, mailbox: Mailbox, *,
                  packet_timeout: float = DEFAULT_PACKET_TIMEOUT) -> None:

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 from typing import Protocol
 
 from pyethercat.errors import ConfigError, EtherCATError, MailboxErrorReply
-from pyethercat.master.mailbox import MailboxMessage
+from pyethercat.master.mailbox import ReceivedMessage
 from pyethercat.master.master_od import MasterObjectDictionary
 from pyethercat.master.slave import Slave
 from pyethercat.wire.gateway import (
@@ -93,7 +93,7 @@ class GatewayStats:
         return sum(self.dropped.values())
 
 
-def _same_type(mtype: int) -> Callable[[MailboxMessage], bool]:
+def _same_type(mtype: int) -> Callable[[ReceivedMessage], bool]:
     return lambda msg: int(msg.header.type) == mtype
 
 

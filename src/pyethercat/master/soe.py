@@ -16,9 +16,10 @@ them.
 from __future__ import annotations
 
 import struct
+from typing import ClassVar, Self
 
 from pyethercat.errors import ConfigError, MailboxError
-from pyethercat.master.mailbox import Mailbox, MailboxMessage
+from pyethercat.master.mailbox import ClientContext, Mailbox, ReceivedMessage
 from pyethercat.master.transfer import answer_by_deadline
 from pyethercat.wire.mailbox.header import MailboxType
 from pyethercat.wire.mailbox.soe import SoeElement, decode_soe, format_idn, parse_idn
@@ -49,8 +50,8 @@ def _idn(idn: IdnLike) -> int:
         raise ConfigError(str(exc)) from None
 
 
-def _is_soe(msg: MailboxMessage) -> bool:
-    return msg.header.type == MailboxType.SOE
+def _is_soe(msg: ReceivedMessage) -> bool:
+    return bool(msg.header.type == MailboxType.SOE)
 
 
 _INT_FORMATS = {(1, False): "<B", (2, False): "<H", (4, False): "<I", (8, False): "<Q",
@@ -112,8 +113,13 @@ def format_soe_value(value: SoeValue, attr: SoeAttribute) -> str:
 class SoeClient:
     """SoE services of one slave (see the module text)."""
 
-    #: The mailbox type this client speaks (for the master's client registry).
-    mailbox_type = MailboxType.SOE
+    #: The mailbox type this client speaks (the registry key, see ``master.clients``).
+    mailbox_type: ClassVar[MailboxType] = MailboxType.SOE
+
+    @classmethod
+    def for_mailbox(cls, mailbox: Mailbox, context: ClientContext) -> Self:
+        """The client a master makes for a slave's mailbox."""
+        return cls(mailbox)
 
     def __init__(self, mailbox: Mailbox, *, timeout: float = DEFAULT_SOE_TIMEOUT) -> None:
         self.mailbox = mailbox

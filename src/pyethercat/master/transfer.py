@@ -11,7 +11,7 @@ from __future__ import annotations
 from typing import Protocol
 
 from pyethercat.errors import TimeoutError as EcTimeoutError
-from pyethercat.master.mailbox import Accept, Mailbox, MailboxMessage
+from pyethercat.master.mailbox import Accept, Mailbox, ReceivedMessage
 
 __all__ = ["Deadlined", "answer_by_deadline"]
 
@@ -26,7 +26,7 @@ class Deadlined(Protocol):
 
 
 def answer_by_deadline(mbx: Mailbox, accept: Accept, what: str, sm: Deadlined,
-                       span: float) -> MailboxMessage:
+                       span: float) -> ReceivedMessage:
     """The next message ``accept`` takes, by ``sm.deadline`` (or ``span`` from now).
 
     A missed deadline raises the state machine's own time-out error.

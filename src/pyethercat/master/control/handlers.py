@@ -529,9 +529,7 @@ def _soe(ctx: MasterContext, position: int) -> SoeClient:
         if not ctx.direct:
             raise ConfigError(f"{s.describe()} is in BOOT: no SoE there")
         ctx.master.set_state(AlState.PREOP, [s])
-    if s.mbx is None:
-        raise ConfigError(f"{s.describe()} has no mailbox: no SoE")
-    return SoeClient(s.mbx)
+    return s.client(SoeClient)
 
 
 @handler(msg.SoeRead)
