@@ -104,3 +104,37 @@ def test_soem_dc_sync_makes_sync0_at_its_cycle(served: tuple[SimProcess, str]) -
     n = fired["sync0_pulses"]
     assert n == (last_sys - start) // cycle + 1
     assert (asked - after - 0.1 - 0.02) / 1e-9 / cycle <= n <= (answered - before - 0.1 + 0.02) / 1e-9 / cycle
+
+
+@pytest.mark.root
+def test_dc_and_run_dc_commands_over_veth(served: tuple[SimProcess, str], tmp_path: Path) -> None:
+    """``pyethercat dc`` and ``run --dc`` against ``pyethercat sim`` on the other end of the pair."""
+    from click.testing import CliRunner
+
+    from pyethercat.cli.main import cli
+
+    handle, iface = served
+    truth = true_delays(handle)
+    result = CliRunner().invoke(cli, ["--iface", iface, "dc", "--static", "1500", "--sync0", "1000"],
+                                catch_exceptions=False)
+    assert result.exit_code == 0, result.output
+    rows = [line.split() for line in result.output.splitlines() if line[:1].isdigit()]
+    assert len(rows) == 20 and rows[0][3] == "*"
+    delays = [int(r[6]) for r in rows]
+    assert all(abs(d - t) <= 10 for d, t in zip(delays, truth, strict=True)), (delays, truth)
+    terminals = [r for r in rows if "SYNC0" in r]
+    assert len(terminals) == 16  # every terminal; the four couplers have no DC op mode
+    plot = tmp_path / "run.png"
+    result = CliRunner().invoke(cli, ["--iface", iface, "run", "--dc", "--cycle", "1000",
+                                      "--seconds", "2", "--plot", str(plot)],
+                                catch_exceptions=False)
+    assert result.exit_code == 0, result.output
+    dc_lines = [line for line in result.output.splitlines() if line.startswith("DC master: ")]
+    assert dc_lines and "WKC errors: 0" in result.output
+    assert plot.read_bytes()[:4] == b"\x89PNG"
+    # the simulator's pulses came at the asked cycle on every terminal
+    report = handle.control("dc")["slaves"]
+    pulsing = [s for s in report if s["sync0_pulses"]]
+    assert len(pulsing) == 16
+    last = {s["last_sync0"][0] for s in pulsing}
+    assert all((t - min(last)) % 1_000_000 == 0 for t in last)

@@ -106,3 +106,28 @@ def test_cycle_object_pickles_with_its_state() -> None:
     assert DcMode.parse("Reference") is DcMode.REFERENCE
     with pytest.raises(ConfigError):
         DcMode.parse("slave")
+
+
+def test_start_takes_the_monitor_period_and_limit() -> None:
+    from pyethercat.clock import VirtualClock
+    from pyethercat.link.pair import PairLink
+    from pyethercat.master.dc import DcSettings
+    from pyethercat.master.master import Master
+    from pyethercat.sim.topology import parse_topology
+
+    clock = VirtualClock(1_000_000_000)
+    seg = parse_topology('[[slave]]\nname = "a"\ndevice = "builtin:coupler"\n'
+                         '[[slave]]\nname = "b"\ndevice = "builtin:do8"\n').build(clock=clock)
+    m = Master(PairLink.responder_link(seg.process), clock=clock)
+    m.scan()
+    m.dc.setup(DcSettings(static_sync=500))
+    runner = m.start(0.001, dc="master", clock=clock, dc_monitor=0.01, dc_limit=50e-9,
+                     check_interval=0)
+    try:
+        assert runner.wait_exchanges("main", 200, 10.0)
+    finally:
+        runner.stop()
+    assert runner.dc is not None
+    mon = runner.dc.monitor
+    assert (mon.period_ns, mon.limit_ns) == (10_000_000, 50)
+    assert mon.readings >= 10

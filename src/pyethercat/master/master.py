@@ -550,14 +550,16 @@ class Master:
               callback: Callable[[Cycle], None] | None = None, clock: Clock | None = None,
               check_interval: float = 0.1, recover: bool = True, timeout: float = 5.0,
               groups: Sequence[str] | None = None, frame_timeout: float | None = None,
-              dc: DcMode | str | None = None, dc_lead: float | None = None) -> CyclicRunner:
+              dc: DcMode | str | None = None, dc_lead: float | None = None,
+              dc_monitor: float = 0.1, dc_limit: float = 1e-6) -> CyclicRunner:
         """Configure (if needed), bring every slave to SAFE-OP, start cycles, go to ``target``.
 
         See :meth:`ProcessData.start` for the options.
         """
         return self.pd.start(cycle, target=target, callback=callback, clock=clock,
                              check_interval=check_interval, recover=recover, timeout=timeout,
-                             groups=groups, frame_timeout=frame_timeout, dc=dc, dc_lead=dc_lead)
+                             groups=groups, frame_timeout=frame_timeout, dc=dc, dc_lead=dc_lead,
+                             dc_monitor=dc_monitor, dc_limit=dc_limit)
 
     def run(self, cycle: float = 0.001, seconds: float | None = None, *,
             callback: Callable[[Cycle], None] | None = None, background: bool = False,

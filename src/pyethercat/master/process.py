@@ -201,7 +201,8 @@ class ProcessData:
               check_interval: float = 0.1, recover: bool = True, timeout: float = 5.0,
               groups: Sequence[str] | None = None,
               frame_timeout: float | None = None, dc: DcMode | str | None = None,
-              dc_lead: float | None = None) -> CyclicRunner:
+              dc_lead: float | None = None, dc_monitor: float = 0.1,
+              dc_limit: float = 1e-6) -> CyclicRunner:
         """Configure (if needed), bring every slave to SAFE-OP, start cycles, then go to ``target``.
 
         Returns the running :class:`CyclicRunner` (a context manager; ``stop()``
@@ -210,7 +211,9 @@ class ProcessData:
         clocks: the set-up if it has not run, the reference's time in every
         frame, the phase lock or the reference write, the sync monitor;
         ``dc_lead`` (seconds, default half a cycle) is how long before SYNC0
-        the frames pass the reference clock.
+        the frames pass the reference clock; the sync monitor reads 0x092C
+        every ``dc_monitor`` seconds (0: never) and reports "sync unstable"
+        above ``dc_limit`` seconds.
         """
         want = AlState.parse(target) if isinstance(target, str) else AlState(int(target))
         with self._lock:
@@ -225,6 +228,8 @@ class ProcessData:
                     self.dc.setup()
                 lead = None if dc_lead is None else int(round(dc_lead * 1e9))
                 plan = self.dc.cycle(int(round(cycle * 1e9)), dc, clock, lead_ns=lead)
+                plan.monitor.period_ns = int(round(dc_monitor * 1e9))
+                plan.monitor.limit_ns = int(round(dc_limit * 1e9))
             self.bring_up(slaves, timeout)
             runner = CyclicRunner(self.scheduler, cfg, self.images, slaves, cycle=cycle,
                                   clock=clock, callback=callback, check_interval=check_interval,
