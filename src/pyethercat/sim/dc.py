@@ -285,6 +285,12 @@ class DcClocks:
             return
         mem = self.memory.mem
         key = (slaves.tobytes(), self.frame_t0, bytes(data))
+        # A run of consecutive slaves (the usual FRMW: all behind the reference) is
+        # indexed as a slice: views instead of gathered copies.
+        first, count = int(slaves[0]), len(slaves)
+        if int(slaves[-1]) - first == count - 1 and (count < 3 or bool(
+                (np.diff(slaves) == 1).all())):
+            slaves = slice(first, first + count)  # type: ignore[assignment]
         rep = self._repeat
         if rep is not None and rep[0] == key:
             # The same write again in the same frame (the master packs many FRMW
