@@ -420,3 +420,15 @@ def test_type_cycle_in_dictionary_does_not_recurse_forever() -> None:
         }
     )
     assert d.type_info("A") is None
+
+
+def _with_transition(text: str) -> bytes:
+    return DRIVE.replace(b"<Transition>SO</Transition>", f"<Transition>{text}</Transition>".encode())
+
+
+def test_init_cmd_transitions_are_checked_against_the_state_machine() -> None:
+    coe = parse_esi(_with_transition("sp")).find_device(0x1234).mailbox.coe  # type: ignore[union-attr]
+    assert coe is not None and coe.init_cmds[1].transitions == ("PS", "SP")
+    # PREOP -> OP is no transition of the EtherCAT state machine: the file is wrong.
+    with pytest.raises(EsiError, match=r"drive.xml:\d+: CoE/InitCmd/Transition: 'PO' is no state transition"):
+        parse_esi(_with_transition("PO"), "drive.xml")

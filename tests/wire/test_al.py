@@ -1,4 +1,4 @@
-"""AL states and the AL status code table (facts sheet section 4)."""
+"""AL states, the state machine and the AL status code table (ETG.1000.6 section 5.3)."""
 
 from __future__ import annotations
 
@@ -7,10 +7,16 @@ import pytest
 from pyethercat.errors import ConfigError
 from pyethercat.wire.al import (
     AL_STATUS_CODE_NAMES,
+    PENDING,
+    TRANSITIONS,
     AlState,
     AlStatusCode,
     al_status_code_name,
+    is_legal_transition,
+    parse_transition,
     state_name,
+    state_path,
+    transition_name,
 )
 
 
@@ -82,3 +88,48 @@ def test_every_code_of_the_facts_sheet_has_its_name() -> None:
     assert al_status_code_name(AlStatusCode.SM_WATCHDOG) == "Sync manager watchdog"
     assert al_status_code_name(0x8001) == "Vendor specific (0x8001)"
     assert al_status_code_name(0x0005) == "Unknown AL status code 0x0005"
+
+
+# --- the state machine ------------------------------------------------------------------
+
+I, P, B, S, O = AlState.INIT, AlState.PREOP, AlState.BOOT, AlState.SAFEOP, AlState.OP  # noqa: E741 - the letters of the transition names
+
+
+def test_legal_transitions_are_exactly_the_state_machine_table() -> None:
+    states = [I, P, B, S, O]
+    legal = {(a, b) for a in states for b in states if a != b and is_legal_transition(a, b)}
+    # Up one step, down to any lower state, BOOT from and to INIT only (ETG.1000.6 5.3).
+    assert legal == {(I, P), (P, I), (P, S), (S, P), (S, O), (O, S), (S, I), (O, I), (O, P),
+                     (I, B), (B, I)}
+    assert all(is_legal_transition(s, s) for s in states)
+    assert not is_legal_transition(I, 0x05)  # no such state
+    assert {TRANSITIONS[name] for name in TRANSITIONS} == legal
+    assert all(transition_name(*TRANSITIONS[name]) == name for name in TRANSITIONS)
+    assert transition_name(I, O) is None and transition_name(P, P) is None
+
+
+def test_state_path_walks_up_step_by_step_and_down_at_once() -> None:
+    assert state_path(I, O) == [P, S, O]
+    assert state_path(O, I) == [I]
+    assert state_path(O, P) == [P]
+    assert state_path(S, B) == [I, B]
+    assert state_path(B, S) == [I, P, S]
+    assert state_path(0x0F, P) == [I, P]  # unknown: start from INIT
+    assert state_path(S, S) == [S]
+    for start in (I, P, B, S, O):
+        for target in (I, P, B, S, O):
+            steps = [start, *state_path(start, target)]
+            assert all(is_legal_transition(a, b) for a, b in zip(steps, steps[1:], strict=False))
+
+
+def test_transition_names_as_users_and_esi_files_write_them() -> None:
+    assert parse_transition("ps") == "PS"
+    assert parse_transition("P->S") == "PS"
+    assert parse_transition("SAFEOP_OP") == "SO"
+    assert parse_transition("OP") == "OP"  # the transition OP -> PREOP
+    with pytest.raises(ConfigError, match="unknown state transition 'PO'"):
+        parse_transition("PO")
+
+
+def test_pending_is_no_status_code() -> None:
+    assert PENDING < 0 and PENDING not in {int(c) for c in AlStatusCode}

@@ -26,7 +26,7 @@ from typing import Any
 
 from lxml import etree
 
-from pyethercat.errors import EsiError
+from pyethercat.errors import ConfigError, EsiError
 from pyethercat.esi.model import (
     EsiCoe,
     EsiDataType,
@@ -55,6 +55,7 @@ from pyethercat.esi.model import (
     PdoDirection,
     Text,
 )
+from pyethercat.wire.al import TRANSITIONS, parse_transition
 
 __all__ = [
     "DEFAULT_MAX_BYTES",
@@ -654,7 +655,11 @@ class _Parser:
         timeout = None
         for name, c in _kids(el):
             if name == "Transition":
-                transitions.append(_text(c).upper())
+                try:
+                    transitions.append(parse_transition(_text(c)))
+                except ConfigError:
+                    raise self.error(c, f"{what}/Transition: {_text(c)!r} is no state "
+                                        f"transition ({', '.join(TRANSITIONS)})") from None
             elif name in ("Index", "IDN"):
                 index = self.int_text(c, f"{what}/{name}", 16)
             elif name == "SubIndex":

@@ -2,7 +2,8 @@
 
 On the wire each UDP datagram holds exactly what follows the EtherType in a
 raw Ethernet frame: the 2-byte EtherCAT header and its body, without padding
-(facts sheet 1.4). The :class:`~pyethercat.link.base.Link` API carries whole
+(ETG.8200; Wireshark's ``packet-ethercat-frame.c`` decodes UDP port 0x88A4 the
+same way). The :class:`~pyethercat.link.base.Link` API carries whole
 Ethernet frames, so this link converts at the edge:
 
 * ``send(frame)`` checks the EtherType (0x88A4, optionally behind a VLAN tag),

@@ -15,7 +15,7 @@ Layout decisions (documented in docs/master.md):
 - ``layout="packed"`` (the default, as TwinCAT and SOEM do): a sync manager
   block of fewer than 8 bits (a 2-bit or 4-bit terminal) is mapped bitwise
   into the next free bits of the current byte, so four 2-bit terminals share
-  one byte (seed 000: "the FMMU also maps bitwise"). A block that does not fit
+  one byte (an FMMU maps bit by bit: ET1100 datasheet section II, "FMMU"). A block that does not fit
   the rest of the current byte starts a new byte: a block never straddles a
   byte boundary. Blocks of 8 bits or more always start on a byte. Slaves whose
   ESC maps only bytewise (feature bit 0) are never packed.
@@ -28,7 +28,8 @@ Layout decisions (documented in docs/master.md):
   General flag "not LRW") is exchanged with LWR (outputs) + LRD (inputs).
 - Expected working counter per datagram: +2 per slave with a write FMMU in
   range plus +1 per slave with a read FMMU in range for LRW; +1 per slave for
-  LWR and LRD (facts 2.2).
+  LWR and LRD (ETG.1000.4 command table; SOEM ``ecx_config_map_group`` counts
+  the expected working counter the same way).
 
 - Mailbox status (``mailbox_status=True``, the default, as SOEM does): every
   slave of a group with a send mailbox (SM1) gets one byte after the group's
@@ -251,7 +252,7 @@ class FmmuConfig:
 
     @property
     def bit_length(self) -> int:
-        """Mapped bits: 8 * length - start bit - (7 - stop bit) (facts 3.12)."""
+        """Mapped bits: 8 * length - start bit - (7 - stop bit) (ET1100 datasheet, FMMU 0x0600+)."""
         return 8 * self.length - self.logical_start_bit - (7 - self.logical_stop_bit)
 
     @property

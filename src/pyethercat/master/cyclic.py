@@ -10,7 +10,8 @@ ride in the spare room of the frame), copies the replies' input bytes back
 and compares one working counter per datagram. No per-slave work happens on
 that path.
 
-Several groups may run at different cycle times (seed 004, "cyclic mode"):
+Several groups may run at different cycle times (as IgH's domains and
+TwinCAT's tasks do):
 the loop ticks at the shortest period and sends a group every
 ``period / tick`` ticks.
 

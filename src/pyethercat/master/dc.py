@@ -7,7 +7,7 @@ datagrams (:meth:`DcSetup.next_request`), takes their replies
 gives the master's time, in ns since 2000, with each request. The steps:
 
 1. latch: one broadcast write to 0x0900 makes every DC slave latch its port
-   receive times (facts: IgH ``fsm_master.c``, SOEM ``ecx_configdc``); the
+   receive times (IgH ``fsm_master.c``, SOEM ``ecx_configdc``); the
    master time sampled just before it is the time base of the offsets;
 2. read: 0x0900-0x090F and 0x0918 of every DC slave, batched into as few
    frames as fit; a slave whose 0x0918 does not answer has receive times

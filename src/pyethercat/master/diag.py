@@ -83,7 +83,7 @@ def multiple_write(scheduler: Scheduler, stations: Sequence[int], address: int,
     return [r.wkc for r in scheduler.transact(datagrams, retries=retries)]
 
 
-# --- error counters 0x0300-0x0313 (facts 3.7) --------------------------------------------
+# --- error counters 0x0300-0x0313 (ET1100 datasheet section II, "Error counters") ----------
 
 #: Bytes from 0x0300 to the end of the lost-link counters.
 ERROR_COUNTERS_SIZE = LOST_LINK_COUNTER + 4 - RX_ERROR_COUNTER

@@ -1,7 +1,8 @@
 """Mailbox transport, master side: SM0/SM1 handshake, counters, polling, repeat requests.
 
 One :class:`Mailbox` per slave carries mailbox messages of any protocol
-(CoE, FoE, EoE, SoE) to and from that slave (facts 6):
+(CoE, FoE, EoE, SoE) to and from that slave (ETG.1000.4 mailbox; SM0/SM1 in
+mailbox mode as the ET1100 datasheet section II "SyncManager" describes):
 
 - **Send**: the message gets the next counter (1..7, then 1 again), is padded
   to the whole SM0 length and written with one FPWR (the ESC flips SM0 to
@@ -23,7 +24,8 @@ One :class:`Mailbox` per slave carries mailbox messages of any protocol
   mailbox waits for a cycle that began after its last SM1 read and looks at
   the byte; no poll frames at all.
 - **Fetch**: FPRD of the whole SM1; reading the last byte empties it.
-- **Repeat request** (facts 6.6): when a fetch may have emptied SM1 but its
+- **Repeat request** (SOEM ``ec_main.c`` ``ecx_mbxreceive``, SOES ``esc.c``
+  ``ESC_mbxprocess``): when a fetch may have emptied SM1 but its
   reply frame was lost (the scheduler had to send the read again and the
   retry came back with working counter 0), or when the status said "full"
   and the read found nothing, the master toggles SM1 activate bit 1, waits
@@ -379,7 +381,7 @@ class Mailbox:
         cnt = self.next_counter() if counter is None else counter
         if not 0 <= cnt <= 7:
             raise MailboxError(f"{self.label}: mailbox counter {cnt} out of range 0..7")
-        # header (facts 6.1) packed directly: this is the hot path of segmented transfers
+        # mailbox header (ETG.1000.4) packed directly: the hot path of segmented transfers
         frame = (_HEADER.pack(len(payload), 0, 0, (int(mtype) & 0x0F) | (cnt << 4)) + payload
                  ).ljust(self.rx_size, b"\x00")
         limit = self.clock() + (self.timeout if timeout is None else timeout)
@@ -494,7 +496,7 @@ class Mailbox:
     # -- repeat ---------------------------------------------------------------------------
 
     def repeat_request(self, limit: float | None = None) -> None:
-        """Ask the slave to post its last message again (facts 6.6).
+        """Ask the slave to post its last message again (the repeat request, see the module text).
 
         Toggles SM1 activate bit 1, waits for the repeat acknowledge (PDI
         control bit 1 equal to it); the caller then polls and reads as usual.

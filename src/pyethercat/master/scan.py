@@ -9,7 +9,9 @@ slaves needs about as many round trips as one slave does (8 bytes per step
 where 0x0502 bit 6 offers 8-byte reads, else 4). Each slave stops at its
 category end marker (``sii_bytes_needed``).
 
-The topology is rebuilt from the DL status of every slave (facts 12.1, 12.3):
+The topology is rebuilt from the DL status of every slave (frame processing
+order from the ET1100 datasheet section I; the parent walk as SOEM's
+``ecx_config_init`` does it):
 a frame enters a slave at port 0 and leaves through its other open ports in
 the order 3, 1, 2; auto-increment positions number the slaves in the order the
 frame meets them. Walking that order depth first with each slave's open ports
