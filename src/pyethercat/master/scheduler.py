@@ -193,6 +193,9 @@ class Scheduler:
         vclock = self._vclock
         if vclock is not None:
             vclock.advance(int(seconds * 1e9))
+            # Let other threads run (a cyclic runner on real time beside a virtual
+            # master): a poll loop in virtual time would otherwise keep the CPU.
+            time.sleep(0)
         else:
             time.sleep(seconds)
 
