@@ -26,6 +26,7 @@ from pyethercat.wire.mailbox.coe import (
     sdo_abort_name,
 )
 from pyethercat.wire.mailbox.datatypes import DataType
+from pyethercat.wire.mailbox.header import MailboxType, encode_mailbox, next_counter
 
 
 def _master(count: int = 1, mailbox_size: int = 128) -> tuple[Master, list[MiniCoe]]:
@@ -305,3 +306,31 @@ def test_no_mailbox_no_coe() -> None:
         s.client(CoeClient)
     with pytest.raises(ConfigError, match="was not scanned by a master"):
         Slave(0, 0x1001).set_pdo_mapping({2: [0x1600]})
+
+
+class _ShortErrorLength(MiniCoe):
+    """Posts SDO information errors as KickCAT's ESC emulator does: the mailbox length word
+    says 6 (CoE and SDO information headers) and the abort code follows outside it."""
+
+    def _post(self, payload: bytes, mtype: int) -> None:
+        if mtype == MailboxType.COE and len(payload) == 10 and payload[2] & 0x7F == 7:
+            self._counter = next_counter(self._counter)
+            raw = bytearray(encode_mailbox(mtype, payload, counter=self._counter))
+            raw[0:2] = (6).to_bytes(2, "little")
+            self._out.append(bytes(raw))
+            self._flush()
+            return
+        super()._post(payload, mtype)
+
+
+def test_sdo_info_error_whose_length_leaves_the_abort_code_out() -> None:
+    _seg, _apps, _drop, link = coe_segment(apps=[_ShortErrorLength()])
+    m = Master(link, clock=VirtualClock())
+    m.scan()
+    m.set_state("PREOP")
+    client = m.slaves[0].client(CoeClient)
+    with pytest.raises(SdoAbort) as err:
+        client.entry_description(0x1018, 0x13)
+    assert err.value.code == SdoAbortCode.NO_SUBINDEX
+    # The next request is answered normally (nothing was left in the mailbox).
+    assert client.entry_description(0x1018, 1).description

@@ -62,6 +62,7 @@ from pyethercat.wire.mailbox.coe import (
     SdoInfoGetOdListRequest,
     SdoInfoGetOdListResponse,
     SdoInfoMessage,
+    SdoInfoOpCode,
     SdoInfoReassembler,
     SdoTransferDone,
     SdoUploadClient,
@@ -190,6 +191,24 @@ def _is_sdo(msg: ReceivedMessage) -> bool:
 
 def _is_info(msg: ReceivedMessage) -> bool:
     return _coe_service(msg) == CoeService.SDO_INFORMATION
+
+
+def _short_info_error(msg: ReceivedMessage) -> int | None:
+    """The abort code of an SDO information error whose length word leaves the code out.
+
+    KickCAT's ESC emulator answers with a mailbox length of 6 (CoE and SDO
+    information headers) and the abort code right behind; SOEM reads the code
+    whatever the length says (``ecx_readOEsingle``), so do we. None when the
+    message is not such an error.
+    """
+    p = msg.payload
+    if len(p) < COE_HEADER_SIZE + 4 or p[COE_HEADER_SIZE] & 0x7F != SdoInfoOpCode.SDO_INFO_ERROR:
+        return None
+    code = (p[COE_HEADER_SIZE + 4:] + msg.after)[:4]
+    if len(code) < 4:
+        return None
+    _log.debug("SDO information error: abort code outside the mailbox length")
+    return int.from_bytes(code, "little")
 
 
 class CoeClient:
@@ -370,7 +389,10 @@ class CoeClient:
                 try:
                     got = reasm.feed(reply.payload)
                 except MailboxError as exc:
-                    raise MailboxError(f"{self.label}: {what}: {exc}") from None
+                    code = _short_info_error(reply)
+                    if code is None:
+                        raise MailboxError(f"{self.label}: {what}: {exc}") from None
+                    got = SdoInfoError(code=code)
                 if got is None:
                     continue
                 if isinstance(got, SdoInfoError):

@@ -140,10 +140,15 @@ class ClientContext:
 
 @dataclass(frozen=True, slots=True)
 class ReceivedMessage:
-    """A message read from SM1: its header and payload (exactly ``header.length`` bytes)."""
+    """A message read from SM1: its header and payload (exactly ``header.length`` bytes).
+
+    ``after`` holds the first bytes of SM1 behind the payload: a client may
+    look there when a slave's length word came out short (see ``CoeClient``).
+    """
 
     header: MailboxHeader
     payload: bytes
+    after: bytes = b""
 
     @property
     def type(self) -> MailboxType | int:
@@ -644,8 +649,8 @@ class Mailbox:
                 return
             self._last_in = header.counter
             self.stats.received += 1
-            msg = ReceivedMessage(header, raw[MAILBOX_HEADER_SIZE:MAILBOX_HEADER_SIZE +
-                                             header.length])
+            end = MAILBOX_HEADER_SIZE + header.length
+            msg = ReceivedMessage(header, raw[MAILBOX_HEADER_SIZE:end], raw[end:end + 8])
             if header.type == MailboxType.ERR:
                 self.stats.error_replies += 1
                 try:
