@@ -20,6 +20,7 @@ from pyethercat.link.pair import PairLink
 from pyethercat.master.eoe import EoeClient, EoeError, EoeService, eoe_clients
 from pyethercat.master.eoe_switch import EoeSwitch
 from pyethercat.master.master import Master
+from pyethercat.sim.eoe import eoe_server
 from pyethercat.sim.topology import parse_topology
 from pyethercat.wire.datagram import Command
 from pyethercat.wire.frame import decode_frame
@@ -74,7 +75,7 @@ def test_address_filter_set_get_and_effect(
         web.send(arp_request(bytes([10, 9, 0, 2])))  # broadcast: filtered out now
         web.send(ping(own, bytes([10, 9, 0, 2]), 32, 1))  # to its own MAC: passes
         assert wait_for(lambda: len(got) == 1)
-        server = seg.slaves[0].spec.app.eoe_server  # type: ignore[attr-defined]
+        server = eoe_server(seg.slaves[0].spec.app)
         assert server.stats.filtered == 1
     finally:
         svc.stop()
@@ -112,7 +113,7 @@ def test_set_ip_result_code_raises() -> None:
             return EoeResult.NO_IP_SUPPORT
 
     seg = parse_topology(TOPOLOGY).build()
-    seg.slaves[0].spec.app.eoe_server.endpoint.configure = Refusing()  # type: ignore[union-attr]
+    eoe_server(seg.slaves[0].spec.app).endpoint.configure = Refusing()  # type: ignore[union-attr]
     m = Master(PairLink.responder_link(seg.process))
     m.scan()
     m.set_state("PREOP")

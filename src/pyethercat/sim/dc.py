@@ -550,6 +550,32 @@ class DcClocks:
         esc = self.escs[index]
         esc.row[R.DC_LATCH0_STATUS + unit] &= R.DcLatchStatus.PIN_STATE
 
+    def report(self, names: Sequence[str]) -> list[dict[str, object]]:
+        """Per slave (``names``): walk time, oscillator drift, learned correction, |0x092C|, last SYNC0 pulse.
+
+        ``last_sync0``: (system time, segment time at which it really fired),
+        what tests and benchmarks compare across slaves; ``None`` before any.
+        """
+        dc = self
+        n = len(names)
+        out = []
+        last = dc.last_sync0()
+        epu = self._route().epu_ns
+        for s in range(n):
+            pulse = last[s]
+            out.append({
+                "index": s, "name": names[s],
+                # when a frame passes the processing unit, ns after it entered the segment:
+                # the true delays are the differences of these
+                "epu_ns": int(epu[s]),
+                "drift_ppm": float((dc.rate[s] - 1.0) * 1e6),
+                "correction_ppm": float(dc.trim[s] * 1e6),
+                "difference_ns": float(abs(dc.filtered[s])),
+                "sync0_pulses": int(dc.pulses[s]),
+                "last_sync0": None if pulse is None else [pulse[0], pulse[1]],
+            })
+        return out
+
 
 def _base_hook(name: str) -> object:
     from pyethercat.sim.device import DeviceApp

@@ -14,7 +14,6 @@ from typing import TYPE_CHECKING, Protocol
 from pyethercat.wire.al import AlState
 
 if TYPE_CHECKING:
-    from pyethercat.sim.eoe import EoeServer
     from pyethercat.sim.profiles import EscProfile
 
 __all__ = [
@@ -115,8 +114,6 @@ class DeviceApp:
     #: empty again for the master). False: the application empties it itself
     #: by reading the last byte of SM0 through its PDI.
     mailbox_auto_read: bool = True
-    #: The EoE server of a device that speaks EoE (its endpoint is chosen by the topology).
-    eoe_server: EoeServer | None = None
 
     def __init__(self) -> None:
         self.pdi: Pdi | None = None

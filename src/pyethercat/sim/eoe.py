@@ -408,5 +408,13 @@ def attach_eoe(app: MailboxDevice, tx_size: int, serial: int,
     server = EoeServer(app.mailbox, tx_size, EchoEndpoint(EoeSettings(mac=default_mac(serial))),
                        clock_ns, status)
     app.add_protocol(server)
-    app.eoe_server = server
     return server
+
+
+def eoe_server(app: object) -> EoeServer | None:
+    """The EoE server of a slave's application (None: it speaks no EoE)."""
+    if isinstance(app, MailboxDevice):
+        server = app.protocols.get(int(MailboxType.EOE))
+        if isinstance(server, EoeServer):
+            return server
+    return None

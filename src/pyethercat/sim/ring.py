@@ -17,6 +17,8 @@ walks a frame from either master port; :class:`RingMixin` gives
   slave and plug the same or another device into its place (hot swap);
 - :func:`ring_link` gives a master both ports of the ring in this process.
 
+The mixin also compiles what the frame path uses (SM areas, the logical
+map, configured addresses, the IRQ field) on first use after a change.
 Compiled state that depends on the route (configured addresses, the
 logical map, the IRQ field) is kept per master port: a set flag counts an
 invalidation, and a port's saved state stays good while no invalidation
@@ -32,13 +34,24 @@ from typing import TYPE_CHECKING, Any
 from pyethercat.errors import ConfigError
 from pyethercat.link.pair import PairLink
 from pyethercat.link.redundant import RedundantLink
+from pyethercat.sim.commands import Commands, station_map
+from pyethercat.sim.events import irq_field
+from pyethercat.sim.host import Dirty
 from pyethercat.sim.ports import Ports, Route
 
 if TYPE_CHECKING:
-    from pyethercat.sim.commands import Commands
+    from pyethercat.sim.esc import Esc
     from pyethercat.sim.fmmu import LogicalMap
+    from pyethercat.sim.memory import EscMemory
+    from pyethercat.sim.pdio import ProcessIo
+    from pyethercat.sim.syncman import SmAreas
+    from pyethercat.sim.wiring import Wiring
 
 __all__ = ["RingMixin", "ring_link"]
+
+#: The segment's flag of each kind of compiled state.
+_DIRTY_FLAGS = ((Dirty.ADDRESSING, "addressing_dirty"), (Dirty.FMMU, "fmmu_dirty"), (Dirty.SM, "sm_dirty"),
+                (Dirty.IRQ, "irq_dirty"), (Dirty.WATCHDOG, "watchdog_dirty"), (Dirty.TOPOLOGY, "topology_dirty"))
 
 
 class RingMixin:
@@ -62,6 +75,13 @@ class RingMixin:
         _fmmu_dirty: bool
         _irq_dirty: bool
         _removed: set[int]
+        memory: EscMemory
+        escs: list[Esc]
+        sm: SmAreas
+        pdio: ProcessIo
+        wiring: Wiring
+        sm_dirty: bool
+        watchdog_dirty: bool
 
         @property
         def route(self) -> Route: ...
@@ -133,6 +153,54 @@ class RingMixin:
     def removed(self, index: int) -> bool:
         """Whether slave ``index`` is unplugged."""
         return index in self._removed
+
+    # --- compiled state ---------------------------------------------------------------------
+
+    def sm_span(self) -> tuple[int, int]:
+        """[lo, hi) covered by any enabled SM of any slave (compiled on demand)."""
+        if self.sm_dirty:
+            self._refresh_sm_state()
+        return self.sm.span
+
+    def _refresh_sm_state(self) -> None:
+        self.sm.compile(self.escs)
+        self.pdio.invalidate()
+        self.commands.invalidate(sm_changed=True)
+        self.wiring.invalidate()
+        self.sm_dirty = False
+        self.fmmu_dirty = True
+        self.watchdog_dirty = True
+
+    def _refresh_fmmus(self) -> None:
+        route = self.route
+        if self.sm_dirty:
+            self._refresh_sm_state()
+        self._lmap = self.sm.logical_map(route, self.escs)
+        self._computed[1] = self._inval[1]
+        self.fmmu_dirty = False
+
+    def _refresh_addressing(self) -> None:
+        self._stations = station_map(self.memory, self.route.passes)
+        self._computed[0] = self._inval[0]
+        self.addressing_dirty = False
+
+    def _refresh_irq(self) -> None:
+        self._irq = irq_field(self.memory, self.route.passes)
+        self._computed[2] = self._inval[2]
+        self.irq_dirty = False
+
+    def _invalidate_all(self) -> None:
+        """Everything compiled must be rebuilt (slaves added, replaced, powered)."""
+        self.topology_dirty = self.addressing_dirty = self.fmmu_dirty = True
+        self.sm_dirty = self.irq_dirty = self.watchdog_dirty = True
+        self.commands.invalidate()
+
+    def invalidate(self, what: Dirty) -> None:
+        """Compiled state ``what`` must be rebuilt before its next use."""
+        for bit, flag in _DIRTY_FLAGS:
+            if what & bit:
+                setattr(self, flag, True)
+
 
     # --- route-dependent compiled state per master port --------------------------------
 

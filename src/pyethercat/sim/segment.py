@@ -42,12 +42,12 @@ import numpy.typing as npt
 from pyethercat.clock import TimeSource, VirtualClock
 from pyethercat.errors import ConfigError
 from pyethercat.sim.apps import DeviceApps
-from pyethercat.sim.commands import RMW, Commands, station_map
-from pyethercat.sim.datagrams import Head, scan_headers
+from pyethercat.sim.arrival import OutputArrival
+from pyethercat.sim.commands import RMW, Commands
+from pyethercat.sim.datagrams import MALFORMED, Head, scan_frame
 from pyethercat.sim.dc import DcClocks
 from pyethercat.sim.device import DeviceApp
 from pyethercat.sim.esc import Esc
-from pyethercat.sim.events import irq_field
 from pyethercat.sim.faults import NEVER, Faults
 from pyethercat.sim.fmmu import LogicalMap
 from pyethercat.sim.host import Dirty
@@ -69,8 +69,6 @@ from pyethercat.wire.datagram import (
 )
 from pyethercat.wire.frame import (
     ECAT_HEADER_SIZE,
-    ECAT_LENGTH_MASK,
-    ECAT_TYPE_SHIFT,
     ETH_HEADER_SIZE,
     LOCALLY_ADMINISTERED_BIT,
     FrameType,
@@ -112,9 +110,6 @@ _MIN_FRAME = ETH_HEADER_SIZE + ECAT_HEADER_SIZE
 _OR_REDUCE = np.bitwise_or.reduce
 _EMPTY = np.zeros(0, np.int64)
 _BELOW_SAFEOP = (AlState.INIT, AlState.PREOP, AlState.BOOT)
-#: The segment's flag of each kind of compiled state.
-_DIRTY_FLAGS = ((Dirty.ADDRESSING, "addressing_dirty"), (Dirty.FMMU, "fmmu_dirty"), (Dirty.SM, "sm_dirty"),
-                (Dirty.IRQ, "irq_dirty"), (Dirty.WATCHDOG, "watchdog_dirty"), (Dirty.TOPOLOGY, "topology_dirty"))
 
 
 @dataclass
@@ -194,13 +189,10 @@ class Segment(RingMixin):
         self.wiring = Wiring(self.memory, self.escs)
         self.sm = SmAreas(self.memory)
         self.commands = Commands(self)
-        #: Per slave: a complete output buffer arrived (since it last went below SAFEOP).
-        self.outputs_received = np.zeros(0, bool)
         self.apps = DeviceApps()
+        self.arrival = OutputArrival(self.escs, self.sm, self.watchdogs, self.apps, self.wiring, self.now_ns)
         self.pdio = ProcessIo(self.memory, self.escs, self.now_ns, self._host.has_outputs)
         self.dc.sync0_sink = self.apps.sync0
-        #: Slaves with a SAFEOP -> OP request waiting for their first outputs.
-        self.pending_op: set[int] = set()
         # dirty flags (see sim.host.Dirty)
         self.topology_dirty = True
         self.sm_dirty = True
@@ -269,50 +261,69 @@ class Segment(RingMixin):
         hangs on that port of that slave (a tree branch).
         """
         index = len(self.slaves)
-        delay = spec.forwarding_delay_ns if spec.forwarding_delay_ns is not None else (
-            spec.profile.default_forwarding_delay_ns)
-        esc = Esc(self._host, self.memory, index, spec.name, spec.sii, spec.profile, spec.app, spec.alias,
-                  spec.initial_inputs, spec.sii_info)
+        esc = self._esc(index, spec)
         self.escs.append(esc)  # (Ports.add looks the new slave's profile up)
         try:
-            self.ports.add(index, spec.name, delay, parent, port, cable_delay_ns)
+            self.ports.add(index, spec.name, self._delay(spec), parent, port, cable_delay_ns)
         except ConfigError:
             self.escs.pop()
             raise
         self.memory.add()
         self.slaves.append(SimSlave(spec.name, spec, index, esc))
         self.commands.add_slave(esc)
-        self.dc.add_slave(index, self.clock.now_ns(), spec.drift_ppm)
         self.watchdogs.add_slave()
-        self.outputs_received = np.append(self.outputs_received, False)
+        self.arrival.add_slave()
+        self.apps.add(None, None, -1)
+        esc.power_on()
+        self._install(index, spec, esc)
+        self.apps.power_on(index)
+        self._invalidate_all()
+        return index
+
+    def replace_slave(self, index: int, spec: SimSlaveSpec) -> None:
+        """Another device (``spec``) in the place of slave ``index``, switched off.
+
+        Its cables stay where they were (ports the new chip lacks have no
+        link); :meth:`insert_slave` switches it on."""
+        self.power_off(index)
+        esc = self._esc(index, spec)
+        self.escs[index] = esc
+        self.slaves[index] = SimSlave(spec.name, spec, index, esc)
+        self.ports.fwd_delay[index] = self._delay(spec)
+        self.commands.replace_slave(index, esc)
+        self._install(index, spec, esc)
+        self._invalidate_all()
+
+    def _esc(self, index: int, spec: SimSlaveSpec) -> Esc:
+        return Esc(self._host, self.memory, index, spec.name, spec.sii, spec.profile, spec.app,
+                   spec.alias, spec.initial_inputs, spec.sii_info)
+
+    @staticmethod
+    def _delay(spec: SimSlaveSpec) -> int:
+        d = spec.forwarding_delay_ns
+        return d if d is not None else spec.profile.default_forwarding_delay_ns
+
+    def _install(self, index: int, spec: SimSlaveSpec, esc: Esc) -> None:
+        """The slave's clock, model instance and application (new slave or hot swap)."""
+        self.dc.add_slave(index, self.clock.now_ns(), spec.drift_ppm)
         model, instance = spec.model, spec.instance
         if model is not None:
             if instance < 0:
                 instance = model.new_instance()
             model.placed(instance, index, self.pdio)
-        self.apps.add(spec.app, model, instance)
+        self.apps.replace(index, spec.app, model, instance)
         if model is not None and model.sync_events:
             self.dc.listen(index)
-        esc.power_on()
         if spec.app is not None:
             spec.app.attach(esc.pdi)
-        self.apps.power_on(index)
-        self._invalidate_all()
-        return index
-
-    def _invalidate_all(self) -> None:
-        self.topology_dirty = self.addressing_dirty = self.fmmu_dirty = True
-        self.sm_dirty = self.irq_dirty = self.watchdog_dirty = True
-        self.commands.invalidate()
 
     def slave(self, key: int | str) -> SimSlave:
         """A slave by index or name."""
-        if isinstance(key, int):
-            return self.slaves[key]
-        for s in self.slaves:
-            if s.name == key:
-                return s
-        raise ConfigError(f"no slave named {key!r}")
+        found = self.slaves[key] if isinstance(key, int) else next(
+            (s for s in self.slaves if s.name == key), None)
+        if found is None:
+            raise ConfigError(f"no slave named {key!r}")
+        return found
 
     @property
     def route(self) -> Route:
@@ -343,8 +354,7 @@ class Segment(RingMixin):
         """Switch a slave off: it disappears, its neighbours lose their links."""
         self.escs[slave].powered = False
         self.memory.clear(slave)
-        self.outputs_received[slave] = False
-        self.watchdogs.stop(slave)
+        self.arrival.stop(slave)
         self.dc.sync_drop(slave)
         self._invalidate_all()
 
@@ -363,58 +373,12 @@ class Segment(RingMixin):
         self.dc.latch_input(slave, unit, rising, self.clock.now_ns() if t_ns is None else t_ns)
 
     def dc_report(self) -> list[dict[str, object]]:
-        """Per slave: walk time, oscillator drift, learned correction, |0x092C|, last SYNC0 pulse.
-
-        ``last_sync0``: (system time, segment time at which it really fired),
-        what tests and benchmarks compare across slaves; ``None`` before any.
-        """
-        dc = self.dc
-        n = len(self.slaves)
-        out = []
-        last = dc.last_sync0()
-        epu = self.route.epu_ns
-        for s in range(n):
-            pulse = last[s]
-            out.append({
-                "index": s, "name": self.slaves[s].name,
-                # when a frame passes the processing unit, ns after it entered the segment:
-                # the true delays are the differences of these
-                "epu_ns": int(epu[s]),
-                "drift_ppm": float((dc.rate[s] - 1.0) * 1e6),
-                "correction_ppm": float(dc.learned[s] * 1e6),
-                "difference_ns": float(abs(dc.filtered[s])),
-                "sync0_pulses": int(dc.pulses[s]),
-                "last_sync0": None if pulse is None else [pulse[0], pulse[1]],
-            })
-        return out
-    def replace_slave(self, index: int, spec: SimSlaveSpec) -> None:
-        """Another device (``spec``) in the place of slave ``index``, switched off.
-
-        Its cables stay where they were (ports the new chip lacks have no
-        link); :meth:`insert_slave` switches it on."""
-        self.power_off(index)
-        esc = Esc(self._host, self.memory, index, spec.name, spec.sii, spec.profile, spec.app,
-                  spec.alias, spec.initial_inputs, spec.sii_info)
-        self.escs[index] = esc
-        self.slaves[index] = SimSlave(spec.name, spec, index, esc)
-        self.ports.fwd_delay[index] = (spec.forwarding_delay_ns if spec.forwarding_delay_ns is not None
-                                       else spec.profile.default_forwarding_delay_ns)
-        self.commands.replace_slave(index, esc)
-        self.dc.add_slave(index, self.clock.now_ns(), spec.drift_ppm)
-        model, instance = spec.model, spec.instance
-        if model is not None:
-            if instance < 0:
-                instance = model.new_instance()
-            model.placed(instance, index, self.pdio)
-        self.apps.replace(index, spec.app, model, instance)
-        if spec.app is not None:
-            spec.app.attach(esc.pdi)
-        self._invalidate_all()
+        """Per slave: walk time, oscillator drift, learned correction, |0x092C|, last SYNC0 (``DcClocks.report``)."""
+        return self.dc.report([s.name for s in self.slaves])
 
     def reset_slave(self, slave: int) -> None:
         """Power-on reset of one ESC (also the 'RES' sequence in 0x0040)."""
-        self.outputs_received[slave] = False
-        self.watchdogs.stop(slave)
+        self.arrival.stop(slave)
         self.dc.reset(slave, self.clock.now_ns())
         self.escs[slave].power_on()
         self.ports.slave_reset(slave)
@@ -445,71 +409,19 @@ class Segment(RingMixin):
         """Bits of ``src``'s outputs (SM2 image) appear in ``dst``'s inputs (SM3 image)."""
         self.wiring.add(src_slave, src_bit, dst_slave, dst_bit, bits, len(self.slaves))
 
-    # --- compiled state ------------------------------------------------------------------
-
-    def sm_span(self) -> tuple[int, int]:
-        """[lo, hi) covered by any enabled SM of any slave (compiled on demand)."""
-        if self.sm_dirty:
-            self._refresh_sm_state()
-        return self.sm.span
-
-    def _refresh_sm_state(self) -> None:
-        self.sm.compile(self.escs)
-        self.pdio.invalidate()
-        self.commands.invalidate(sm_changed=True)
-        self.wiring.invalidate()
-        self.sm_dirty = False
-        self.fmmu_dirty = True
-        self.watchdog_dirty = True
-
-    def _refresh_fmmus(self) -> None:
-        route = self.route
-        if self.sm_dirty:
-            self._refresh_sm_state()
-        self._lmap = self.sm.logical_map(route, self.escs)
-        self._computed[1] = self._inval[1]
-        self.fmmu_dirty = False
-
-    def _refresh_addressing(self) -> None:
-        self._stations = station_map(self.memory, self.route.passes)
-        self._computed[0] = self._inval[0]
-        self.addressing_dirty = False
-
-    def _refresh_irq(self) -> None:
-        self._irq = irq_field(self.memory, self.route.passes)
-        self._computed[2] = self._inval[2]
-        self.irq_dirty = False
-
-    def invalidate(self, what: Dirty) -> None:
-        """Compiled state ``what`` must be rebuilt before its next use."""
-        for bit, flag in _DIRTY_FLAGS:
-            if what & bit:
-                setattr(self, flag, True)
-
     # --- process data ---------------------------------------------------------------------
 
     def complete_write_sms(self, slaves: I64) -> None:
-        """Buffered write SMs of ``slaves`` got their last byte: publish the buffers.
-
-        Copies the buffers into the shadow (what the PDI sees), advances the SM
-        status, raises the AL events (``sim.syncman``), re-triggers the
-        process-data watchdogs, completes pending SAFEOP -> OP requests, calls
-        the applications that asked and applies the wiring.
-        """
+        """Buffered write SMs of ``slaves`` got their last byte (``sim.arrival``)."""
         if self.sm_dirty:
             self._refresh_sm_state()
-        if not len(slaves):
-            return
-        wd_slaves = self.sm.publish(slaves)
-        if len(wd_slaves):
-            self.watchdogs.retrigger(wd_slaves, self.clock.now_ns())
-        self.outputs_received[slaves] = True
-        if self.pending_op:
-            for s in sorted(self.pending_op & set(slaves.tolist())):
-                self.escs[s].al.outputs_arrived()
-        self.apps.outputs_completed(slaves)
-        if self.wiring.wires:
-            self.wiring.apply()
+        if len(slaves):
+            self.arrival.completed(slaves)
+
+    @property
+    def outputs_received(self) -> npt.NDArray[np.bool_]:
+        """Per slave: a complete output buffer arrived since it last went below SAFEOP."""
+        return self.arrival.received
 
     # --- time ---------------------------------------------------------------------------------
 
@@ -527,7 +439,7 @@ class Segment(RingMixin):
         # computed at the last check is a safe lower bound until then.
         if now > wd.deadline:
             for s in wd.due(now):
-                self.outputs_received[s] = False
+                self.arrival.received[s] = False
                 self.escs[s].al.watchdog_expired()
         if self._sync:
             self.dc.run_sync(now)
@@ -670,21 +582,12 @@ class Segment(RingMixin):
             return bytes(buf) if route.returned else None  # passed on unchanged
         cut, cut_at = (self.faults.apply_corruption(route) if self._corrupt or self._rates
                        else (-1, NEVER))
-        word = buf[start] | (buf[start + 1] << 8)
-        length = word & ECAT_LENGTH_MASK
-        if word >> ECAT_TYPE_SHIFT != _DATAGRAMS:
-            return None  # mailbox-gateway and other types are not for the slaves
-        body = start + ECAT_HEADER_SIZE
-        end = body + length
-        if end > len(buf):
-            self._processing_error(route)
+        scanned = scan_frame(buf, start)  # all headers first: a malformed frame is not processed
+        if isinstance(scanned, int):
+            if scanned == MALFORMED:
+                self._processing_error(route)
             return None
-        # Parse all headers first (a malformed frame is not processed at all).
-        scanned = scan_headers(buf, body, end)
-        if scanned is None:
-            self._processing_error(route)
-            return None
-        heads, any_c = scanned
+        end, heads, any_c = scanned
         if start == ETH_HEADER_SIZE and len(heads) == 1:
             if len(self._parsed) >= 1024:
                 self._parsed.clear()
@@ -784,20 +687,18 @@ class _EscHost:
 
     def al_state_changed(self, index: int, old: AlState, new: AlState) -> None:
         if new in _BELOW_SAFEOP:
-            seg = self._seg
-            seg.outputs_received[index] = False
-            seg.watchdogs.stop(index)
-            seg.pending_op.discard(index)
+            self._seg.arrival.stop(index)
         self._seg.apps.state_changed(index, old, new)
 
     def has_outputs(self, index: int) -> bool:
-        return bool(self._seg.outputs_received[index])
+        return bool(self._seg.arrival.received[index])
 
     def wait_for_outputs(self, index: int, waiting: bool) -> None:
+        pending = self._seg.arrival.pending_op
         if waiting:
-            self._seg.pending_op.add(index)
+            pending.add(index)
         else:
-            self._seg.pending_op.discard(index)
+            pending.discard(index)
 
     def output_buffer_completed(self, index: int) -> None:
         self._seg.complete_write_sms(np.array([index], dtype=np.int64))

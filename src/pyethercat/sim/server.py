@@ -69,6 +69,7 @@ from typing import Any, Self
 
 from pyethercat.errors import ConfigError, EtherCATError, LinkClosedError, LinkError
 from pyethercat.link.base import Link
+from pyethercat.sim.eoe import eoe_server
 from pyethercat.wire.frame import is_ethercat
 
 __all__ = ["ServerStats", "SimProcess", "SimServer", "open_link", "set_realtime", "start_sim_process"]
@@ -169,9 +170,8 @@ class SimServer:
         self._tick = getattr(segment, "tick", None)
         # EoE slaves whose IP side has descriptors (a TAP in a namespace): watched in
         # this loop, so their frames enter the segment between two EtherCAT frames.
-        self._eoe = [app.eoe_server for s in getattr(segment, "slaves", ())
-                     if (app := getattr(getattr(s, "spec", None), "app", None)) is not None
-                     and getattr(app, "eoe_server", None) is not None]
+        self._eoe = [server for s in getattr(segment, "slaves", ())
+                     if (server := eoe_server(getattr(getattr(s, "spec", None), "app", None))) is not None]
         if self._control_path is not None:
             with contextlib.suppress(FileNotFoundError):
                 os.unlink(self._control_path)
@@ -580,7 +580,7 @@ def eoe_status(segment: Any) -> list[dict[str, Any]]:
     """The EoE slaves of a segment: namespace, address and frame counters."""
     out: list[dict[str, Any]] = []
     for s in segment.slaves:
-        server = s.spec.app.eoe_server if s.spec.app is not None else None
+        server = eoe_server(s.spec.app)
         if server is None:
             continue
         p = server.endpoint.parameters()
@@ -601,7 +601,7 @@ def eoe_lines(segment: Any) -> list[str]:
     """One line per EoE slave: its name, IP side (namespace) and address."""
     out: list[str] = []
     for s in segment.slaves:
-        server = s.spec.app.eoe_server if s.spec.app is not None else None
+        server = eoe_server(s.spec.app)
         if server is None:
             continue
         p = server.endpoint.parameters()

@@ -26,7 +26,7 @@ from pyethercat.errors import ConfigError, SiiError
 from pyethercat.sim.devices import get_builtin
 from pyethercat.sim.devices.builtin import BuiltinDevice
 from pyethercat.sim.devices.esi_device import EsiSlave, load_esi_device
-from pyethercat.sim.eoe import EchoEndpoint, EoeSettings
+from pyethercat.sim.eoe import EchoEndpoint, EoeSettings, eoe_server
 from pyethercat.sim.foe import FoeOptions
 from pyethercat.sim.profiles import DEVICE_PROFILES, PROFILES, EscProfile
 from pyethercat.sim.protocols import MailboxOptions
@@ -497,7 +497,7 @@ def build_segment(topo: Topology, clock: TimeSource | None = None) -> Segment:
 
 def _eoe_endpoint(app: DeviceApp | None, settings: EoeSettings, name: str, where: str) -> None:
     """Give an EoE slave its IP side: a namespace with the kernel's stack, or the echo stack."""
-    server = app.eoe_server if app is not None else None
+    server = eoe_server(app)
     if server is None:
         raise ConfigError(f"{where}: eoe given, but its application has no EoE server")
     if settings.netns is not None:
@@ -521,7 +521,7 @@ def _eoe_endpoint(app: DeviceApp | None, settings: EoeSettings, name: str, where
 def close_eoe(segment: Segment) -> None:
     """Release the IP sides of a segment's EoE slaves (namespaces, TAPs, web servers)."""
     for slave in segment.slaves:
-        server = slave.spec.app.eoe_server if slave.spec.app is not None else None
+        server = eoe_server(slave.spec.app)
         if server is not None:
             server.close()
 

@@ -21,7 +21,7 @@ from typing import Any
 
 from pyethercat.sim.device import DeviceApp
 from pyethercat.sim.devices.builtin import BuiltinDevice, BuiltinSm
-from pyethercat.sim.eoe import EoeServer, attach_eoe
+from pyethercat.sim.eoe import EoeServer, attach_eoe, eoe_server
 from pyethercat.sim.mailbox import MailboxDevice
 from pyethercat.sim.model import DeviceModel
 from pyethercat.wire import registers as R
@@ -52,7 +52,7 @@ def device_status(app: Any, info: SiiInfo, started: float, *, kind: str,
     errs = list(errors)
     if status & R.AL_ERROR_FLAG or code:
         errs.insert(0, f"AL status code 0x{code:04X}: {al_status_code_name(code)}")
-    server: EoeServer | None = app.eoe_server
+    server: EoeServer | None = eoe_server(app)
     network: list[tuple[str, Any]] = []
     if server is not None:
         p = server.endpoint.parameters()
@@ -90,7 +90,7 @@ class EoeWebModel(DeviceModel):
         started = time.monotonic()
 
         def status() -> dict[str, Any]:
-            server = app.eoe_server
+            server = eoe_server(app)
             frames = server.receiver.stats.frames if server is not None else 0
             return device_status(
                 app, info, started, kind="EoE test device",
