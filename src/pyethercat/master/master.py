@@ -41,6 +41,7 @@ from pyethercat.master.image import ProcessImage, SlaveIO
 from pyethercat.master.mailbox import DEFAULT_MAILBOX_TIMEOUT, DropOldestQueue, Mailbox
 from pyethercat.master.mailboxes import MailboxService
 from pyethercat.master.process import ProcessData
+from pyethercat.master.ring import Diagnosis, RingService
 from pyethercat.master.scheduler import (
     DEFAULT_MAX_IN_FLIGHT,
     DEFAULT_RETRIES,
@@ -137,6 +138,9 @@ class Master:
         self.transitions.add_hook(self.mailboxes)
         self.transitions.add_hook(self.coe_setup)
         self.sii = SiiService(self.scheduler, self._lock)
+        #: Ring ports, fault localisation and fault events (:class:`RingService`).
+        self.ring = RingService(self.scheduler, lambda: self.slaves,
+                                now_ns=lambda: int(self.scheduler.now() * 1e9))
         self._services = _SlaveServices(self.mailboxes, self.pd, self.coe_setup)
         #: The control socket server, while one serves this master (see :meth:`open`).
         self.control: ControlServer | None = None
@@ -309,6 +313,7 @@ class Master:
             self.slaves = slaves
             self.mailboxes.attach(slaves)
             self.topology_consistent = scanning.build_topology(slaves)
+            self.ring.learn()
             if reset and slaves:
                 # A chip in device emulation (no firmware: EK1100, EL1004) copies AL
                 # control into AL status, so the reset's INIT + acknowledge reads back
@@ -447,6 +452,15 @@ class Master:
         return diag.ErrorCounterReport(tuple(
             diag.decode_error_counters(s.position, s.station_address, r.data, r.ok)
             for s, r in zip(chosen, results, strict=True)))
+
+    def diagnose(self) -> Diagnosis:
+        """Locate faults: which master port, cable or node failed, which cable corrupts frames.
+
+        One multiple read of DL status and error counters (see
+        :class:`~pyethercat.master.ring.RingService`); found and cleared
+        faults also become events in ``master.ring.events``.
+        """
+        return self.ring.diagnose()
 
     def clear_error_counters(self, slaves: Sequence[SlaveRef] | None = None) -> None:
         """Clear the error counters (a write to a counter group clears the group)."""

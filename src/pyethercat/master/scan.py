@@ -132,14 +132,16 @@ def count_slaves(scheduler: Scheduler) -> int:
 def reset_slaves(scheduler: Scheduler) -> None:
     """Broadcast the start-up defaults: alias addressing off, INIT with acknowledge, SII to ECAT.
 
-    Also sets the ECAT event mask to DL-status changes (so the IRQ field of
-    every datagram tells when a link changed).
+    Also sets the ECAT event mask to DL-status and AL-status changes, so the
+    IRQ field of every datagram tells when a link or a slave's state changed
+    (SOEM sets only the DL-status bit).
     """
     scheduler.transact([
         Datagram.device(Command.BWR, 0, DL_CONTROL_ALIAS, b"\x00"),
         Datagram.device(Command.BWR, 0, AL_CONTROL,
                         struct.pack("<H", AlState.INIT | AL_ERROR_FLAG)),
-        Datagram.device(Command.BWR, 0, ECAT_EVENT_MASK, struct.pack("<H", EcatEvent.DL_STATUS)),
+        Datagram.device(Command.BWR, 0, ECAT_EVENT_MASK,
+                        struct.pack("<H", EcatEvent.DL_STATUS | EcatEvent.AL_STATUS)),
     ])
     take_sii_ownership(scheduler)
 

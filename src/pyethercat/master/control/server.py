@@ -34,7 +34,7 @@ if TYPE_CHECKING:
 __all__ = ["ControlServer", "MasterRunningError", "serve", "HANDLER_MODULES"]
 
 #: Modules whose import registers more handlers (one per mailbox protocol, added as they come).
-HANDLER_MODULES: tuple[str, ...] = ()
+HANDLER_MODULES: tuple[str, ...] = ("pyethercat.master.control.ring_ops",)
 _CRED = struct.Struct("3i")
 
 

@@ -1,0 +1,322 @@
+"""The ring service of a master: port state, fault localisation, fault events.
+
+``master.ring`` (:class:`RingService`) answers "where is the fault?" for a
+ring (two master ports, cable redundancy) and for a plain line or tree:
+
+- :meth:`RingService.ports`: each master port's state (carrier, whether
+  frames come back on it, frames sent/received/passed on, copies missing);
+- :meth:`RingService.diagnose`: one multiple read of DL status (0x0110) and
+  the error counters (0x0300-0x0313) of every slave, sent on both ports;
+  which copy each answer came back in says from which side each slave is
+  reached, and ``master.locate`` turns that, the DL status and the
+  lost-link and CRC counters into :class:`~pyethercat.master.locate.Fault`
+  objects ("between slave 4 port 1 and slave 5 port 0");
+- :meth:`RingService.start_diagnosis` does the same without blocking (its
+  requests ride in cyclic frames), for the cyclic monitor;
+- every fault found or gone is a :class:`FaultEvent` (``events``, and the
+  callbacks given to :meth:`RingService.subscribe`).
+
+The cabling is learnt from the scan (:meth:`RingService.learn`, called
+after every scan): a fault found later is named by the cables the ring had
+then.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+from pyethercat.master import diag
+from pyethercat.master.locate import Cable, End, Fault, SlaveReading, cables_of, crc_faults, locate
+from pyethercat.master.redundancy import PORT_NAMES
+from pyethercat.master.scheduler import Request, Scheduler
+from pyethercat.wire import registers as reg
+from pyethercat.wire.datagram import Command, Datagram
+
+__all__ = ["Diagnosis", "FaultEvent", "PendingDiagnosis", "PortStatus", "RingService"]
+
+_DL = 2  # bytes of DL status
+_log = logging.getLogger("pyethercat.master")
+
+
+@dataclass(frozen=True, slots=True)
+class PortStatus:
+    """One master port (A or B) as the PDU core sees it."""
+
+    name: str
+    carrier: bool | None
+    returning: bool
+    sent: int
+    received: int
+    forwarded: int
+    missing: int
+
+    @property
+    def text(self) -> str:
+        link = {True: "carrier", False: "no carrier", None: "carrier unknown"}[self.carrier]
+        back = "frames come back" if self.returning else "NO FRAMES BACK"
+        return (f"port {self.name}: {link}, {back}; sent {self.sent}, received {self.received}, "
+                f"passed on {self.forwarded}, copies missing {self.missing}")
+
+
+@dataclass(frozen=True)
+class FaultEvent:
+    """A fault found (``cleared`` False) or gone (True); ``time_ns`` on the service's clock."""
+
+    fault: Fault
+    cleared: bool
+    time_ns: int
+
+    @property
+    def text(self) -> str:
+        return ("cleared: " if self.cleared else "fault: ") + f"{self.fault.kind} {self.fault.text}"
+
+
+@dataclass
+class Diagnosis:
+    """What one diagnosis found (see :meth:`RingService.diagnose`)."""
+
+    ring: bool
+    state: str
+    ports: tuple[PortStatus, ...]
+    readings: tuple[SlaveReading, ...]
+    faults: tuple[Fault, ...]
+    #: Master ports that brought copies back during the reading.
+    returned: tuple[str, ...] = ()
+    names: dict[int, str] = field(default_factory=dict)
+    #: Per slave: the ports with a cable (as the scan found them).
+    cabled: dict[int, tuple[int, ...]] = field(default_factory=dict)
+
+    @property
+    def ring_state(self) -> str:
+        """``closed``, ``open`` (split: both halves reached), ``port A only``/``port B only``."""
+        sides = {r.side for r in self.readings} - {None}
+        if sides == {"A", "B"}:
+            return "open: reached from both ports"
+        if len(self.returned) == 1 and self.returned[0] in sides:
+            return f"open: reached from port {self.returned[0]} only"
+        return "closed"
+
+    @property
+    def ok(self) -> bool:
+        return not self.faults
+
+    def format(self) -> list[str]:
+        """The report ``pyethercat diag`` prints."""
+        out = []
+        if self.ring:
+            out.append(f"ring: {self.ring_state}")
+            out.extend("  " + p.text for p in self.ports)
+        else:
+            out.append("line (one master port)")
+        out.append("slaves (side: the master port each is reached from):")
+        for r in self.readings:
+            name = self.names.get(r.position, "")
+            side = {"A": "from A", "B": "from B", None: "NO ANSWER"}[r.side]
+            links = ""
+            if r.dl_status is not None:
+                dl = r.dl_status
+                ports = self.cabled.get(r.position) or tuple(
+                    p for p in range(4) if dl & reg.dl_status_link(p))
+                links = " ".join(f"p{p}:{'up' if dl & reg.dl_status_link(p) else 'DOWN'}"
+                                 for p in ports)
+            lost = ""
+            if r.counters is not None:
+                ll = [f"p{p}:{c.lost_links}" for p, c in enumerate(r.counters.ports) if c.lost_links]
+                crc = [f"p{p}:{c.invalid_frames}/{c.rx_errors}/{c.forwarded_rx_errors}"
+                       for p, c in enumerate(r.counters.ports)
+                       if c.invalid_frames or c.rx_errors or c.forwarded_rx_errors]
+                if ll:
+                    lost += "  lost links " + " ".join(ll)
+                if crc:
+                    lost += "  crc/phy/fwd " + " ".join(crc)
+            out.append(f"  {r.position:>3} {side:<9} {links:<22}{name}{lost}")
+        if self.faults:
+            out.append("faults:")
+            out.extend(f"  {f.kind}: {f.text}" for f in self.faults)
+        else:
+            out.append("no fault found")
+        return out
+
+
+class PendingDiagnosis:
+    """A diagnosis whose requests are on their way (:meth:`RingService.start_diagnosis`)."""
+
+    def __init__(self, service: RingService, requests: list[Request], positions: list[int]) -> None:
+        self._service = service
+        self.requests = requests
+        self.positions = positions
+
+    def done(self) -> bool:
+        return all(r.done() for r in self.requests)
+
+    def result(self) -> Diagnosis:
+        """Wait for the requests (if needed) and evaluate them."""
+        self._service.scheduler.wait(self.requests)
+        return self._service.evaluate(self.requests, self.positions)
+
+
+class RingService:
+    """Port state, fault localisation and fault events (see the module text).
+
+    ``slaves()`` gives the scanned slaves; ``now_ns`` the clock of the events.
+    """
+
+    def __init__(self, scheduler: Scheduler, slaves: Callable[[], Sequence[object]],
+                 now_ns: Callable[[], int] | None = None) -> None:
+        self.scheduler = scheduler
+        self._slaves = slaves
+        self.now_ns = now_ns or time.monotonic_ns
+        #: The cables learnt from the last scan.
+        self.cables: list[Cable] = []
+        #: Faults found by the last diagnosis.
+        self.faults: tuple[Fault, ...] = ()
+        self.events: deque[FaultEvent] = deque(maxlen=500)
+        self.last: Diagnosis | None = None
+        self._listeners: list[Callable[[FaultEvent], None]] = []
+        self._counters: dict[int, diag.SlaveCounters] = {}
+        self._lock = threading.Lock()
+
+    # -- ports ------------------------------------------------------------------------
+
+    @property
+    def redundant(self) -> bool:
+        """Whether the master has two ports (a ring)."""
+        return self.scheduler.core.redundancy is not None
+
+    def ports(self) -> tuple[PortStatus, ...]:
+        """Both master ports of a ring (empty on a one-port master)."""
+        red = self.scheduler.core.redundancy
+        if red is None:
+            return ()
+        return tuple(PortStatus(PORT_NAMES[p], red.carrier[p], p in red.returning,
+                                c.sent, c.received, c.forwarded, c.missing)
+                     for p, c in enumerate(red.counters))
+
+    def state(self) -> str:
+        """``redundant``, ``port A only``, ``port B only`` or ``line`` (one port)."""
+        red = self.scheduler.core.redundancy
+        return "line" if red is None else red.state()
+
+    # -- cabling ----------------------------------------------------------------------
+
+    def learn(self) -> None:
+        """Take the cabling from the scanned slaves (after a scan)."""
+        slaves = list(self._slaves())
+        ring_end: End | None = None
+        if self.redundant and slaves:
+            last = max(slaves, key=lambda s: int(getattr(s, "position")))  # noqa: B009
+            ports = getattr(last, "ports")  # noqa: B009
+            free = [p for p in (1, 2, 3) if ports[p].implemented and ports[p].peer is None]
+            linked = [p for p in free if ports[p].link]
+            if linked or free:
+                ring_end = (int(getattr(last, "position")), (linked or free)[0])  # noqa: B009
+        self.cables = cables_of(slaves, ring_end)
+        self._counters = {}
+
+    # -- diagnosis ----------------------------------------------------------------------
+
+    def start_diagnosis(self, flush: bool = False) -> PendingDiagnosis:
+        """Queue the reads of a diagnosis (they ride in the next frames); see :meth:`diagnose`."""
+        slaves = list(self._slaves())
+        dgs: list[Datagram] = []
+        positions = []
+        for s in slaves:
+            st = int(getattr(s, "station_address"))  # noqa: B009
+            positions.append(int(getattr(s, "position")))  # noqa: B009
+            dgs.append(Datagram.device(Command.FPRD, st, reg.DL_STATUS, _DL))
+            dgs.append(Datagram.device(Command.FPRD, st, reg.RX_ERROR_COUNTER,
+                                       diag.ERROR_COUNTERS_SIZE))
+        requests = self.scheduler.submit(dgs, flush=flush) if dgs else []
+        return PendingDiagnosis(self, requests, positions)
+
+    def diagnose(self) -> Diagnosis:
+        """Read every slave once and locate the faults (blocking; a few frames)."""
+        return self.start_diagnosis(flush=True).result()
+
+    def evaluate(self, requests: Sequence[Request], positions: Sequence[int]) -> Diagnosis:
+        """Turn the finished reads of a diagnosis into its result (and fault events)."""
+        ring = self.redundant
+        returned: set[int] = set()
+        a_worked = False
+        for r in requests:
+            if r.copies:
+                returned.update(r.copies)
+                got = r.copies.get(0)
+                a_worked = a_worked or (got is not None and got.wkc > 0)
+        readings: list[SlaveReading] = []
+        counters: dict[int, diag.SlaveCounters] = {}
+        a_returned = 0 in returned
+        for i, pos in enumerate(positions):
+            dl_req, ctr_req = requests[2 * i], requests[2 * i + 1]
+            side = _side(dl_req, ring, a_worked, a_returned)
+            if side is None:
+                side = _side(ctr_req, ring, a_worked, a_returned)
+            dl = None
+            if dl_req.reply is not None and dl_req.reply.wkc == 1:
+                dl = int.from_bytes(dl_req.reply.data[:_DL], "little")
+            ctr = None
+            if ctr_req.reply is not None and ctr_req.reply.wkc == 1:
+                ctr = diag.decode_error_counters(pos, 0, bytes(ctr_req.reply.data))
+                counters[pos] = ctr
+            readings.append(SlaveReading(pos, side, dl, ctr))
+        names = {int(getattr(s, "position")): str(getattr(s, "name", ""))  # noqa: B009
+                 for s in self._slaves()}
+        ret = tuple(PORT_NAMES[p] for p in sorted(returned)) if ring else ("A",)
+        faults = locate(self.cables, readings, ring=ring, returned=ret)
+        with self._lock:
+            faults += crc_faults(self.cables, counters, self._counters or None)
+            self._counters.update(counters)
+        cabled: dict[int, set[int]] = {}
+        for c in self.cables:
+            for pos, port in c.ends():
+                if pos >= 0:
+                    cabled.setdefault(pos, set()).add(port)
+        result = Diagnosis(ring, self.state(), self.ports(), tuple(readings), tuple(faults),
+                           ret, names, {p: tuple(sorted(v)) for p, v in cabled.items()})
+        self._publish(result)
+        return result
+
+    # -- events -------------------------------------------------------------------------
+
+    def subscribe(self, callback: Callable[[FaultEvent], None]) -> None:
+        """Call ``callback(event)`` for every fault found or gone (from the thread that diagnosed)."""
+        self._listeners.append(callback)
+
+    def _publish(self, result: Diagnosis) -> None:
+        now = self.now_ns()
+        with self._lock:
+            old = {f.where: f for f in self.faults}
+            new = {f.where: f for f in result.faults}
+            # A CRC fault stays until the counters stop rising (a diagnosis without it).
+            events = [FaultEvent(f, False, now) for w, f in new.items() if w not in old]
+            events += [FaultEvent(f, True, now) for w, f in old.items() if w not in new]
+            self.faults = result.faults
+            self.last = result
+            self.events.extend(events)
+        for ev in events:
+            for fn in list(self._listeners):
+                try:
+                    fn(ev)
+                except Exception:  # a subscriber's bug must not stop the diagnosis
+                    _log.exception("fault event callback %r failed", fn)
+
+
+def _side(req: Request, ring: bool, a_worked: bool, a_returned: bool) -> str | None:
+    """The master port a slave's answer shows it is reached from (see ``master.locate``)."""
+    if req.reply is None:
+        return None
+    if not ring or req.copies is None:
+        return "A" if req.reply.wkc >= 1 else None
+    a, b = req.copies.get(0), req.copies.get(1)
+    if a is not None and a.wkc >= 1:
+        return "A"
+    if b is not None and b.wkc >= 1:
+        # In a whole ring the copy back on B is the one sent on A.
+        return "B" if a_worked or not a_returned else "A"
+    return None
+
