@@ -80,6 +80,7 @@ __all__ = [
     "SlaveDescription",
     "SyncManagerConfig",
     "configure",
+    "wkc_share",
     "pdos_from_sii",
 ]
 
@@ -656,6 +657,13 @@ def _expected_wkc(command: Command, lo: int, hi: int, fmmus: list[tuple[int, Fmm
     else:
         wkc, who = len(reads), reads
     return wkc, tuple(sorted(who))
+
+
+def wkc_share(datagram: CyclicDatagram, slaves: Iterable[SlaveConfig]) -> int:
+    """What ``slaves`` add to ``datagram``'s working counter (their FMMUs in its range)."""
+    lo = datagram.logical_address
+    return _expected_wkc(datagram.command, lo, lo + datagram.length,
+                         [(s.position, f) for s in slaves for f in s.fmmus])[0]
 
 
 def _datagrams(base: int, out_bytes: int, in_bytes: int, lrw: bool,

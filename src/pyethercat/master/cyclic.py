@@ -41,15 +41,16 @@ import struct
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
 from pyethercat.clock import Clock, PerfClock
 from pyethercat.errors import ConfigError, EtherCATError
-from pyethercat.master.config import CyclicDatagram, GroupConfig, ProcessDataConfig
+from pyethercat.master.config import CyclicDatagram, GroupConfig, ProcessDataConfig, wkc_share
 from pyethercat.master.dc_loop import DcCycle, SyncEvent
 from pyethercat.master.image import ProcessImage
 from pyethercat.master.scheduler import CyclicFrame, CyclicTemplate, Request, Scheduler
@@ -93,6 +94,9 @@ class CycleStats:
         self.callback_overruns = 0
         self.skipped = 0
         self.wkc_errors = 0
+        #: Cycles whose working counter was short of even the slaves present
+        #: (the ones known to be gone, ``CyclicRunner.set_absent``, not counted).
+        self.incomplete = 0
         self.lost_frames = 0
         self.frames = 0
         self._periods = np.zeros(capacity, dtype=np.int64)
@@ -177,7 +181,8 @@ class CycleStats:
             "cycles": self.cycles, "period_us": self.period_ns / 1000,
             "late": self.late, "overruns": self.overruns,
             "callback_overruns": self.callback_overruns, "skipped": self.skipped,
-            "wkc_errors": self.wkc_errors, "lost_frames": self.lost_frames,
+            "wkc_errors": self.wkc_errors, "incomplete": self.incomplete,
+            "lost_frames": self.lost_frames,
             "frames": self.frames,
             "period": self.period_us(), "jitter_us": self.jitter_us(),
             "latency_us": self.latency_us(), "round_trip_us": self.round_trip_us(),
@@ -203,7 +208,10 @@ class GroupRuntime:
         #: Working counters of the last exchange, per datagram.
         self.last_wkc: list[int] = [0] * len(self.plan)
         self.wkc_ok = False
+        #: The last exchange was complete for every slave not known to be gone.
+        self.present_ok = False
         self.wkc_errors = 0
+        self.incomplete = 0
         self.lost = 0
         self.exchanges = 0
 
@@ -217,13 +225,14 @@ class _FramePlan:
 
     ``fills``: (source view of a group buffer, frame offset) for the bytes sent;
     ``takes``: per datagram (group, datagram number, WKC offset, expected WKC,
-    reply offset of the input bytes, buffer start, buffer end).
+    reply offset of the input bytes, buffer start, buffer end, the share of
+    absent slaves that may count on top of the expected WKC).
     """
 
     __slots__ = ("template", "fills", "takes", "groups", "dc_fill", "dc_read")
 
     def __init__(self, template: CyclicTemplate, fills: list[tuple[memoryview, int]],
-                 takes: list[tuple[GroupRuntime, int, int, int, int, int, int]],
+                 takes: list[tuple[GroupRuntime, int, int, int, int, int, int, int]],
                  groups: list[GroupRuntime]) -> None:
         self.template = template
         self.fills = fills
@@ -363,6 +372,15 @@ class CyclicRunner:
         #: cycle's first frame, the phase lock moving the deadlines, the sync monitor.
         self.dc = dc
         self.dc_events: deque[SyncEvent] = deque(maxlen=200)
+        #: Objects riding along every cycle (``before_cycle(runner)``,
+        #: ``after_cycle(runner, tickets, ok)``): the ring watch.
+        self.riders: list[Any] = []
+        #: The cyclic frames of the last cycle (their replies, copies, IRQ fields).
+        self.last_tickets: list[CyclicFrame] = []
+        #: Their prepared-frame plans (``takes``: what each datagram carries).
+        self.last_plans: list[_FramePlan] = []
+        #: Slaves known to be gone (set_absent): not expected in working counters.
+        self.absent: frozenset[int] = frozenset()
         self._dc_shift = 0
         self._dc_brd: Request | None = None
         #: Where the next run() continues the cycle grid (with DC).
@@ -389,6 +407,8 @@ class CyclicRunner:
             self.error = exc
             self.log(f"cyclic loop stopped: {exc}")
         finally:
+            # Nothing drives stepped workers any more: they go on by themselves.
+            self.scheduler.stepper.release()
             with self._cond:
                 self._cond.notify_all()
 
@@ -518,6 +538,14 @@ class CyclicRunner:
         self._dc_shift = 0
         return stats
 
+    def set_absent(self, positions: Iterable[int]) -> None:
+        """Slaves known to be gone (a failed node, a cut branch, one being brought back):
+        their share of each working counter is not expected until they are back."""
+        absent = frozenset(positions)
+        if absent != self.absent:
+            self.absent = absent
+            self._plans.clear()  # the loop plans its frames again with these expectations
+
     def _due(self, k: int) -> tuple[int, ...]:
         """Numbers of the groups due at tick ``k``."""
         every = self._every
@@ -542,8 +570,13 @@ class CyclicRunner:
         self._supervise_before(k)
         if self.dc is not None:
             self._dc_monitor()
+        for rider in self.riders:
+            rider.before_cycle(self)
         ok, lost, rtt, names = self._exchange_frames(due)
         self._supervise_after(ok and not lost)
+        for rider in self.riders:
+            rider.after_cycle(self, self.last_tickets, ok and not lost)
+        self.scheduler.step()
         return ok and not lost, lost, rtt, names
 
     def _dc_monitor(self) -> None:
@@ -585,9 +618,12 @@ class CyclicRunner:
                 if value is not None:
                     frame[p.dc_fill:p.dc_fill + len(value)] = value
             tickets.append(sched.send_prepared(p.template, timeout=timeout))
+        self.last_tickets = tickets
+        self.last_plans = plans
         stats = self.stats
         lost = False
         bad: set[GroupRuntime] | None = None
+        short: set[GroupRuntime] | None = None
         missing: set[GroupRuntime] | None = None
         for p, ticket in zip(plans, tickets, strict=True):
             stats.frames += 1
@@ -602,28 +638,35 @@ class CyclicRunner:
                 stats.lost_frames += 1
                 for g in p.groups:
                     g.lost += 1
-                    g.wkc_ok = False
+                    g.wkc_ok = g.present_ok = False
                 missing = set(p.groups) if missing is None else missing | set(p.groups)
                 continue
-            for g, n, w, expected, at, lo, hi in p.takes:
+            for g, n, w, expected, at, lo, hi, share in p.takes:
                 wkc = raw[w] | (raw[w + 1] << 8)
                 g.last_wkc[n] = wkc
                 if wkc != expected:
                     bad = {g} if bad is None else bad | {g}
+                    if wkc < expected - share or wkc > expected:
+                        short = {g} if short is None else short | {g}
                 if hi > lo:
                     g.image.buffer[lo:hi] = raw[at:at + hi - lo]
         if bad is None and missing is None:
             for g in groups:
                 g.exchanges += 1
-                g.wkc_ok = True
+                g.wkc_ok = g.present_ok = True
             return True, False, now_ns() - t0, names
         ok = True
+        incomplete = missing is not None
         for g in groups:
             if missing is not None and g in missing:
                 continue
             good = bad is None or g not in bad
-            self._account(g, good)
+            whole = short is None or g not in short
+            self._account(g, good, whole)
             ok = ok and good
+            incomplete = incomplete or not whole
+        if incomplete:
+            stats.incomplete += 1
         return ok and not lost, lost, now_ns() - t0, names
 
     def _plan(self, due: list[GroupRuntime]
@@ -661,14 +704,18 @@ class CyclicRunner:
                 dgs.append(Datagram(d.command, 0, d.logical_address, bytes(d.length)))
             template = self.scheduler.prepare_cyclic(dgs)
             fills: list[tuple[memoryview, int]] = []
-            takes: list[tuple[GroupRuntime, int, int, int, int, int, int]] = []
+            takes: list[tuple[GroupRuntime, int, int, int, int, int, int, int]] = []
             groups: list[GroupRuntime] = []
             for i, (g, n) in enumerate(items):
                 d = g.plan[n]
                 at = template.data_offsets[i + len(lead)]
                 fills.append((memoryview(g.image.buffer)[d.offset:d.offset + d.length], at))
+                # The share of slaves known to be gone: short by that much is "incomplete
+                # only for them" (wkc_ok false, present_ok true).
+                share = wkc_share(d, [self.config.slaves[p] for p in d.positions
+                                      if p in self.absent]) if self.absent else 0
                 takes.append((g, n, template.wkc_offsets[i + len(lead)], d.expected_wkc,
-                              at + d.copy_start - d.offset, d.copy_start, d.copy_end))
+                              at + d.copy_start - d.offset, d.copy_start, d.copy_end, share))
                 if g not in groups:
                     groups.append(g)
             plan = _FramePlan(template, fills, takes, groups)
@@ -678,12 +725,15 @@ class CyclicRunner:
             plans.append(plan)
         return plans, tuple(g.name for g in due), tuple(due)
 
-    def _account(self, g: GroupRuntime, good: bool) -> None:
+    def _account(self, g: GroupRuntime, good: bool, whole: bool = True) -> None:
         g.exchanges += 1
         g.wkc_ok = good
+        g.present_ok = whole
         if not good:
             g.wkc_errors += 1
             self.stats.wkc_errors += 1
+        if not whole:
+            g.incomplete += 1
 
     # -- supervision ----------------------------------------------------------------------
 
@@ -764,8 +814,20 @@ class CyclicRunner:
         if bad:
             self._start_recovery(bad)
 
+    def request_recovery(self, positions: list[int]) -> None:
+        """Bring these slaves back now (found present without their address: power-cycled,
+        hot-swapped), in step with the loop; ignored while a recovery runs."""
+        if self.supervising:
+            self._next_recovery_ns = 0  # news: no back-off
+            self._start_recovery([p for p in positions if p in self.health])
+
+    @property
+    def recovering(self) -> frozenset[int]:
+        """Slaves a recovery is bringing back now."""
+        return frozenset(p for p, h in self.health.items() if h.status == "recovering")
+
     def _start_recovery(self, positions: list[int]) -> None:
-        if self.recover_fn is None:
+        if self.recover_fn is None or not positions:
             return
         r = self._recover_thread
         if r is not None and r.is_alive():
@@ -798,8 +860,8 @@ class CyclicRunner:
                     # Look again soon; the check decides whether it worked.
                     self._want_detail = True
 
-        self._recover_thread = threading.Thread(target=work, name="ecat-recover", daemon=True)
-        self._recover_thread.start()
+        # In step with the loop: its requests ride in cyclic frames (master.stepping).
+        self._recover_thread = self.scheduler.stepper.run(work, name="ecat-recover")
 
     # -- consuming cycles ---------------------------------------------------------------------
 

@@ -123,6 +123,9 @@ class SlaveReading:
     side: str | None
     dl_status: int | None = None
     counters: SlaveCounters | None = None
+    #: AL status (0x0130) and AL status code (0x0134), when read.
+    al_status: int | None = None
+    al_code: int | None = None
 
 
 def cables_of(slaves: Iterable[object], ring_end: End | None = None) -> list[Cable]:

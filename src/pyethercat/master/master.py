@@ -42,6 +42,7 @@ from pyethercat.master.mailbox import DEFAULT_MAILBOX_TIMEOUT, DropOldestQueue, 
 from pyethercat.master.mailboxes import MailboxService
 from pyethercat.master.process import ProcessData
 from pyethercat.master.ring import Diagnosis, RingService
+from pyethercat.master.ringwatch import RingWatch
 from pyethercat.master.scheduler import (
     DEFAULT_MAX_IN_FLIGHT,
     DEFAULT_RETRIES,
@@ -141,6 +142,8 @@ class Master:
         #: Ring ports, fault localisation and fault events (:class:`RingService`).
         self.ring = RingService(self.scheduler, lambda: self.slaves,
                                 now_ns=lambda: int(self.scheduler.now() * 1e9))
+        # Every cyclic loop carries the ring watch: events through the IRQ field, faults.
+        self.pd.rider_factories.append(lambda runner: RingWatch(self.ring, log=runner.log))
         self._services = _SlaveServices(self.mailboxes, self.pd, self.coe_setup)
         #: The control socket server, while one serves this master (see :meth:`open`).
         self.control: ControlServer | None = None

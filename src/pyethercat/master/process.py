@@ -90,6 +90,8 @@ class ProcessData:
         self.images: dict[str, ProcessImage] = {}
         #: The cyclic runner of the last :meth:`start` (None before).
         self.runner: CyclicRunner | None = None
+        #: Make the riders of every runner :meth:`start` makes (the master's ring watch).
+        self.rider_factories: list[Callable[[CyclicRunner], Any]] = []
         self._io: dict[int, tuple[SlaveIO | None, SlaveIO | None]] = {}
 
     # -- configuration -----------------------------------------------------------------
@@ -235,6 +237,7 @@ class ProcessData:
                                   clock=clock, callback=callback, check_interval=check_interval,
                                   target=want, recover=self.recover if recover else None,
                                   groups=groups, frame_timeout=frame_timeout, dc=plan)
+            runner.riders.extend(make(runner) for make in self.rider_factories)
             self.runner = runner
             # Supervision starts once the slaves are where they were asked to be: the
             # check would otherwise see SAFE-OP during the walk up and "recover" them.

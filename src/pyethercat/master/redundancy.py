@@ -311,7 +311,11 @@ class Redundancy:
 
 
 def hand_copies(copies: CopySet, ticket: CyclicFrame | None, requests: Sequence[Request]) -> None:
-    """Give a completed ring frame's ticket and requests its copies by port (for diagnostics)."""
+    """Give a completed ring frame's ticket and requests its copies by port (for diagnostics).
+
+    A chain frame passed every slave in one copy: it tells nothing about sides."""
+    if copies.chain:
+        return
     got = dict(copies.got)
     if ticket is not None:
         ticket.copies = got

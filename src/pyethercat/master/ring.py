@@ -40,6 +40,7 @@ from pyethercat.wire.datagram import Command, Datagram
 __all__ = ["Diagnosis", "FaultEvent", "PendingDiagnosis", "PortStatus", "RingService"]
 
 _DL = 2  # bytes of DL status
+_AL = 6  # AL status, reserved, AL status code
 _log = logging.getLogger("pyethercat.master")
 
 
@@ -90,6 +91,17 @@ class Diagnosis:
     names: dict[int, str] = field(default_factory=dict)
     #: Per slave: the ports with a cable (as the scan found them).
     cabled: dict[int, tuple[int, ...]] = field(default_factory=dict)
+    #: Slaves that answer a broadcast (present, whether their address answers or not).
+    present: int | None = None
+    #: False when no reading showed which side it came from (a ring read in frames
+    #: sent one way round only): the faults are then not ring faults.
+    sides_known: bool = True
+
+    @property
+    def unaddressed(self) -> int:
+        """Slaves present that do not answer at a known station address (power-cycled, swapped)."""
+        answered = sum(r.side is not None for r in self.readings)
+        return max(0, (self.present or 0) - answered)
 
     @property
     def ring_state(self) -> str:
@@ -146,10 +158,12 @@ class Diagnosis:
 class PendingDiagnosis:
     """A diagnosis whose requests are on their way (:meth:`RingService.start_diagnosis`)."""
 
-    def __init__(self, service: RingService, requests: list[Request], positions: list[int]) -> None:
+    def __init__(self, service: RingService, requests: list[Request], positions: list[int],
+                 al: bool) -> None:
         self._service = service
         self.requests = requests
         self.positions = positions
+        self.al = al
 
     def done(self) -> bool:
         return all(r.done() for r in self.requests)
@@ -157,7 +171,7 @@ class PendingDiagnosis:
     def result(self) -> Diagnosis:
         """Wait for the requests (if needed) and evaluate them."""
         self._service.scheduler.wait(self.requests)
-        return self._service.evaluate(self.requests, self.positions)
+        return self._service.evaluate(self)
 
 
 class RingService:
@@ -177,6 +191,8 @@ class RingService:
         self.faults: tuple[Fault, ...] = ()
         self.events: deque[FaultEvent] = deque(maxlen=500)
         self.last: Diagnosis | None = None
+        #: Fault events so far (``events`` keeps the last 500).
+        self.published = 0
         self._listeners: list[Callable[[FaultEvent], None]] = []
         self._counters: dict[int, diag.SlaveCounters] = {}
         self._lock = threading.Lock()
@@ -220,10 +236,14 @@ class RingService:
 
     # -- diagnosis ----------------------------------------------------------------------
 
-    def start_diagnosis(self, flush: bool = False) -> PendingDiagnosis:
-        """Queue the reads of a diagnosis (they ride in the next frames); see :meth:`diagnose`."""
+    def start_diagnosis(self, flush: bool = False, al: bool = False) -> PendingDiagnosis:
+        """Queue the reads of a diagnosis (they ride in the next frames); see :meth:`diagnose`.
+
+        ``al``: read AL status and code too (what the cyclic watch names state
+        changes by; reading 0x0130 also clears the AL-status event)."""
         slaves = list(self._slaves())
-        dgs: list[Datagram] = []
+        # How many slaves answer at all (present, addressed or not).
+        dgs: list[Datagram] = [Datagram.device(Command.BRD, 0, reg.TYPE, 1)]
         positions = []
         for s in slaves:
             st = int(getattr(s, "station_address"))  # noqa: B009
@@ -231,18 +251,25 @@ class RingService:
             dgs.append(Datagram.device(Command.FPRD, st, reg.DL_STATUS, _DL))
             dgs.append(Datagram.device(Command.FPRD, st, reg.RX_ERROR_COUNTER,
                                        diag.ERROR_COUNTERS_SIZE))
-        requests = self.scheduler.submit(dgs, flush=flush) if dgs else []
-        return PendingDiagnosis(self, requests, positions)
+            if al:
+                dgs.append(Datagram.device(Command.FPRD, st, reg.AL_STATUS, _AL))
+        requests = self.scheduler.submit(dgs, flush=flush)
+        return PendingDiagnosis(self, requests, positions, al)
 
     def diagnose(self) -> Diagnosis:
         """Read every slave once and locate the faults (blocking; a few frames)."""
         return self.start_diagnosis(flush=True).result()
 
-    def evaluate(self, requests: Sequence[Request], positions: Sequence[int]) -> Diagnosis:
+    def evaluate(self, pending: PendingDiagnosis) -> Diagnosis:
         """Turn the finished reads of a diagnosis into its result (and fault events)."""
+        count_req, requests = pending.requests[0], pending.requests[1:]
+        positions, stride = pending.positions, 3 if pending.al else 2
         ring = self.redundant
         returned: set[int] = set()
         a_worked = False
+        # Reads that rode in frames sent one way round (with an auto-increment datagram
+        # of someone else's) passed every slave in bus order: they show no sides.
+        seen_sides = not ring or any(r.copies is not None for r in requests)
         for r in requests:
             if r.copies:
                 returned.update(r.copies)
@@ -252,7 +279,7 @@ class RingService:
         counters: dict[int, diag.SlaveCounters] = {}
         a_returned = 0 in returned
         for i, pos in enumerate(positions):
-            dl_req, ctr_req = requests[2 * i], requests[2 * i + 1]
+            dl_req, ctr_req = requests[stride * i], requests[stride * i + 1]
             side = _side(dl_req, ring, a_worked, a_returned)
             if side is None:
                 side = _side(ctr_req, ring, a_worked, a_returned)
@@ -263,11 +290,26 @@ class RingService:
             if ctr_req.reply is not None and ctr_req.reply.wkc == 1:
                 ctr = diag.decode_error_counters(pos, 0, bytes(ctr_req.reply.data))
                 counters[pos] = ctr
-            readings.append(SlaveReading(pos, side, dl, ctr))
+            al_status = al_code = None
+            if pending.al:
+                al_req = requests[stride * i + 2]
+                if al_req.reply is not None and al_req.reply.wkc == 1:
+                    data = bytes(al_req.reply.data)
+                    al_status = int.from_bytes(data[0:2], "little")
+                    al_code = int.from_bytes(data[4:6], "little")
+            readings.append(SlaveReading(pos, side, dl, ctr, al_status, al_code))
         names = {int(getattr(s, "position")): str(getattr(s, "name", ""))  # noqa: B009
                  for s in self._slaves()}
         ret = tuple(PORT_NAMES[p] for p in sorted(returned)) if ring else ("A",)
-        faults = locate(self.cables, readings, ring=ring, returned=ret)
+        faults = locate(self.cables, readings, ring=ring and seen_sides, returned=ret)
+        present = count_req.reply.wkc if count_req.reply is not None else None
+        silent = [r.position for r in readings if r.side is None]
+        if silent and present is not None and present >= len(positions):
+            # Every slave answers a broadcast: the silent ones lost their address.
+            faults = [f for f in faults if f.kind not in ("node", "cut")] + [
+                Fault("unaddressed", f"slave {p}", slaves=(p,),
+                      detail="present but silent at its station address: power-cycled or "
+                             "replaced") for p in silent]
         with self._lock:
             faults += crc_faults(self.cables, counters, self._counters or None)
             self._counters.update(counters)
@@ -277,8 +319,10 @@ class RingService:
                 if pos >= 0:
                     cabled.setdefault(pos, set()).add(port)
         result = Diagnosis(ring, self.state(), self.ports(), tuple(readings), tuple(faults),
-                           ret, names, {p: tuple(sorted(v)) for p, v in cabled.items()})
-        self._publish(result)
+                           ret, names, {p: tuple(sorted(v)) for p, v in cabled.items()}, present,
+                           seen_sides)
+        if seen_sides:
+            self._publish(result)
         return result
 
     # -- events -------------------------------------------------------------------------
@@ -298,6 +342,7 @@ class RingService:
             self.faults = result.faults
             self.last = result
             self.events.extend(events)
+            self.published += len(events)
         for ev in events:
             for fn in list(self._listeners):
                 try:

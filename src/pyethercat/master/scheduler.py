@@ -24,6 +24,11 @@ sends on them, hands each received frame to the core with the port it came
 in on and sends what the core passes on (``take_forwards``); the core
 merges the copies (``master.redundancy``).
 
+Work that must go in step with the cyclic loop (recovering a hot-swapped
+slave) runs as a worker of :attr:`Scheduler.stepper`
+(``master.stepping``): its requests ride in cyclic frames and the loop
+resumes it after each cycle.
+
 Time comes from a :mod:`pyethercat.clock` clock. With a
 :class:`~pyethercat.clock.VirtualClock` the scheduler runs in virtual time,
 for links that answer inside ``send`` (the in-process pair link with a
@@ -58,6 +63,7 @@ from pyethercat.master.pdu import (
     describe_datagram,
 )
 from pyethercat.master.redundancy import Redundancy
+from pyethercat.master.stepping import Stepper
 from pyethercat.wire.datagram import MAX_PAYLOAD, Datagram
 from pyethercat.wire.frame import MASTER_MAC, MIN_FRAME_SIZE
 
@@ -131,6 +137,8 @@ class Scheduler:
         self._receiving = False
         #: Threads blocked in the condition's wait (nobody to wake: skip the notify).
         self._sleepers = 0
+        #: Workers run in step with the cyclic loop (see ``master.stepping``).
+        self.stepper = Stepper(self.now)
         #: The link's ports when it is a ring's (RedundantLink), else None.
         self._ring = link if isinstance(link, RedundantLink) else None
         if self._ring is not None:
@@ -190,6 +198,9 @@ class Scheduler:
         """Pause ``seconds`` in the scheduler's time (virtual time just moves on)."""
         if seconds <= 0:
             return
+        if self.stepper.is_worker():
+            self.stepper.wait(lambda: False, self.now() + seconds)
+            return
         vclock = self._vclock
         if vclock is not None:
             vclock.advance(int(seconds * 1e9))
@@ -209,6 +220,8 @@ class Scheduler:
         indices). ``flush=False`` only queues: the next flush, wait or cyclic
         frame sends them, so several callers' datagrams share frames.
         """
+        if flush and self.stepper.is_worker():
+            flush = False  # a stepped worker's requests ride in the loop's frames
         with self._lock:
             now = self.now()
             reqs = self.core.submit(datagrams, now, retries=retries, waiter=self)
@@ -387,6 +400,8 @@ class Scheduler:
         """Drive or await the receive loop until ``done()``; False on ``timeout``."""
         now_fn = self.now
         limit = None if timeout is None else now_fn() + timeout
+        if self.stepper.is_worker():
+            return self.stepper.wait(done, limit)
         core = self.core
         with self._lock:
             while not done():
@@ -438,6 +453,18 @@ class Scheduler:
                         self._sleepers -= 1
                     continue
                 self._receive_once_locked(now, limit)
+
+    def step(self) -> None:
+        """After a cycle (the loop's thread): expire late frames, resume stepped workers."""
+        if not self.stepper.busy:
+            return
+        with self._lock:
+            now = self.now()
+            if self.core.expire(now):
+                self._notify()
+            if self.core.queued:
+                self._send_queued_locked(now)
+        self.stepper.step()
 
     def _receive_once_locked(self, now: float, limit: float | None) -> None:
         """Receive one frame (lock released while blocking) and handle timeouts."""
