@@ -55,6 +55,8 @@ class RedundantLink(Link):
     def __init__(self, primary: Link, secondary: Link, name: str | None = None) -> None:
         super().__init__(name or f"{primary.name}+{secondary.name}")
         self.ports: tuple[Link, Link] = (primary, secondary)
+        # Direction known only if both ports know it.
+        self.sees_own_frames = primary.sees_own_frames or secondary.sees_own_frames
         self.stats = (PortStats(), PortStats())
         self._next = 0  # port polled first (fairness when both have frames)
         #: Why a port has gone for good (None: it works).
