@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from pyethercat.master.slave_info import SlaveInfo
+from pyethercat.master.slave_info import PORT_ORDER, SlaveInfo
 from pyethercat.wire.registers import PortType
 from pyethercat.wire.sii.model import CoeDetails, GeneralFlags
 
@@ -174,7 +174,7 @@ def topology_tree(slaves: Sequence[SlaveInfo]) -> str:
         lines.append(f"{prefix}{'└─ ' if last else '├─ '}{label(slave, port)}")
         child_prefix = prefix + ("   " if last else "│  ")
         kids = [(p, c) for p, c in sorted(slave.children.items(),
-                                          key=lambda kv: (0, 3, 1, 2).index(kv[0]))]
+                                          key=lambda kv: PORT_ORDER.index(kv[0]))]
         for n, (p, c) in reversed(list(enumerate(kids))):
             stack.append((c, p, child_prefix, n == len(kids) - 1))
     return "\n".join(lines)

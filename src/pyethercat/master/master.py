@@ -177,52 +177,13 @@ class Master:
         cabled to the last slave's free port; both ports become one
         :class:`~pyethercat.link.redundant.RedundantLink`.
         """
-        from pyethercat.link.registry import open_link
-
-        given = [x for x in (where, iface, udp, link) if x is not None]
-        if len(given) != 1:
-            raise ConfigError("give exactly one of a link name, iface, udp or link")
-        seconds = [x for x in (redundant, redundant_iface, redundant_udp) if x is not None]
-        if len(seconds) > 1:
-            raise ConfigError("give one second port: redundant, redundant_iface or redundant_udp")
-        if seconds and link is not None:
-            raise ConfigError("a given link cannot take a second port: give a RedundantLink")
-        name = None
-        if link is None:
-            name = where if where is not None else (f"raw:{iface}" if iface is not None
-                                                    else f"udp:{udp}")
-            link = open_link(name)
-            if seconds:
-                from pyethercat.link.redundant import RedundantLink
-
-                second = redundant if redundant is not None else (
-                    f"raw:{redundant_iface}" if redundant_iface is not None
-                    else f"udp:{redundant_udp}")
-                try:
-                    link = RedundantLink(link, open_link(second))
-                except BaseException:
-                    link.close()
-                    raise
+        link, name = _open_links(where, iface, udp, link,
+                                 (redundant, redundant_iface, redundant_udp))
         master = cls(link, timeout=timeout, retries=retries, max_in_flight=max_in_flight,
                      clock=clock, src=src, station_base=station_base,
                      mailbox_timeout=mailbox_timeout)
-        spec = _control_spec(name) if control and name is not None else None
-        if spec is not None:
-            from pyethercat.master.control.server import MasterRunningError, serve
-
-            try:
-                master.control = serve(master, spec)
-            except MasterRunningError:
-                master.close()
-                raise
-            except ConfigError as exc:
-                # No socket (a read-only runtime directory...): the master works, the
-                # command line just cannot reach it.
-                logging.getLogger("pyethercat.master").warning(
-                    "no control socket for this master: %s", exc)
-            except BaseException:
-                master.close()
-                raise
+        if control and name is not None:
+            _serve_control(master, name)
         return master
 
     def close(self) -> None:
@@ -646,6 +607,60 @@ def _state(state: AlState | int | str) -> AlState:
     except ValueError:
         raise ConfigError(f"unknown AL state 0x{int(state):02X}") from None
 
+
+
+def _open_links(where: str | None, iface: str | None, udp: str | None, link: Link | None,
+                seconds: tuple[str | None, str | None, str | None]) -> tuple[Link, str | None]:
+    """The link ``Master.open`` was asked for, and its name (None for a given link)."""
+    from pyethercat.link.registry import open_link
+
+    given = [x for x in (where, iface, udp, link) if x is not None]
+    if len(given) != 1:
+        raise ConfigError("give exactly one of a link name, iface, udp or link")
+    redundant, redundant_iface, redundant_udp = seconds
+    second = [x for x in seconds if x is not None]
+    if len(second) > 1:
+        raise ConfigError("give one second port: redundant, redundant_iface or redundant_udp")
+    if link is not None:
+        if second:
+            raise ConfigError("a given link cannot take a second port: give a RedundantLink")
+        return link, None
+    name = where if where is not None else (f"raw:{iface}" if iface is not None
+                                            else f"udp:{udp}")
+    opened = open_link(name)
+    if second:
+        from pyethercat.link.redundant import RedundantLink
+
+        other = redundant if redundant is not None else (
+            f"raw:{redundant_iface}" if redundant_iface is not None else f"udp:{redundant_udp}")
+        try:
+            opened = RedundantLink(opened, open_link(other))
+        except BaseException:
+            opened.close()
+            raise
+    return opened, name
+
+
+def _serve_control(master: Master, name: str) -> None:
+    """Serve the master's control socket for the link ``name`` (if that link has one)."""
+    spec = _control_spec(name)
+    if spec is None:
+        return
+    from pyethercat.master.control.server import MasterRunningError, serve
+
+    try:
+        master.control = serve(master, spec)
+    except MasterRunningError:
+        master.close()
+        raise
+    except ConfigError as exc:
+        # No socket (a read-only runtime directory...): the master works, the
+        # command line just cannot reach it.
+        logging.getLogger("pyethercat.master").warning(
+            "no control socket for this master: %s", exc)
+    except BaseException:
+        master.close()
+        raise
 
 
 def _control_spec(link_name: str) -> str | None:

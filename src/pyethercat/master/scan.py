@@ -53,6 +53,7 @@ from pyethercat.wire.registers import (
     EcatEvent,
     SiiControl,
 )
+from pyethercat.wire.ring import walk_ring
 from pyethercat.wire.sii import SII_DEFAULT_MAX_BYTES, SiiInfo, parse_sii, sii_bytes_needed
 from pyethercat.wire.sii.model import (
     WORD_ALIAS,
@@ -454,32 +455,15 @@ def build_topology(slaves: Sequence[SlaveInfo]) -> bool:
             p.peer = None
     if not slaves:
         return True
-    next_pos = 1
-    consistent = True
-    order = (3, 1, 2)
-    stack: list[tuple[SlaveInfo, list[int]]] = [
-        (slaves[0], [p for p in order if slaves[0].ports[p].active])]
-    while stack:
-        slave, ports = stack[-1]
-        if not ports:
-            stack.pop()
-            continue
-        port = ports.pop(0)
-        if next_pos >= len(slaves):
-            # An open port with nothing behind it that processes frames (ring back to
-            # a second master port, a non-EtherCAT device): nothing to attach.
-            continue
-        child = slaves[next_pos]
-        next_pos += 1
-        _attach(slave, port, child)
-        stack.append((child, [p for p in order if child.ports[p].active]))
-    while next_pos < len(slaves):
-        consistent = False
-        prev, child = slaves[next_pos - 1], slaves[next_pos]
+    parents, explained = walk_ring([0] * len(slaves), [set(s.active_ports) for s in slaves])
+    for pos, hang in enumerate(parents):
+        if hang is not None:
+            _attach(slaves[hang[0]], hang[1], slaves[pos])
+    for pos in range(max(explained, 1), len(slaves)):
+        prev, last = slaves[pos - 1], slaves[pos]
         free = [p for p in (1, 3, 2) if p not in prev.children]
-        _attach(prev, free[0] if free else 1, child)
-        next_pos += 1
-    return consistent
+        _attach(prev, free[0] if free else 1, last)
+    return explained == len(slaves)
 
 
 def _attach(parent: SlaveInfo, port: int, child: SlaveInfo) -> None:

@@ -24,6 +24,7 @@ from pyethercat.wire.registers import (
     dl_status_loop,
     port_types,
 )
+from pyethercat.wire.ring import PORT_CYCLE
 from pyethercat.wire.sii.model import GeneralFlags, MailboxProtocol, SiiInfo
 
 if TYPE_CHECKING:
@@ -33,9 +34,8 @@ if TYPE_CHECKING:
 
 __all__ = ["Identity", "EscInfo", "Port", "MailboxInfo", "SlaveInfo", "PORT_ORDER"]
 
-#: Order in which an ESC passes a frame through its ports (ET1100 datasheet section
-#: "Frame processing order": 0 -> processing unit -> 3 -> 1 -> 2 -> 0).
-PORT_ORDER = (0, 3, 1, 2)
+#: Order in which an ESC passes a frame through its ports (``wire.ring.PORT_CYCLE``).
+PORT_ORDER = PORT_CYCLE
 
 
 @dataclass(frozen=True, slots=True)

@@ -30,12 +30,9 @@ from pyethercat.sim.device import DeviceApp
 from pyethercat.sim.eeprom import SiiInterface
 from pyethercat.sim.esc_mailbox import MailboxSms
 from pyethercat.wire import registers as R
-from pyethercat.wire.al import AlState, AlStatusCode
+from pyethercat.wire.al import PENDING, AlState, AlStatusCode
 
 __all__ = ["PENDING", "AlStateMachine"]
-
-#: Transition check result: allowed once the first outputs arrive (SAFEOP -> OP).
-PENDING = -1
 
 _VALID_STATES = {int(s) for s in (AlState.INIT, AlState.PREOP, AlState.BOOT, AlState.SAFEOP, AlState.OP)}
 _BELOW_SAFEOP = (AlState.INIT, AlState.PREOP, AlState.BOOT)

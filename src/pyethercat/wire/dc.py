@@ -40,6 +40,7 @@ from dataclasses import dataclass, field
 
 from pyethercat.errors import ConfigError
 from pyethercat.wire import registers as R
+from pyethercat.wire.ring import PORT_CYCLE, next_port, port_sequence, prev_port, walk_ring
 
 __all__ = [
     "DEFAULT_HOP_NS",
@@ -71,11 +72,6 @@ __all__ = [
 #: Nanoseconds from 1970-01-01 to 2000-01-01, the EtherCAT system-time epoch
 #: (SOEM subtracts 946684800 s from the host clock; KickCAT ``protocol.cc``).
 EPOCH_UNIX_OFFSET_NS = 946_684_800 * 1_000_000_000
-
-#: Port visiting order inside an ESC (the processing unit sits behind port 0).
-PORT_CYCLE = (0, 3, 1, 2)
-_NEXT = {0: 3, 3: 1, 1: 2, 2: 0}
-_PREV = {3: 0, 1: 3, 2: 1, 0: 2}
 
 #: One-way delay assumed for a link no DC slave measured (a stretch of slaves
 #: without DC ahead of the first DC slave): about one ESC forwarding delay plus
@@ -110,43 +106,7 @@ def time_diff32(a: int, b: int) -> int:
     return d - _U32 if d >= 1 << 31 else d
 
 
-# --- ports ----------------------------------------------------------------------------
-
-
-def next_port(port: int, active: frozenset[int] | set[int]) -> int:
-    """The next active port after ``port`` in the order 0-3-1-2 (``port`` itself if none)."""
-    p = port
-    for _ in range(4):
-        p = _NEXT[p]
-        if p in active:
-            return p
-    return port
-
-
-def prev_port(port: int, active: frozenset[int] | set[int]) -> int:
-    """The previous active port before ``port`` in the order 0-3-1-2 (``port`` itself if none).
-
-    For an entry port this is the last port the frame leaves through before
-    it goes back out of the entry port: its latch closes the slave's own
-    round trip (SOEM ``ecx_prevport``; IgH ``ec_slave_get_previous_port``).
-    """
-    p = port
-    for _ in range(4):
-        p = _PREV[p]
-        if p in active:
-            return p
-    return port
-
-
-def port_sequence(entry: int, active: frozenset[int] | set[int]) -> list[int]:
-    """The active ports after ``entry`` in visiting order: where the children hang."""
-    out: list[int] = []
-    p = entry
-    for _ in range(3):
-        p = _NEXT[p]
-        if p in active:
-            out.append(p)
-    return out
+# --- ports (the visiting order: pyethercat.wire.ring) --------------------------------
 
 
 def entry_port(times: Sequence[int], active: frozenset[int] | set[int]) -> int:
@@ -232,23 +192,13 @@ def _build_tree(slaves: Sequence[DcPorts]) -> list[_Node]:
         nodes.append(_Node(pos, s, entry))
     if not nodes:
         return nodes
-    nxt = 1
-    stack = [(0, port_sequence(nodes[0].entry, nodes[0].info.active))]
-    while stack:
-        pos, ports = stack[-1]
-        if not ports:
-            stack.pop()
-            continue
-        port = ports.pop(0)
-        if nxt >= len(nodes):
-            # an open port with no EtherCAT slave behind it (a ring back to the master)
-            continue
-        child = nodes[nxt]
-        child.parent, child.parent_port = pos, port
-        nodes[pos].children.append(nxt)
-        nodes[pos].child_ports.append(port)
-        stack.append((nxt, port_sequence(child.entry, child.info.active)))
-        nxt += 1
+    parents, nxt = walk_ring([n.entry for n in nodes], [n.info.active for n in nodes])
+    for child, hang in enumerate(parents):
+        if hang is not None:
+            parent, port = hang
+            nodes[child].parent, nodes[child].parent_port = parent, port
+            nodes[parent].children.append(child)
+            nodes[parent].child_ports.append(port)
     if nxt < len(nodes):
         raise DcTopologyError(
             f"the open ports explain {nxt} of {len(nodes)} slaves: slave {nxt} is behind no "
