@@ -56,7 +56,7 @@ from typing import Protocol
 
 from pyethercat.errors import EtherCATError, FrameError, FrameTooLargeError, LinkError
 from pyethercat.errors import TimeoutError as EcTimeoutError
-from pyethercat.master.redundancy import CopySet, Redundancy, hand_copies
+from pyethercat.master.redundancy import CopySet, Redundancy, hand_copies, ordered_command
 from pyethercat.wire.datagram import (
     HEADER_SIZE,
     LEN_MASK,
@@ -283,9 +283,10 @@ class CyclicTemplate:
         self.checks = tuple(checks)
         #: Offset of the last datagram's header (its "more follows" bit).
         self.last_header = last
-        #: The frame must pass the slaves in bus order (cross traffic): on a ring
-        #: it goes out on one port and on through the other (master.redundancy).
-        self.ordered = False
+        #: The frame must pass the slaves in bus order (auto-increment or RMW
+        #: datagrams; set by the owner for cross traffic): on a ring it goes out on
+        #: one port and on through the other (master.redundancy).
+        self.ordered = any(ordered_command(int(d.command)) for d in self.datagrams)
 
     def wkc(self, raw: bytes, i: int) -> int:
         """Working counter of datagram ``i`` in a reply."""
@@ -545,7 +546,9 @@ class PduCore:
         entry = self._in_flight.get(index)
         if red is None or entry is None:
             return [0]
-        ordered = entry.template is not None and entry.template.ordered
+        template = entry.template
+        ordered = (template is not None and template.ordered) or any(
+            ordered_command(int(r.datagram.command)) for r in entry.requests)
         entry.copies, ports = red.plan(raw, ordered)
         entry.sent = raw
         return ports

@@ -68,6 +68,7 @@ __all__ = [
     "hand_copies",
     "merge_copies",
     "order_dependent",
+    "ordered_command",
 ]
 
 PORT_A = 0
@@ -105,6 +106,11 @@ def _datagram_offsets(frame: bytes | bytearray) -> list[tuple[int, int, int]]:
         if not word & MORE_BIT:
             break
     return out
+
+
+def ordered_command(command: int) -> bool:
+    """Whether a datagram of this command must pass the slaves in bus order (sent "chain")."""
+    return command in _ORDERED
 
 
 def order_dependent(frame: bytes | bytearray) -> bool:
@@ -229,10 +235,13 @@ class Redundancy:
 
     # -- sending ----------------------------------------------------------------------
 
-    def plan(self, frame: bytes | bytearray, ordered: bool = False) -> tuple[CopySet, list[int]]:
-        """How to send ``frame``: its copy set and the ports to send it on now."""
+    def plan(self, frame: bytes | bytearray, ordered: bool | None = None) -> tuple[CopySet, list[int]]:
+        """How to send ``frame``: its copy set and the ports to send it on now.
+
+        ``ordered``: whether it must pass the slaves in bus order (None: look
+        at its datagrams)."""
         usable = self.usable()
-        if ordered or order_dependent(frame):
+        if ordered if ordered is not None else order_dependent(frame):
             tx = usable[0]
             self.counters[tx].sent += 1
             return CopySet(True, tx), [tx]

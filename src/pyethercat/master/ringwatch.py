@@ -130,7 +130,7 @@ class RingWatch:
                         if t.template is not None and len(c) >= t.template.end else True
                     signature.append(2 * port + worked)
         sig = tuple(signature)
-        if not ok and len(signature) >= 2:
+        if not ok and signature:
             gap = self._gap(runner, tickets)
             if gap:
                 runner.set_absent(set(runner.absent) | gap)
@@ -154,16 +154,19 @@ class RingWatch:
         gap: set[int] = set()
         for plan, t in zip(getattr(runner, "last_plans", ()), tickets, strict=False):
             copies = t.copies
-            if not copies or len(copies) != 2 or t.template is None:
+            if not copies or t.template is None:
                 continue
             a, b = copies.get(0), copies.get(1)
-            if a is None or b is None or len(a) < t.template.end or len(b) < t.template.end:
+            end = t.template.end
+            if (a is not None and len(a) < end) or (b is not None and len(b) < end):
                 continue
             for take in plan.takes:
                 g, n, w = take[0], take[1], take[2]
-                wa, wb = a[w] | (a[w + 1] << 8), b[w] | (b[w + 1] << 8)
-                if not wa or not wb:
-                    continue  # a closed ring or one port: no sides to compare
+                # A port that brought nothing back reached no slave (its first slave failed).
+                wa = 0 if a is None else a[w] | (a[w + 1] << 8)
+                wb = 0 if b is None else b[w] | (b[w + 1] << 8)
+                if (a is not None and not wa) or (b is not None and not wb) or not (wa or wb):
+                    continue  # a closed ring (the copy back on A went through no slave)
                 shares = self._shares(runner, g, n)
                 gap |= _between(shares, wa, wb)
         return gap

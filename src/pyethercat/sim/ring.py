@@ -266,14 +266,17 @@ class _SimPort(PairLink):
         return None if fn is None else fn()
 
 
-def ring_link(segment: Any, name: str = "sim") -> RedundantLink:
+def ring_link(segment: Any, name: str = "sim",
+              before: Callable[[int], None] | None = None) -> RedundantLink:
     """The master's ports A and B of an in-process ring served by ``segment``.
 
     Two in-process pairs: a frame sent on either is answered inside ``send``
     (as :meth:`PairLink.responder_link` does for one port) and comes back on
     the port where it leaves the ring. Each port reports the state of its
     cable as its carrier. The segment's ring is closed at the last slave when
-    the topology did not place it.
+    the topology did not place it. ``before(port)`` runs just before each
+    frame enters the ring at ``port`` (a fault injected there hits a frame
+    whose other copy is already through).
     """
     if segment.ring is None:
         segment.close_ring()
@@ -284,6 +287,8 @@ def ring_link(segment: Any, name: str = "sim") -> RedundantLink:
 
     def answer(port: int) -> Callable[[bytes], bytes | None]:
         def respond(frame: bytes) -> bytes | None:
+            if before is not None:
+                before(port)
             got = segment.process_from(frame, port)
             if got is None:
                 return None
