@@ -110,11 +110,14 @@ class DistributedClocks:
 
     def __init__(self, transact: Transact, slaves: Callable[[], list[Slave]], *,
                  master_time: Callable[[], int] = ecat_time_ns,
-                 sleep: Callable[[float], None] | None = None) -> None:
+                 sleep: Callable[[float], None] | None = None,
+                 ring_port: Callable[[], tuple[int, int] | None] | None = None) -> None:
         self._transact = transact
         self._slaves = slaves
         self.master_time = master_time
         self._sleep = sleep
+        #: On a ring: the (position, port) cabled to the master's second port.
+        self._ring_port = ring_port
         #: Result of the last :meth:`setup` (None before).
         self.report: DcReport | None = None
         #: SYNC settings per slave position, applied before SAFE-OP.
@@ -129,8 +132,32 @@ class DistributedClocks:
         if not slaves:
             raise ConfigError("no slaves: scan first")
         kw = {} if self._sleep is None else {"sleep": self._sleep}
-        self.report = run_dc_setup(self._transact, [dc_slave_info(s) for s in slaves], settings,
-                                   master_time=self.master_time, progress=progress, **kw)
+        infos = [dc_slave_info(s) for s in slaves]
+        ring = self._ring_port() if self._ring_port is not None else None
+        if ring is None:
+            self.report = run_dc_setup(self._transact, infos, settings,
+                                       master_time=self.master_time, progress=progress, **kw)
+            return self.report
+        # A ring: the frame that latches the receive times would leave at the master's
+        # second port and pass no port on its way back. The ring port's loop is closed
+        # for the set-up (the segment is a line then) and left out of the walk.
+        pos, port = ring
+        s = slaves[pos]
+        info = infos[pos]
+        infos[pos] = DcSlaveInfo(info.position, info.station_address, info.features,
+                                 info.active_ports - {port}, info.name)
+        loop = self._transact([Datagram.device(Command.FPRD, s.station_address,
+                                               R.DL_CONTROL_LOOP, 1)])[0]
+        old = loop.data[0] if loop.wkc == 1 else 0
+        closed = (old & ~(3 << (2 * port))) | (int(R.LoopControl.CLOSED) << (2 * port))
+        self._transact([Datagram.device(Command.FPWR, s.station_address, R.DL_CONTROL_LOOP,
+                                        bytes([closed]))])
+        try:
+            self.report = run_dc_setup(self._transact, infos, settings,
+                                       master_time=self.master_time, progress=progress, **kw)
+        finally:
+            self._transact([Datagram.device(Command.FPWR, s.station_address,
+                                            R.DL_CONTROL_LOOP, bytes([old]))])
         return self.report
 
     def _need_report(self) -> DcReport:

@@ -41,6 +41,7 @@ from pyethercat.master.image import ProcessImage, SlaveIO
 from pyethercat.master.mailbox import DEFAULT_MAILBOX_TIMEOUT, DropOldestQueue, Mailbox
 from pyethercat.master.mailboxes import MailboxService
 from pyethercat.master.process import ProcessData
+from pyethercat.master.hotswap import HotSwap
 from pyethercat.master.ring import Diagnosis, RingService
 from pyethercat.master.ringwatch import RingWatch
 from pyethercat.master.scheduler import (
@@ -128,7 +129,8 @@ class Master:
                                         timeout=mailbox_timeout)
         #: Distributed clocks: set-up, SYNC pulses, the cyclic plan (:class:`DistributedClocks`).
         self.dc = DistributedClocks(self.scheduler.transact, lambda: self.slaves,
-                                    sleep=self.scheduler.sleep)
+                                    sleep=self.scheduler.sleep,
+                                    ring_port=lambda: self.ring.ring_end)
         self.coe_setup = CoeSetup(self.mailboxes,
                                   bring_to_preop=self._to_preop,
                                   mapping_changed=lambda: self.pd.invalidate())
@@ -143,7 +145,11 @@ class Master:
         self.ring = RingService(self.scheduler, lambda: self.slaves,
                                 now_ns=lambda: int(self.scheduler.now() * 1e9))
         # Every cyclic loop carries the ring watch: events through the IRQ field, faults.
-        self.pd.rider_factories.append(lambda runner: RingWatch(self.ring, log=runner.log))
+        self.pd.rider_factories.append(self._ring_watch)
+        #: Slaves that come back (power-cycled, hot-swapped) are identified and configured.
+        self.hotswap = HotSwap(self.scheduler, self.pd, self.dc, lambda: self.slaves,
+                               now_ns=lambda: int(self.scheduler.now() * 1e9))
+        self.pd.recovery = self.hotswap.recover
         self._services = _SlaveServices(self.mailboxes, self.pd, self.coe_setup)
         #: The control socket server, while one serves this master (see :meth:`open`).
         self.control: ControlServer | None = None
@@ -416,6 +422,10 @@ class Master:
         return diag.ErrorCounterReport(tuple(
             diag.decode_error_counters(s.position, s.station_address, r.data, r.ok)
             for s, r in zip(chosen, results, strict=True)))
+
+    def _ring_watch(self, runner: CyclicRunner) -> RingWatch:
+        self.hotswap.log = runner.log
+        return RingWatch(self.ring, log=runner.log)
 
     def diagnose(self) -> Diagnosis:
         """Locate faults: which master port, cable or node failed, which cable corrupts frames.

@@ -92,6 +92,8 @@ class ProcessData:
         self.runner: CyclicRunner | None = None
         #: Make the riders of every runner :meth:`start` makes (the master's ring watch).
         self.rider_factories: list[Callable[[CyclicRunner], Any]] = []
+        #: What brings slaves back for the runner (the master's hot swap), else :meth:`recover`.
+        self.recovery: Callable[[list[int]], None] | None = None
         self._io: dict[int, tuple[SlaveIO | None, SlaveIO | None]] = {}
 
     # -- configuration -----------------------------------------------------------------
@@ -235,7 +237,8 @@ class ProcessData:
             self.bring_up(slaves, timeout)
             runner = CyclicRunner(self.scheduler, cfg, self.images, slaves, cycle=cycle,
                                   clock=clock, callback=callback, check_interval=check_interval,
-                                  target=want, recover=self.recover if recover else None,
+                                  target=want,
+                                  recover=(self.recovery or self.recover) if recover else None,
                                   groups=groups, frame_timeout=frame_timeout, dc=plan)
             runner.riders.extend(make(runner) for make in self.rider_factories)
             self.runner = runner

@@ -31,7 +31,16 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 from pyethercat.master import diag
-from pyethercat.master.locate import Cable, End, Fault, SlaveReading, cables_of, crc_faults, locate
+from pyethercat.master.locate import (
+    MASTER,
+    Cable,
+    End,
+    Fault,
+    SlaveReading,
+    cables_of,
+    crc_faults,
+    locate,
+)
 from pyethercat.master.redundancy import PORT_NAMES
 from pyethercat.master.scheduler import Request, Scheduler
 from pyethercat.wire import registers as reg
@@ -195,6 +204,10 @@ class RingService:
         self.published = 0
         self._listeners: list[Callable[[FaultEvent], None]] = []
         self._counters: dict[int, diag.SlaveCounters] = {}
+        #: Cables that corrupted frames lately: (fault, when their counters last rose).
+        self._crc: dict[str, tuple[Fault, int]] = {}
+        #: How long a cable stays named after its CRC counters last rose.
+        self.crc_hold_ns = 10_000_000_000
         self._lock = threading.Lock()
 
     # -- ports ------------------------------------------------------------------------
@@ -220,6 +233,14 @@ class RingService:
 
     # -- cabling ----------------------------------------------------------------------
 
+    @property
+    def ring_end(self) -> End | None:
+        """The (position, port) cabled to the master's second port (None: no ring)."""
+        for c in self.cables:
+            if (MASTER, 1) in c.ends():
+                return c.other((MASTER, 1))
+        return None
+
     def learn(self) -> None:
         """Take the cabling from the scanned slaves (after a scan)."""
         slaves = list(self._slaves())
@@ -233,6 +254,7 @@ class RingService:
                 ring_end = (int(getattr(last, "position")), (linked or free)[0])  # noqa: B009
         self.cables = cables_of(slaves, ring_end)
         self._counters = {}
+        self._crc = {}
 
     # -- diagnosis ----------------------------------------------------------------------
 
@@ -311,7 +333,15 @@ class RingService:
                       detail="present but silent at its station address: power-cycled or "
                              "replaced") for p in silent]
         with self._lock:
-            faults += crc_faults(self.cables, counters, self._counters or None)
+            now = self.now_ns()
+            # A cable stays named for crc_hold seconds after its counters last rose.
+            for f in crc_faults(self.cables, counters, self._counters or None):
+                self._crc[f.where] = (f, now)
+            for where, (f, seen) in list(self._crc.items()):
+                if now - seen > self.crc_hold_ns:
+                    del self._crc[where]
+                else:
+                    faults.append(f)
             self._counters.update(counters)
         cabled: dict[int, set[int]] = {}
         for c in self.cables:

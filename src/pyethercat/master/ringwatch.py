@@ -100,6 +100,11 @@ class RingWatch:
         self._recovering: frozenset[int] = frozenset()
         self._share_cache: dict[tuple[str, int], list[tuple[int, int]]] = {}
 
+    def refresh(self) -> None:
+        """Read every slave in the next cycle (a new baseline, e.g. after the master itself
+        changed states: its own reads took the events)."""
+        self._want = True
+
     # -- riding in the loop -------------------------------------------------------------
 
     def before_cycle(self, runner: Any) -> None:

@@ -526,10 +526,11 @@ def close_eoe(segment: Segment) -> None:
             server.close()
 
 
-def device_spec(device: str, name: str, base_dir: str | Path = ".") -> Any:
-    """The slave spec of one device as a topology entry names it (``builtin:di8``,
-    ``sii = PATH`` is not meant here), for plugging into a running segment."""
-    topo = parse_topology({"slave": [{"name": name, "device": device}]}, base_dir,
+def device_spec(device: str, name: str, base_dir: str | Path = ".", **entry: Any) -> Any:
+    """The slave spec of one device as a topology entry names it (``builtin:di8``), for
+    plugging into a running segment; ``entry`` adds keys of a ``[[slave]]`` table
+    (``serial``, ``alias``, ``inputs``...)."""
+    topo = parse_topology({"slave": [{"name": name, "device": device, **entry}]}, base_dir,
                           source=f"device {device!r}")
     return build_segment(topo).slaves[0].spec
 

@@ -1,0 +1,286 @@
+"""Hot swap: a slave that comes back (power-cycled, unplugged and plugged, replaced) is identified
+and brought back to its place while the others keep exchanging.
+
+:meth:`HotSwap.recover` is the cyclic runner's recovery (it runs in step
+with the loop, ``master.stepping``: its requests ride in cyclic frames).
+For each slave to bring back:
+
+1. a slave that still answers at its station address only left its state:
+   acknowledged and requested again;
+2. otherwise the device at its ring position (auto-increment addressing:
+   on a ring the frame passes the slaves in bus order, so positions hold
+   when the ring is open too) is read: station address and alias
+   (0x0010-0x0013, the alias as its EEPROM loaded it), then, with the slot's
+   station address written, its identity from the SII (words 0x08-0x0F);
+3. it is identified against the slot: by position, by alias when the slot
+   has one (a device with another alias is not this slot's), by identity
+   (vendor and product; another revision or serial number is another unit
+   of the same device, ``"replaced"``). A device of another product is
+   accepted only when its SII describes the same sync managers and process
+   data as the slot's (``"another product"``), else it is refused and left
+   in INIT (``"refused"``);
+4. it is configured again as the slot was: station address, mailbox sync
+   managers, CoE start-up commands (the transition hooks), process-data
+   sync managers and FMMUs, distributed clocks (its system-time delay as
+   measured at set-up, its offset from one reading of the reference's and
+   its own system time, then the SYNC set-up), and walked up to the loop's
+   target state.
+
+Every outcome is a :class:`HotSwapEvent` (``events``, and ``log``).
+"""
+
+from __future__ import annotations
+
+import struct
+import threading
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from pyethercat.errors import EtherCATError, WorkingCounterError
+from pyethercat.master import scan as scanning
+from pyethercat.master import states
+from pyethercat.master.slave_info import Identity
+from pyethercat.wire import registers as reg
+from pyethercat.wire.al import AlState
+from pyethercat.wire.datagram import Command, Datagram
+from pyethercat.wire.sii import SiiInfo, parse_sii
+from pyethercat.wire.sii.model import WORD_VENDOR_ID
+
+if TYPE_CHECKING:
+    from pyethercat.master.clocks import DistributedClocks
+    from pyethercat.master.process import ProcessData
+    from pyethercat.master.scheduler import Scheduler
+    from pyethercat.master.slave import Slave
+
+__all__ = ["HotSwap", "HotSwapEvent", "HotSwapRefused"]
+
+
+class HotSwapRefused(EtherCATError):
+    """A device in a slave's place is not that slave's (another alias, other process data)."""
+
+#: SII bytes read to identify a device: up to the end of the identity words (0x08-0x0F).
+_IDENTITY_BYTES = 2 * (WORD_VENDOR_ID + 8)
+
+
+@dataclass(frozen=True)
+class HotSwapEvent:
+    """A slave brought back (or refused).
+
+    ``outcome``: ``"resumed"`` (it had only left its state), ``"same"`` (the
+    same device came back), ``"replaced"`` (another unit of the same
+    device), ``"another product"`` (with the same process data), or
+    ``"refused"``.
+    """
+
+    position: int
+    name: str
+    outcome: str
+    found: Identity | None
+    text: str
+    time_ns: int
+
+
+class HotSwap:
+    """Brings slaves back to their place (see the module text)."""
+
+    def __init__(self, scheduler: Scheduler, pd: ProcessData, dc: DistributedClocks,
+                 slaves: Callable[[], list[Slave]], now_ns: Callable[[], int]) -> None:
+        self.scheduler = scheduler
+        self.pd = pd
+        self.dc = dc
+        self._slaves = slaves
+        self.now_ns = now_ns
+        self.events: deque[HotSwapEvent] = deque(maxlen=500)
+        #: Where event texts go too (the cyclic loop's log while one runs).
+        self.log: Callable[[str], None] = lambda _text: None
+        self._lock = threading.Lock()
+        #: What was refused last at each position (refused again: no new event).
+        self._refused: dict[int, tuple[Identity | None, int]] = {}
+
+    # -- the runner's recovery --------------------------------------------------------------
+
+    def recover(self, positions: list[int]) -> None:
+        """Bring the slaves at ``positions`` back to the loop's target state."""
+        runner = self.pd.runner
+        target = runner.target if runner is not None else AlState.OP
+        slaves = self._slaves()
+        sched = self.scheduler
+        # Positions name the right devices only when every slave is there.
+        count = scanning.count_slaves(sched)
+        if count < len(slaves):
+            raise WorkingCounterError("segment still incomplete", len(slaves), count)
+        full: list[Slave] = []
+        resume: list[Slave] = []
+        refused: list[Slave] = []
+        for p in positions:
+            s = slaves[p]
+            reply = sched.transact_one(
+                Datagram.device(Command.FPRD, s.station_address, reg.AL_STATUS, 2))
+            if reply.wkc == 1:
+                state = struct.unpack("<H", reply.data)[0] & reg.AL_STATE_MASK
+                (resume if state >= AlState.SAFEOP else full).append(s)
+                continue
+            (full if self._bring_back(s) else refused).append(s)
+        if full:
+            self._restore_dc(full)
+            self.pd.bring_up(full, 5.0)
+            resume += full
+        if resume:
+            states.acknowledge_errors(sched, resume)
+            self.pd.transitions.set_state(resume, target, 5.0)
+        for s in resume:
+            if s not in full:
+                self._event(s, "resumed", None, f"slave {s.position} back in "
+                                               f"{AlState(target).name}")
+        if refused:
+            # The loop tries again later (a device plugged in instead is looked at then).
+            raise HotSwapRefused(f"slave{'s' if len(refused) > 1 else ''} "
+                                 f"{', '.join(str(s.position) for s in refused)} refused: "
+                                 "not the device of that place")
+
+    def _bring_back(self, slave: Slave) -> bool:
+        """Address, identify and accept the device at ``slave``'s position (False: refused)."""
+        sched = self.scheduler
+        p = slave.position
+        got = sched.transact_one(Datagram.positional(Command.APRD, p, reg.STATION_ADDRESS, 4))
+        if got.wkc != 1:
+            raise WorkingCounterError(f"{slave.describe()}: no answer at its position", 1, got.wkc)
+        # Station address and the alias its EEPROM loaded into 0x0012.
+        station, alias = struct.unpack_from("<HH", got.data)
+        others = {s.station_address for s in self._slaves() if s is not slave}
+        if station in others:
+            # Another configured slave answers at this position: the positions moved.
+            raise WorkingCounterError(f"{slave.describe()}: slave 0x{station:04X} answers at "
+                                      f"its position", 0, 1)
+        w = sched.transact_one(Datagram.positional(
+            Command.APWR, p, reg.STATION_ADDRESS, struct.pack("<H", slave.station_address)))
+        if w.wkc != 1:
+            raise WorkingCounterError(f"{slave.describe()}: station address not taken", 1, w.wkc)
+        found = self._identity(slave)
+        outcome = self._judge(slave, found, alias)
+        text = f"slave {p} ({slave.name}): "
+        if outcome == "refused":
+            why = (f"alias 0x{alias:04X}, its place wants 0x{slave.alias:04X}"
+                   if found is not None and self._same_kind(slave, found) else
+                   f"{found} in the place of {slave.identity}")
+            # Back to no address: it must not pass for the slot's device.
+            sched.transact_one(Datagram.device(Command.FPWR, slave.station_address,
+                                               reg.STATION_ADDRESS, b"\x00\x00"))
+            if self._refused.get(p) != (found, alias):
+                self._refused[p] = (found, alias)
+                self._event(slave, outcome, found, text + f"not configured: {why}")
+            return False
+        self._refused.pop(p, None)
+        words = {"same": "the same device is back", "replaced": "another unit took its place",
+                 "another product": "another product with the same process data took its place"}
+        self._event(slave, outcome, found, text + words[outcome] + f" ({found})")
+        return True
+
+    def _identity(self, slave: Slave) -> Identity | None:
+        """The device's identity from its SII (None: unreadable)."""
+        access = scanning.SiiAccess.of(slave)
+        try:
+            image = scanning.read_sii_batch(self.scheduler, [access], length=_IDENTITY_BYTES)[0]
+        except EtherCATError:
+            return None
+        if isinstance(image, Exception) or len(image) < _IDENTITY_BYTES:
+            return None
+        vendor, product, revision, serial = struct.unpack_from("<IIII", image, 2 * WORD_VENDOR_ID)
+        return Identity(vendor, product, revision, serial)
+
+    @staticmethod
+    def _same_kind(slave: Slave, found: Identity) -> bool:
+        ident = slave.identity
+        return (found.vendor_id, found.product_code) == (ident.vendor_id, ident.product_code)
+
+    def _judge(self, slave: Slave, found: Identity | None, alias: int) -> str:
+        if found is None:
+            return "refused"
+        if slave.alias and alias != slave.alias:
+            return "refused"
+        if self._same_kind(slave, found):
+            ident = slave.identity
+            same = (found.revision, found.serial) == (ident.revision, ident.serial)
+            return "same" if same else "replaced"
+        return "another product" if self._same_process_data(slave) else "refused"
+
+    def _same_process_data(self, slave: Slave) -> bool:
+        """Whether the device now at ``slave``'s place describes the slot's SMs and PDOs."""
+        old = slave.sii
+        if old is None:
+            return False
+        got = scanning.read_sii_batch(self.scheduler, [scanning.SiiAccess.of(slave)])[0]
+        if isinstance(got, Exception):
+            return False
+        try:
+            new = parse_sii(got)
+        except (EtherCATError, ValueError):
+            return False
+
+        def layout(info: SiiInfo) -> tuple[object, ...]:
+            sms = tuple((m.start, m.length, m.control, m.enable) for m in info.sync_managers)
+            pdos = tuple((p.sync_manager, tuple((e.index, e.subindex, e.bit_length)
+                                                for e in p.entries))
+                         for p in (*info.rx_pdos, *info.tx_pdos))
+            return sms, pdos
+
+        return layout(new) == layout(old)
+
+    # -- distributed clocks -------------------------------------------------------------------
+
+    def _restore_dc(self, slaves: Sequence[Slave]) -> None:
+        """Delay and offset of slaves that came back, as the set-up had them.
+
+        The delay is the cabling's (the same place); the offset comes from one
+        frame reading the reference's and the slave's system time (0x0910):
+        the slave passes ``delay`` ns after the reference, so its system time
+        is the reference's reading plus the delay.
+        """
+        report = self.dc.report
+        ref = self.dc.reference
+        if report is None or ref is None:
+            return
+        results = {r.position: r for r in report.slaves}
+        todo = [(s, results[s.position]) for s in slaves
+                if s.position in results and results[s.position].system_time
+                and results[s.position].delay_ns is not None and s is not ref]
+        if not todo:
+            return
+        dgs = [Datagram.device(Command.FPRD, ref.station_address, reg.DC_SYSTEM_TIME, 8)]
+        dgs += [Datagram.device(Command.FPRD, s.station_address, reg.DC_SYSTEM_TIME, 8)
+                for s, _ in todo]
+        replies = self.scheduler.transact(dgs)
+        if replies[0].wkc != 1:
+            return
+        ref_time = struct.unpack("<Q", replies[0].data)[0]
+        writes = []
+        for (s, r), rep in zip(todo, replies[1:], strict=True):
+            if rep.wkc != 1 or r.delay_ns is None:
+                continue
+            bits = r.bits or 64
+            mask = (1 << bits) - 1
+            local = struct.unpack("<Q", rep.data)[0] & mask
+            offset = (ref_time + r.delay_ns - local) & mask
+            delay = struct.pack("<I", r.delay_ns & 0xFFFF_FFFF)
+            if bits == 64:
+                writes.append(Datagram.device(Command.FPWR, s.station_address,
+                                              reg.DC_SYSTEM_TIME_OFFSET,
+                                              struct.pack("<Q", offset) + delay))
+            else:
+                writes.append(Datagram.device(Command.FPWR, s.station_address,
+                                              reg.DC_SYSTEM_TIME_OFFSET, struct.pack("<I", offset)))
+                writes.append(Datagram.device(Command.FPWR, s.station_address,
+                                              reg.DC_SYSTEM_TIME_DELAY, delay))
+        if writes:
+            self.scheduler.transact(writes)
+
+    # -- events -------------------------------------------------------------------------------
+
+    def _event(self, slave: Slave, outcome: str, found: Identity | None, text: str) -> None:
+        ev = HotSwapEvent(slave.position, slave.name, outcome, found, text, self.now_ns())
+        with self._lock:
+            self.events.append(ev)
+        self.log(text)
+

@@ -1,0 +1,120 @@
+"""Hot swap while cycling: a slave unplugged and plugged back is identified and back in OP.
+
+In-process simulator on virtual time, the loop and its ring watch riding
+along: the other slaves keep exchanging all the while. The device plugged
+back is the same one, another unit of the same kind (another serial
+number), another product (refused: its process data differs), or one
+carrying another alias than its place asks for (refused). With distributed
+clocks the device plugged back gets the delay of its place and an offset
+that puts its system time on the reference's.
+"""
+
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+
+from pyethercat.clock import VirtualClock
+from pyethercat.master.cyclic import CyclicRunner
+from pyethercat.master.master import Master
+from pyethercat.master.ringwatch import RingWatch
+from pyethercat.sim.ring import ring_link
+from pyethercat.sim.topology import device_spec, load_topology
+from pyethercat.wire import registers as R
+from pyethercat.wire.al import AlState
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+
+
+def start(topology: str = "demo.toml", dc: bool = False):
+    clock = VirtualClock()
+    seg = load_topology(EXAMPLES / topology).build(clock=clock)
+    m = Master(ring_link(seg), clock=clock)
+    m.scan()
+    if dc:
+        m.dc.setup()
+    cfg = m.configure()
+    m.pd.bring_up(m.slaves, 2.0)
+    r = CyclicRunner(m.scheduler, cfg, m.images, m.slaves, clock=clock, check_interval=0.05,
+                     recover=m.hotswap.recover)
+    m.pd.runner = r
+    r.riders.append(RingWatch(m.ring, log=r.log))
+    r.supervising = False
+    r.run(cycles=3)
+    m.set_state(AlState.OP)
+    r.supervising = True
+    r.run(cycles=20)
+    return seg, m, r
+
+
+def plug_cycle(seg, r, index: int, spec=None, off_cycles: int = 30) -> int:
+    """Unplug sim slave ``index``, plug ``spec`` (None: the same) in; cycles until back in OP."""
+    seg.remove_slave(index)
+    r.run(cycles=off_cycles)
+    seg.insert_slave(index, spec)
+    for n in range(1, 500):
+        r.run(cycles=1)
+        if seg.escs[index].al_state() == AlState.OP and r.groups[0].wkc_ok:
+            return n
+    return -1
+
+
+def test_the_same_device_comes_back_in_op_while_the_others_exchange() -> None:
+    seg, m, r = start()
+    lost = r.stats.lost_frames
+    n = plug_cycle(seg, r, 2)  # the do8 at bus position 3
+    assert 0 < n <= 100
+    (ev,) = list(m.hotswap.events)
+    assert (ev.position, ev.outcome) == (3, "same")
+    assert r.stats.lost_frames == lost and r.stats.incomplete <= 1
+    # its outputs flow again: wired to the di8 at bus position 2
+    for i in range(8):
+        m.slaves[3].outputs[f"Output {i + 1}"] = (0x5A >> i) & 1
+    r.run(cycles=3)
+    assert sum(int(m.slaves[2].inputs[f"Input {i + 1}"]) << i for i in range(8)) == 0x5A
+
+
+def test_another_unit_of_the_same_device_takes_the_place() -> None:
+    seg, m, r = start()
+    n = plug_cycle(seg, r, 2, device_spec("builtin:do8", "do8-new", serial=4242))
+    assert 0 < n <= 100
+    (ev,) = list(m.hotswap.events)
+    assert ev.outcome == "replaced" and ev.found is not None and ev.found.serial == 4242
+    assert "another unit took its place" in ev.text
+
+
+def test_another_product_with_other_process_data_is_refused() -> None:
+    seg, m, r = start()
+    n = plug_cycle(seg, r, 2, device_spec("builtin:ai2", "intruder"), off_cycles=30)
+    assert n == -1  # never in OP
+    ev = list(m.hotswap.events)[-1]
+    assert ev.outcome == "refused" and "not configured" in ev.text
+    assert seg.escs[2].al_state() == AlState.INIT
+    # the others never stopped
+    assert all(seg.escs[i].al_state() == AlState.OP for i in (0, 1, 3, 4, 5))
+
+
+def test_a_device_with_another_alias_is_refused() -> None:
+    seg, m, r = start()
+    m.slaves[3].alias = 0x0300  # the place asks for this alias
+    n = plug_cycle(seg, r, 2, device_spec("builtin:do8", "do8-new", alias=0x0777))
+    assert n == -1
+    ev = list(m.hotswap.events)[-1]
+    assert ev.outcome == "refused" and "alias 0x0777, its place wants 0x0300" in ev.text
+
+
+def test_distributed_clock_of_the_device_plugged_back() -> None:
+    seg, m, r = start("dc-tree-20.toml", dc=True)
+    report = m.dc.report
+    assert report is not None
+    victim = next(s for s in report.slaves if s.system_time and not s.reference
+                  and s.delay_ns and s.position > 3)
+    station = m.slaves[victim.position].station_address
+    index = next(i for i, e in enumerate(seg.escs) if e.u16(R.STATION_ADDRESS) == station)
+    assert plug_cycle(seg, r, index) > 0
+    # the delay of its place, and a system time on the reference's (0x092C: |difference|)
+    delay = struct.unpack("<I", m.read(victim.position, R.DC_SYSTEM_TIME_DELAY, 4))[0]
+    assert delay == victim.delay_ns
+    r.run(cycles=50)
+    diff = struct.unpack("<I", m.read(victim.position, R.DC_SYSTEM_TIME_DIFFERENCE, 4))[0]
+    assert diff & 0x7FFF_FFFF < 1000, f"system time difference {diff & 0x7FFFFFFF} ns"
