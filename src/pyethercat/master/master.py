@@ -37,11 +37,11 @@ from pyethercat.master.config import GroupSpec, Layout, MappedPdo, ProcessDataCo
 from pyethercat.master.cyclic import Cycle, CycleStats, CyclicRunner
 from pyethercat.master.dc_loop import DcMode
 from pyethercat.master.eeprom import SiiService, SiiTarget
+from pyethercat.master.hotswap import HotSwap
 from pyethercat.master.image import ProcessImage, SlaveIO
 from pyethercat.master.mailbox import DEFAULT_MAILBOX_TIMEOUT, DropOldestQueue, Mailbox
 from pyethercat.master.mailboxes import MailboxService
 from pyethercat.master.process import ProcessData
-from pyethercat.master.hotswap import HotSwap
 from pyethercat.master.ring import Diagnosis, RingService
 from pyethercat.master.ringwatch import RingWatch
 from pyethercat.master.scheduler import (
