@@ -66,6 +66,7 @@ from pyethercat.wire.sii.model import (
 __all__ = [
     "DEFAULT_LOGICAL_BASE",
     "GROUP_ALIGNMENT",
+    "CrossLink",
     "CyclicDatagram",
     "PdoDirection",
     "FmmuConfig",
@@ -80,6 +81,7 @@ __all__ = [
     "SlaveDescription",
     "SyncManagerConfig",
     "configure",
+    "expected_wkc",
     "wkc_share",
     "pdos_from_sii",
 ]
@@ -368,6 +370,19 @@ class CyclicDatagram:
     positions: tuple[int, ...]
 
 
+@dataclass(frozen=True)
+class CrossLink:
+    """Cross traffic (``master.cross``): ``bits`` of the producer's inputs (from
+    ``producer_bit``) drive the consumer's outputs (from ``consumer_bit``) in the frame;
+    ``bits`` None: all the consumer's output bits."""
+
+    producer: int
+    consumer: int
+    bits: int | None = None
+    producer_bit: int = 0
+    consumer_bit: int = 0
+
+
 @dataclass
 class GroupConfig:
     """A process-data group: one image buffer, its datagrams and its slaves."""
@@ -383,6 +398,8 @@ class GroupConfig:
     cycle: float | None = None
     #: Mailbox status bytes after the inputs (one per slave whose SM1 status is mapped).
     status_bytes: int = 0
+    #: Slaves whose inputs drive later slaves' outputs in the frame (``master.cross``).
+    cross: tuple[CrossLink, ...] = ()
 
     @property
     def size(self) -> int:
@@ -657,6 +674,13 @@ def _expected_wkc(command: Command, lo: int, hi: int, fmmus: list[tuple[int, Fmm
     else:
         wkc, who = len(reads), reads
     return wkc, tuple(sorted(who))
+
+
+def expected_wkc(command: Command, lo: int, hi: int, fmmus: list[tuple[int, FmmuConfig]]
+                 ) -> tuple[int, tuple[int, ...]]:
+    """The working counter a logical datagram over [lo, hi) expects from these FMMUs, and the
+    slaves (positions) that add to it."""
+    return _expected_wkc(command, lo, hi, fmmus)
 
 
 def wkc_share(datagram: CyclicDatagram, slaves: Iterable[SlaveConfig]) -> int:

@@ -703,6 +703,8 @@ class CyclicRunner:
                 d = g.plan[n]
                 dgs.append(Datagram(d.command, 0, d.logical_address, bytes(d.length)))
             template = self.scheduler.prepare_cyclic(dgs)
+            if any(g.config.cross for g, _ in items):
+                template.ordered = True  # cross traffic: the slaves in bus order (a ring)
             fills: list[tuple[memoryview, int]] = []
             takes: list[tuple[GroupRuntime, int, int, int, int, int, int, int]] = []
             groups: list[GroupRuntime] = []

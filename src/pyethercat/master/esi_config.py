@@ -56,6 +56,7 @@ from pyethercat.esi.sii_from_esi import (
 )
 from pyethercat.master import scan as scanning
 from pyethercat.master.config import MappedPdo, MappedPdoEntry, PdoDirection
+from pyethercat.master.cross import cross_links_from_eni
 from pyethercat.master.scan import ExpectedSlave
 from pyethercat.master.slave import Identity, Slave
 from pyethercat.topology import parse_topology_text
@@ -450,4 +451,6 @@ def start_from_eni(master: Master, eni: EniConfig) -> EniStart:
     for s, e in zip(slaves, eni.slaves, strict=True):
         # The ENI's InitCmds already hold any PDO assignment writes.
         _configure_slave(master, s, e, pdo_assign=False)
+    # Outputs of one slave laid over another's inputs: cross traffic.
+    master.pd.cross = cross_links_from_eni(eni.slaves)
     return out

@@ -33,7 +33,7 @@ from pyethercat.master import scan as scanning
 from pyethercat.master.clocks import DistributedClocks
 from pyethercat.master.coe import CoeClient, DTypeLike, EmergencyEvent, PdoSpec, StartupCommand
 from pyethercat.master.coe_setup import CoeSetup
-from pyethercat.master.config import GroupSpec, Layout, MappedPdo, ProcessDataConfig
+from pyethercat.master.config import CrossLink, GroupSpec, Layout, MappedPdo, ProcessDataConfig
 from pyethercat.master.cyclic import Cycle, CycleStats, CyclicRunner
 from pyethercat.master.dc_loop import DcMode
 from pyethercat.master.eeprom import SiiService, SiiTarget
@@ -522,9 +522,11 @@ class Master:
         return self.pd.runner
 
     def configure(self, groups: Sequence[GroupSpec] | None = None,
-                  layout: Layout | str = Layout.PACKED) -> ProcessDataConfig:
-        """Compute SM/FMMU values and group images (see :meth:`ProcessData.configure`)."""
-        return self.pd.configure(groups, layout)
+                  layout: Layout | str = Layout.PACKED,
+                  cross: Sequence[CrossLink] | None = None) -> ProcessDataConfig:
+        """Compute SM/FMMU values and group images (see :meth:`ProcessData.configure`);
+        ``cross``: slaves whose inputs drive later slaves' outputs in the frame."""
+        return self.pd.configure(groups, layout, cross)
 
     def write_mailbox_config(self, slaves: Sequence[SlaveRef] | None = None) -> None:
         """Write the mailbox sync managers (needed before PRE-OP), all slaves batched."""

@@ -33,12 +33,14 @@ from pyethercat.master import scan as scanning
 from pyethercat.master import states
 from pyethercat.master.clocks import DistributedClocks
 from pyethercat.master.config import (
+    CrossLink,
     GroupSpec,
     Layout,
     ProcessDataConfig,
     SlaveDescription,
     configure,
 )
+from pyethercat.master.cross import apply_cross_traffic
 from pyethercat.master.cyclic import Cycle, CycleStats, CyclicRunner
 from pyethercat.master.dc_loop import DcMode
 from pyethercat.master.image import ProcessImage, SlaveIO, build_images
@@ -92,6 +94,8 @@ class ProcessData:
         self.runner: CyclicRunner | None = None
         #: Make the riders of every runner :meth:`start` makes (the master's ring watch).
         self.rider_factories: list[Callable[[CyclicRunner], Any]] = []
+        #: Cross traffic of the next :meth:`configure` (``master.cross``).
+        self.cross: list[CrossLink] = []
         #: What brings slaves back for the runner (the master's hot swap), else :meth:`recover`.
         self.recovery: Callable[[list[int]], None] | None = None
         self._io: dict[int, tuple[SlaveIO | None, SlaveIO | None]] = {}
@@ -99,12 +103,15 @@ class ProcessData:
     # -- configuration -----------------------------------------------------------------
 
     def configure(self, groups: Sequence[GroupSpec] | None = None,
-                  layout: Layout | str = Layout.PACKED) -> ProcessDataConfig:
+                  layout: Layout | str = Layout.PACKED,
+                  cross: Sequence[CrossLink] | None = None) -> ProcessDataConfig:
         """Compute SM/FMMU values and group images from the slaves' SII (or CoE mapping).
 
         Gives every slave its ``config`` and its ``inputs``/``outputs`` views.
         Nothing is written yet (see :meth:`start`). ``groups`` default to one
-        group of every slave.
+        group of every slave. ``cross``: slaves whose inputs drive later
+        slaves' outputs within the frame (``master.cross``; default: those
+        given before, e.g. by an ENI).
         """
         with self._lock:
             slaves = self._slaves()
@@ -114,6 +121,10 @@ class ProcessData:
                 groups = [GroupSpec("main", None, layout)]
             self._before_configure(slaves)
             cfg = configure([slave_description(s) for s in slaves], groups)
+            if cross is not None:
+                self.cross = list(cross)
+            if self.cross:
+                apply_cross_traffic(cfg, self.cross)
             self.config = cfg
             self.images = build_images(cfg)
             self._io.clear()
