@@ -209,12 +209,16 @@ def register(cli: click.Group) -> None:
     @click.option("--eoe-per-slave", is_flag=True,
                   help="One TAP per EoE slave, named <prefix>s<position> (IgH's eoe0s1), "
                        "instead of one switched TAP.")
+    @click.option("--hot-connect", "hot_connect", multiple=True, metavar="NAME=ALIAS[:SIZE]",
+                  help="A hot connect group: the slave with ALIAS and SIZE-1 behind it may go "
+                       "and come back while cycling (repeatable).")
     @click.pass_obj
     def run_cmd(obj: dict[str, Any], cycle_us: str | None, seconds: float | None,
                 pcap: str | None, layout: str, eni_file: str | None, dc: bool,
                 sync0_us: str | None, sync1_us: str | None, shift_us: str | None,
                 dc_mode: str, plot: str | None, eoe: bool, eoe_tap: str,
-                eoe_host_ip: str | None, eoe_per_slave: bool) -> None:
+                eoe_host_ip: str | None, eoe_per_slave: bool,
+                hot_connect: tuple[str, ...]) -> None:
         """Bring the segment to OP and run cyclic exchange with a live view."""
         dc = dc or any(x is not None for x in (sync0_us, sync1_us, shift_us))
         eni = None
@@ -247,6 +251,8 @@ def register(cli: click.Group) -> None:
             else:
                 m.scan()
             m.configure(layout=layout)
+            for spec in hot_connect:
+                m.hot_connect(*_hot_connect_spec(spec))
             if dc:
                 from pyethercat.cli.dc_cmds import configure_sync_from_options
                 from pyethercat.master.dc import DcSettings
@@ -298,3 +304,12 @@ def register(cli: click.Group) -> None:
                 click.echo(f"plot written to {plot}")
             if eoe_run is not None and extra is not None:
                 click.echo("\n".join(extra()))
+
+
+def _hot_connect_spec(text: str) -> tuple[str, int, int]:
+    """``NAME=ALIAS[:SIZE]`` of ``run --hot-connect``."""
+    name, sep, rest = text.partition("=")
+    alias, _, size = rest.partition(":")
+    if not sep or not name or not alias:
+        raise ConfigError(f"--hot-connect {text!r}: use NAME=ALIAS[:SIZE], e.g. tool=0x100:3")
+    return name, parse_int(alias), parse_int(size) if size else 1

@@ -59,8 +59,11 @@ def slaves_command(obj: dict[str, Any], position: str | None, alias: str | None,
     with open_session(obj) as session:
         slaves = session.slaves()
         chosen = _chosen(session, position, alias)
+        groups = _hot_connect_lines(session)
         if not verbose:
             for line in igh_slave_list(slaves, [s.position for s in chosen]):
+                click.echo(line)
+            for line in groups:
                 click.echo(line)
             return
         for n, s in enumerate(chosen):
@@ -74,6 +77,19 @@ def slaves_command(obj: dict[str, Any], position: str | None, alias: str | None,
             if not session.consistent:
                 click.echo("# the port states do not explain the ring; positions after the "
                            "first gap are guessed")
+        for line in groups:
+            click.echo(line)
+
+
+def _hot_connect_lines(session: Session) -> list[str]:
+    """One line per hot connect group of a running master (its presence)."""
+    from pyethercat.master.control import ring_ops
+
+    try:
+        reply = session.call(ring_ops.HotConnectGroups())
+    except EtherCATError:
+        return []  # a master that does not serve the request (an older one)
+    return [g.text for g in reply.groups]
 
 
 # --- states ----------------------------------------------------------------------------------

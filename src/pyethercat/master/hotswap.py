@@ -27,6 +27,15 @@ For each slave to bring back:
    target state.
 
 Every outcome is a :class:`HotSwapEvent` (``events``, and ``log``).
+
+Hot connect groups (:class:`HotConnectGroup`, ``Master.hot_connect``): a
+named group of slaves that may be absent, identified as in ETG hot connect
+by the alias of its first slave. A group is learnt from a scan where it is
+present; it may then go (unplugged: its slaves are marked absent, their share
+of the working counter not expected, ``present_ok``) and come back (its first slave must
+carry the group's alias), when it is configured again as above.
+:meth:`HotSwap.groups` tells each group's presence (``pyethercat slaves``
+prints it) and a change is an event too.
 """
 
 from __future__ import annotations
@@ -38,7 +47,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from pyethercat.errors import EtherCATError, WorkingCounterError
+from pyethercat.errors import ConfigError, EtherCATError, WorkingCounterError
 from pyethercat.master import scan as scanning
 from pyethercat.master import states
 from pyethercat.master.slave_info import Identity
@@ -54,7 +63,7 @@ if TYPE_CHECKING:
     from pyethercat.master.scheduler import Scheduler
     from pyethercat.master.slave import Slave
 
-__all__ = ["HotSwap", "HotSwapEvent", "HotSwapRefused"]
+__all__ = ["GroupPresence", "HotConnectGroup", "HotSwap", "HotSwapEvent", "HotSwapRefused"]
 
 
 class HotSwapRefused(EtherCATError):
@@ -96,8 +105,54 @@ class HotSwap:
         #: Where event texts go too (the cyclic loop's log while one runs).
         self.log: Callable[[str], None] = lambda _text: None
         self._lock = threading.Lock()
+        self._groups: list[tuple[HotConnectGroup, tuple[int, ...]]] = []
+        self._present: dict[str, bool] = {}
         #: What was refused last at each position (refused again: no new event).
         self._refused: dict[int, tuple[Identity | None, int]] = {}
+
+    # -- hot connect groups ---------------------------------------------------------------
+
+    def add_group(self, group: HotConnectGroup) -> GroupPresence:
+        """Learn a hot connect group from the scanned slaves (its first slave carries the alias)."""
+        if group.size < 1:
+            raise ConfigError(f"hot connect group {group.name!r}: size must be at least 1")
+        if any(g.name == group.name for g, _ in self._groups):
+            raise ConfigError(f"hot connect group {group.name!r} is known already")
+        slaves = self._slaves()
+        head = next((s for s in slaves if s.alias == group.alias), None)
+        if head is None:
+            raise ConfigError(f"hot connect group {group.name!r}: no slave carries alias "
+                              f"0x{group.alias:04X} (a group is learnt from a scan where it is "
+                              "present)")
+        positions = tuple(range(head.position, head.position + group.size))
+        if positions[-1] >= len(slaves):
+            raise ConfigError(f"hot connect group {group.name!r}: {group.size} slaves from "
+                              f"position {head.position}, the segment has {len(slaves)}")
+        taken = {p for _, ps in self._groups for p in ps}
+        if taken & set(positions):
+            raise ConfigError(f"hot connect group {group.name!r} overlaps another group")
+        self._groups.append((group, positions))
+        self._present[group.name] = True
+        return GroupPresence(group.name, group.alias, positions, True)
+
+    def groups(self, absent: frozenset[int] | set[int] = frozenset()) -> list[GroupPresence]:
+        """Each hot connect group and whether it is present (none of its slaves gone)."""
+        return [GroupPresence(g.name, g.alias, ps, not (set(ps) & set(absent)))
+                for g, ps in self._groups]
+
+    def update_groups(self, absent: frozenset[int] | set[int]) -> None:
+        """Note groups that went or came (events); the ring watch calls this after a reading."""
+        for presence in self.groups(absent):
+            if self._present.get(presence.name) != presence.present:
+                self._present[presence.name] = presence.present
+                slaves = self._slaves()
+                head = slaves[presence.positions[0]]
+                self._event(head, "group present" if presence.present else "group absent",
+                            None, presence.text)
+
+    def in_group(self, position: int) -> bool:
+        """Whether ``position`` belongs to a hot connect group (it may be absent)."""
+        return any(position in ps for _, ps in self._groups)
 
     # -- the runner's recovery --------------------------------------------------------------
 
@@ -284,3 +339,30 @@ class HotSwap:
             self.events.append(ev)
         self.log(text)
 
+
+
+@dataclass(frozen=True)
+class HotConnectGroup:
+    """A named group of slaves that may be present or absent (ETG hot connect): the slave
+    carrying ``alias`` and the ``size - 1`` slaves behind it in bus order."""
+
+    name: str
+    alias: int
+    size: int = 1
+
+
+@dataclass(frozen=True)
+class GroupPresence:
+    """Where a hot connect group is and whether all its slaves exchange now."""
+
+    name: str
+    alias: int
+    positions: tuple[int, ...]
+    present: bool
+
+    @property
+    def text(self) -> str:
+        span = (f"{self.positions[0]}-{self.positions[-1]}" if len(self.positions) > 1
+                else str(self.positions[0]))
+        return (f"hot connect group {self.name} (alias 0x{self.alias:04X}, slaves {span}): "
+                f"{'present' if self.present else 'ABSENT'}")

@@ -37,7 +37,7 @@ from pyethercat.master.config import CrossLink, GroupSpec, Layout, MappedPdo, Pr
 from pyethercat.master.cyclic import Cycle, CycleStats, CyclicRunner
 from pyethercat.master.dc_loop import DcMode
 from pyethercat.master.eeprom import SiiService, SiiTarget
-from pyethercat.master.hotswap import HotSwap
+from pyethercat.master.hotswap import GroupPresence, HotConnectGroup, HotSwap
 from pyethercat.master.image import ProcessImage, SlaveIO
 from pyethercat.master.mailbox import DEFAULT_MAILBOX_TIMEOUT, DropOldestQueue, Mailbox
 from pyethercat.master.mailboxes import MailboxService
@@ -425,7 +425,13 @@ class Master:
 
     def _ring_watch(self, runner: CyclicRunner) -> RingWatch:
         self.hotswap.log = runner.log
-        return RingWatch(self.ring, log=runner.log)
+        return RingWatch(self.ring, log=runner.log,
+                         on_reading=lambda _d, absent: self.hotswap.update_groups(absent))
+
+    def hot_connect(self, name: str, alias: int, size: int = 1) -> GroupPresence:
+        """Declare a hot connect group: the slave carrying ``alias`` and the ``size - 1``
+        behind it may go and come back while cycling (see :mod:`pyethercat.master.hotswap`)."""
+        return self.hotswap.add_group(HotConnectGroup(name, alias, size))
 
     def diagnose(self) -> Diagnosis:
         """Locate faults: which master port, cable or node failed, which cable corrupts frames.

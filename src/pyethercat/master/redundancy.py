@@ -182,6 +182,10 @@ class CopySet:
     #: A chain frame was sent on through the other port; ``held`` is what came back first.
     forwarded: bool = False
     held: bytes | None = None
+    #: Both copies came back on one port: the ring changed while the frame was out, so
+    #: the ports tell nothing about sides (the copies are merged all the same).
+    disturbed: bool = False
+    extra: list[bytes] = field(default_factory=list)
 
 
 @dataclass(slots=True)
@@ -284,7 +288,11 @@ class Redundancy:
                     self.counters[target].forwarded += 1
                     return "forward", raw, target
             return "done", raw, -1
-        copies.got.setdefault(port, raw)
+        if port in copies.got:
+            copies.disturbed = True
+            copies.extra.append(raw)
+        else:
+            copies.got[port] = raw
         if len(copies.need) == 1 and len(copies.got) == 1 and not _worked(raw):
             # The only copy awaited went through no slave: the ring may be closed
             # again, so the processed copy comes on the other port.
@@ -313,7 +321,7 @@ class Redundancy:
         return self._merge(sent, copies)
 
     def _merge(self, sent: bytes, copies: CopySet) -> bytes | None:
-        got = list(copies.got.values())
+        got = [*copies.got.values(), *copies.extra]
         if len(got) > 1:
             self.merged += 1
         return merge_copies(sent, got)
@@ -322,8 +330,9 @@ class Redundancy:
 def hand_copies(copies: CopySet, ticket: CyclicFrame | None, requests: Sequence[Request]) -> None:
     """Give a completed ring frame's ticket and requests its copies by port (for diagnostics).
 
-    A chain frame passed every slave in one copy: it tells nothing about sides."""
-    if copies.chain:
+    A chain frame passed every slave in one copy, a disturbed one came back twice on one
+    port: they tell nothing about sides."""
+    if copies.chain or copies.disturbed:
         return
     got = dict(copies.got)
     if ticket is not None:

@@ -67,8 +67,9 @@ class PortStatus:
 
     @property
     def text(self) -> str:
-        link = {True: "carrier", False: "no carrier", None: "carrier unknown"}[self.carrier]
-        back = "frames come back" if self.returning else "NO FRAMES BACK"
+        link = {True: "carrier", False: "NO CARRIER", None: "carrier unknown"}[self.carrier]
+        back = ("frames come back" if self.returning and self.carrier is not False
+                else "NO FRAMES BACK")
         return (f"port {self.name}: {link}, {back}; sent {self.sent}, received {self.received}, "
                 f"passed on {self.forwarded}, copies missing {self.missing}")
 
@@ -323,15 +324,18 @@ class RingService:
         names = {int(getattr(s, "position")): str(getattr(s, "name", ""))  # noqa: B009
                  for s in self._slaves()}
         ret = tuple(PORT_NAMES[p] for p in sorted(returned)) if ring else ("A",)
-        faults = locate(self.cables, readings, ring=ring and seen_sides, returned=ret)
         present = count_req.reply.wkc if count_req.reply is not None else None
         silent = [r.position for r in readings if r.side is None]
+        unaddressed: list[int] = []
         if silent and present is not None and present >= len(positions):
-            # Every slave answers a broadcast: the silent ones lost their address.
-            faults = [f for f in faults if f.kind not in ("node", "cut")] + [
-                Fault("unaddressed", f"slave {p}", slaves=(p,),
-                      detail="present but silent at its station address: power-cycled or "
-                             "replaced") for p in silent]
+            # Every slave answers a broadcast: the silent ones lost their address
+            # (power-cycled, swapped); they are there, so the cables around them work.
+            unaddressed = silent
+        faults = locate(self.cables, [r for r in readings if r.position not in unaddressed],
+                        ring=ring and seen_sides, returned=ret)
+        faults += [Fault("unaddressed", f"slave {p}", slaves=(p,),
+                         detail="present but silent at its station address: power-cycled or "
+                                "replaced") for p in unaddressed]
         with self._lock:
             now = self.now_ns()
             # A cable stays named for crc_hold seconds after its counters last rose.

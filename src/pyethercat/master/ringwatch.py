@@ -80,11 +80,14 @@ class RingWatch:
     """
 
     def __init__(self, ring: RingService, *, interval: float = 0.2,
-                 log: Callable[[str], None] | None = None, recover: bool = True) -> None:
+                 log: Callable[[str], None] | None = None, recover: bool = True,
+                 on_reading: Callable[[Diagnosis, frozenset[int]], None] | None = None) -> None:
         self.ring = ring
         self.interval_ns = int(interval * 1e9)
         self.log = log or (lambda _text: None)
         self.recover = recover
+        #: Called after each reading with the slaves then marked absent (hot connect groups).
+        self.on_reading = on_reading
         self.events: deque[StatusEvent] = deque(maxlen=500)
         self.pending: PendingDiagnosis | None = None
         self.diagnoses = 0
@@ -227,8 +230,11 @@ class RingWatch:
             self.log(fev.text)
         gone = {p for f in result.faults if f.kind in ("node", "cut") for p in f.slaves}
         back = [p for f in result.faults if f.kind == "unaddressed" for p in f.slaves]
+        absent = frozenset(gone | set(back) | set(getattr(runner, "recovering", ())))
         if hasattr(runner, "set_absent"):
-            runner.set_absent(gone | set(back) | set(getattr(runner, "recovering", ())))
+            runner.set_absent(absent)
+        if self.on_reading is not None:
+            self.on_reading(result, absent)
         if back and self.recover and getattr(runner, "supervising", False):
             runner.request_recovery(back)
 

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from pyethercat.master.control.handlers import MasterContext, handler
 from pyethercat.master.control.protocol import Reply, Request, request
 
-__all__ = ["Diagnose", "DiagnosisReply", "FaultItem"]
+__all__ = ["Diagnose", "DiagnosisReply", "FaultItem", "GroupItem", "GroupList", "HotConnectGroups"]
 
 
 @dataclass(frozen=True)
@@ -50,3 +50,36 @@ def _diagnose(ctx: MasterContext, req: Diagnose) -> DiagnosisReply:
     return DiagnosisReply(result.state, result.format(),
                           [FaultItem(f.kind, f.where, f.detail) for f in result.faults],
                           [e.text for e in events])
+
+
+@dataclass(frozen=True)
+class GroupItem:
+    """One hot connect group: its name, alias, slaves and presence."""
+
+    name: str
+    alias: int
+    positions: list[int]
+    present: bool
+    text: str
+
+
+@dataclass(frozen=True)
+class GroupList(Reply):
+    """The hot connect groups the master knows (none for a master opened for one command)."""
+
+    groups: list[GroupItem] = field(default_factory=list)
+
+
+@request("hot_connect_groups", GroupList)
+@dataclass(frozen=True)
+class HotConnectGroups(Request):
+    """Each hot connect group and whether it is present now."""
+
+
+@handler(HotConnectGroups)
+def _groups(ctx: MasterContext, req: HotConnectGroups) -> GroupList:
+    m = ctx.master
+    runner = m.pd.runner
+    absent = runner.absent if runner is not None else frozenset()
+    return GroupList([GroupItem(g.name, g.alias, list(g.positions), g.present, g.text)
+                      for g in m.hotswap.groups(absent)])
