@@ -118,3 +118,57 @@ def test_distributed_clock_of_the_device_plugged_back() -> None:
     r.run(cycles=50)
     diff = struct.unpack("<I", m.read(victim.position, R.DC_SYSTEM_TIME_DIFFERENCE, 4))[0]
     assert diff & 0x7FFF_FFFF < 1000, f"system time difference {diff & 0x7FFFFFFF} ns"
+
+
+def test_a_hot_connect_group_goes_and_comes_back() -> None:
+    from pyethercat.master.control import ring_ops
+    from pyethercat.master.control.handlers import MasterContext, dispatch
+
+    clock = VirtualClock()
+    doc = {"segment": {"ring": True},
+           "slave": [{"name": "coupler", "device": "builtin:coupler"},
+                     {"name": "in1", "device": "builtin:di8"},
+                     {"name": "tool", "device": "builtin:do8", "alias": 0x0100},
+                     {"name": "tool-in", "device": "builtin:di8"},
+                     {"name": "tail", "device": "builtin:do8"}]}
+    from pyethercat.sim.topology import parse_topology
+
+    seg = parse_topology(doc).build(clock=clock)
+    m = Master(ring_link(seg), clock=clock)
+    m.scan()
+    presence = m.hot_connect("tool", alias=0x0100, size=2)
+    assert presence.positions == (2, 3) and presence.present
+    cfg = m.configure()
+    m.pd.bring_up(m.slaves, 2.0)
+    r = CyclicRunner(m.scheduler, cfg, m.images, m.slaves, clock=clock, check_interval=0.05,
+                     recover=m.hotswap.recover)
+    m.pd.runner = r
+    r.riders.append(RingWatch(m.ring, log=r.log,
+                              on_reading=lambda _d, absent: m.hotswap.update_groups(absent)))
+    r.supervising = False
+    r.run(cycles=3)
+    m.set_state(AlState.OP)
+    r.supervising = True
+    r.run(cycles=20)
+    # the tool (two slaves) is unplugged: the rest keep exchanging, the group is absent
+    seg.remove_slave(2)
+    seg.remove_slave(3)
+    r.run(cycles=30)
+    assert [g.present for g in m.hotswap.groups(r.absent)] == [False]
+    assert r.groups[0].present_ok
+    ctx = MasterContext(m, "sim")
+    (item,) = dispatch(ctx, ring_ops.HotConnectGroups()).groups
+    assert item.text == "hot connect group tool (alias 0x0100, slaves 2-3): ABSENT"
+    # plugged back: configured again, both in OP, the group present
+    seg.insert_slave(2)
+    seg.insert_slave(3)
+    for _ in range(300):
+        r.run(cycles=1)
+        if r.groups[0].wkc_ok and all(seg.escs[i].al_state() == AlState.OP for i in (2, 3)):
+            break
+    assert all(seg.escs[i].al_state() == AlState.OP for i in (2, 3))
+    r.run(cycles=300)
+    assert [g.present for g in m.hotswap.groups(r.absent)] == [True]
+    outcomes = [e.outcome for e in m.hotswap.events]
+    assert outcomes[0] == "group absent" and "group present" in outcomes
+    assert outcomes.count("same") == 2
