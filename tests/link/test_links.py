@@ -453,3 +453,27 @@ def test_udp_link_named_by_the_address_given() -> None:
         host, port = server.address
         assert server.name == f"udp:{host}:{port}"
         assert master.name == "udp:127.0.0.1:9"
+
+
+def test_ring_name_opens_both_ports_as_one_link() -> None:
+    from pyethercat.link.redundant import RedundantLink
+    from pyethercat.link.registry import open_link
+
+    with UdpLink(bind="127.0.0.1:0") as side_a, UdpLink(bind="127.0.0.1:0") as side_b:
+        name = f"ring:udp:127.0.0.1:{side_a.address[1]},udp:127.0.0.1:{side_b.address[1]}"
+        with open_link(name) as ring:
+            assert isinstance(ring, RedundantLink)
+            ring.send(_frame(7))  # one send: a copy out of each port
+            assert side_a.recv(2) == _frame(7)
+            assert side_b.recv(2) == _frame(7)
+            side_b.send(_frame(8))
+            got = ring.recv_from(2)
+            assert got is not None and got[1] == 1 and got[0][14:] == _frame(8)[14:]
+
+
+@pytest.mark.parametrize("name", ["ring:", "ring:eth1", "ring:eth1,", "ring:,eth2"])
+def test_ring_name_needs_both_ports(name: str) -> None:
+    from pyethercat.link.registry import open_link
+
+    with pytest.raises(LinkError, match="give both ports"):
+        open_link(name)

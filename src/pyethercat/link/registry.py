@@ -13,10 +13,14 @@ The one place where a link is made from text, for :meth:`Master.open
 ``unix:PATH``                a ``SOCK_SEQPACKET`` Unix socket listening at
                              ``PATH`` (:class:`~pyethercat.link.unix.UnixLink`)
 ``unix:fd:N``                an inherited socket file descriptor ``N``
+``ring:A,B``                 the ports A and B of a ring, each a name as
+                             above (``ring:eth1,eth2``,
+                             ``ring:udp:h:34980,udp:h:34981``;
+                             :class:`~pyethercat.link.redundant.RedundantLink`)
 ===========================  ===============================================
 
-Further schemes plug in with :func:`register_link` (the EoE TAP link, the
-redundant pair of ports). Keyword options go to the link's factory.
+Further schemes plug in with :func:`register_link` (the EoE TAP link).
+Keyword options go to the link's factory (for ``ring:``, to both ports).
 """
 
 from __future__ import annotations
@@ -65,7 +69,22 @@ def _unix(rest: str, **options: Any) -> Link:
     return UnixLink.connect(rest, **options)
 
 
-_SCHEMES: dict[str, LinkFactory] = {"raw": _raw, "udp": _udp, "unix": _unix}
+def _ring(rest: str, **options: Any) -> Link:
+    from pyethercat.link.redundant import RedundantLink
+
+    a, sep, b = rest.partition(",")
+    if not sep or not a.strip() or not b.strip():
+        raise LinkError("ring link: give both ports, ring:PORT_A,PORT_B (ring:eth1,eth2)")
+    first = open_link(a, **options)
+    try:
+        second = open_link(b, **options)
+    except BaseException:
+        first.close()
+        raise
+    return RedundantLink(first, second)
+
+
+_SCHEMES: dict[str, LinkFactory] = {"raw": _raw, "udp": _udp, "unix": _unix, "ring": _ring}
 
 
 def register_link(scheme: str, factory: LinkFactory) -> None:
