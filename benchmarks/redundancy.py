@@ -17,21 +17,62 @@ of examples/demo.toml (a tree) while a one-port master cycles at 1 kHz, for
 ``--crc-seeds`` seeds: cycles until the first corrupted frame and until the
 master named the cable.
 
-The last output line is one JSON object of the figures.
+With ``--interop`` (root: veth pairs), last the interop run of the ring:
+SOEM (pysoem, redundant open), KickCAT's master (redundant link) and ours
+at 1 kHz over two veth pairs while the middle cable is pulled and plugged
+ten times (``tests/interop/test_ring_interop.py``, run through pytest; its
+figures come back through the JUnit XML): cycles, cycles with a wrong
+working counter, cycles with wrong data, lost frames.
+
+The load average is printed before and after (figures of a loaded machine
+are provisional). The last output line is one JSON object of the figures.
 Usage: python benchmarks/redundancy.py [--seconds 60] [--faults 100] [--slaves 20] [--seed 1]
-                                       [--crc-seeds 10]
+                                       [--crc-seeds 10] [--interop]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import subprocess
+import sys
+import tempfile
 import time
+import xml.etree.ElementTree as ET
 from pathlib import Path
+from typing import Any
 
 from pyethercat.cli.ring_experiment import crc_naming, run_experiment
 
-DEMO = Path(__file__).resolve().parents[1] / "examples" / "demo.toml"
+REPO = Path(__file__).resolve().parents[1]
+DEMO = REPO / "examples" / "demo.toml"
+INTEROP = "tests/interop/test_ring_interop.py"
+
+
+def load() -> str:
+    return " ".join(f"{x:.2f}" for x in os.getloadavg())
+
+
+def interop() -> dict[str, Any]:
+    """Run the ring interop tests; each master's figures (or why it has none)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        xml = Path(tmp) / "ring.xml"
+        proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+                               INTEROP, f"--junitxml={xml}"], cwd=REPO, capture_output=True,
+                              text=True, check=False)
+        if not xml.exists():
+            raise SystemExit(f"interop run failed:\n{proc.stdout[-2000:]}{proc.stderr[-2000:]}")
+        figures: dict[str, Any] = {}
+        for case in ET.parse(xml).iter("testcase"):
+            name = case.get("name", "")
+            who = next(w for w in ("soem", "kickcat", "our") if w in name)
+            props = {p.get("name"): int(p.get("value", "0")) for p in case.iter("property")}
+            outcome = ("skipped" if case.find("skipped") is not None else
+                       "FAILED" if case.find("failure") is not None or case.find("error")
+                       is not None else "passed")
+            figures[who] = {"outcome": outcome, **props}
+        return figures
 
 
 def main() -> None:
@@ -44,7 +85,13 @@ def main() -> None:
     ap.add_argument("--in-flight", type=float, default=0.2,
                     help="share of faults struck while a frame is on the wire")
     ap.add_argument("--crc-seeds", type=int, default=10)
+    ap.add_argument("--interop", action="store_true",
+                    help="also run SOEM, KickCAT and ours on the ring over veth pairs (root)")
     args = ap.parse_args()
+    if args.interop and os.geteuid() != 0:
+        raise SystemExit("--interop makes veth pairs: run as root (or with CAP_NET_ADMIN)")
+    load_before = load()
+    print(f"load average before: {load_before}")
     t0 = time.monotonic()
     result = run_experiment(slaves=args.slaves, cycle=args.cycle_us / 1e6, seconds=args.seconds,
                             faults=args.faults, seed=args.seed, in_flight=args.in_flight)
@@ -69,6 +116,16 @@ def main() -> None:
     summary["crc_cycles_after_first_error_max"] = max(delays, default=None)
     summary["crc_cycles_to_name_max"] = max(named_all, default=None)
     summary["crc_cycles_to_name_median"] = sorted(named_all)[len(named_all) // 2] if named_all else None
+    if args.interop:
+        figures = interop()
+        for who, f in figures.items():
+            print(f"interop {who}: {f['outcome']}, {f.get('cycles', '-')} cycles, "
+                  f"{f.get('pulls', '-')} pulls and plugs, {f.get('wrong_wkc', '-')} with a wrong "
+                  f"WKC, {f.get('bad_data', '-')} with wrong data, {f.get('lost', '-')} lost")
+        summary["interop"] = figures
+    summary["load_before"] = load_before
+    print(f"load average after: {load()}")
+    summary["load_after"] = load()
     print(json.dumps(summary))
 
 
