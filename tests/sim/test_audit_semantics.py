@@ -332,6 +332,16 @@ def test_unknown_state_from_op_falls_back_to_safeop() -> None:
     assert request(seg, 0x0E) == (AlState.SAFEOP | ACK, AlStatusCode.UNKNOWN_STATE)
 
 
+@pytest.mark.parametrize("code", [AlState.INIT, AlState.PREOP, 0x05])
+def test_al_status_poked_to_no_state_is_taken_as_init(code: int) -> None:
+    # A raw write of AL status (as the PDI could) naming no state: the next
+    # request starts from INIT instead of failing inside the state machine.
+    seg = _mbx_al_segment()
+    seg.slaves[0].write(R.AL_STATUS, b"\x05\x00")
+    expected = AlState.PREOP if code == AlState.PREOP else AlState.INIT
+    assert request(seg, code)[0] & ~ACK == expected
+
+
 def test_error_not_acknowledged_ignores_requests_then_ack_with_current_state() -> None:
     seg = _mbx_al_segment()
     assert request(seg, AlState.OP) == (AlState.INIT | ACK, AlStatusCode.INVALID_STATE_CHANGE)

@@ -124,6 +124,11 @@ class AlStateMachine:
         status = regs.u16(R.AL_STATUS)
         current = status & R.AL_STATE_MASK
         error = bool(status & R.AL_ERROR_FLAG)
+        if current not in _VALID_STATES:
+            # Only the PDI writes AL status: a value naming no state (a raw
+            # poke of the register) is taken as INIT, the state after reset.
+            current = AlState.INIT
+            self.set_status(current, error, None)
         if regs.device_emulation:
             # No firmware: AL status is a copy of AL control bits 4:0, the
             # acknowledge bit included (real EK1100/EL1004/EL28xx read 0x0011
