@@ -4,14 +4,16 @@
 B, no privileges needed); the command line opens both ports as one master,
 ``diag`` names the state of the ring and, once the simulator's cable between
 slaves 2 and 3 is pulled, that cable. ``slaves`` shows the whole segment
-through either state of the ring.
+through either state of the ring, and the presence of a running master's
+hot connect group before and after it is unplugged.
 """
 
 from __future__ import annotations
 
 import json
 import socket
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -71,3 +73,69 @@ def test_demo_redundancy_runs_the_experiment() -> None:
     assert code == 0, err
     assert "SendCounter 600  RecvCounter 600  lost 0" in out
     assert "located 4/4" in out
+
+
+GROUP_TOPOLOGY = """
+[segment]
+ring = true
+
+[[slave]]
+name = "coupler"
+device = "builtin:coupler"
+
+[[slave]]
+name = "in1"
+device = "builtin:di8"
+
+[[slave]]
+name = "tool"
+device = "builtin:do8"
+alias = 0x0100
+
+[[slave]]
+name = "tool-in"
+device = "builtin:di8"
+"""
+
+
+def test_slaves_shows_a_hot_connect_group_of_a_running_master(tmp_path: Path) -> None:
+    from pyethercat.clock import VirtualClock
+    from pyethercat.master.control.endpoint import link_spec
+    from pyethercat.master.control.server import serve
+    from pyethercat.master.master import Master
+    from pyethercat.sim.ring import ring_link
+    from pyethercat.sim.topology import load_topology
+
+    topo = tmp_path / "tool.toml"
+    topo.write_text(GROUP_TOPOLOGY)
+    clock = VirtualClock()
+    seg = load_topology(topo).build(clock=clock)
+    # Faults act between frames, in the loop's thread (the segment is not shared across threads).
+    pending: list[Callable[[], None]] = []
+
+    def before(_port: int) -> None:
+        while pending:
+            pending.pop(0)()
+
+    with Master(ring_link(seg, before=before), clock=clock) as m:
+        m.scan()
+        m.hot_connect("tool", alias=0x0100, size=2)
+        m.configure()
+        runner = m.start(0.001)
+        server = serve(m, link_spec(sim=str(topo)))
+        try:
+            code, out, _ = run("--sim", str(topo), "slaves")
+            assert code == 0
+            assert out.splitlines()[-1] == ("hot connect group tool (alias 0x0100, slaves 2-3): "
+                                            "present")
+            # the tool (the do8 and the di8 behind it) unplugged
+            pending += [lambda: seg.remove_slave(2), lambda: seg.remove_slave(3)]
+            for _ in range(400):
+                time.sleep(0.05)
+                if not m.hotswap.groups(runner.absent)[0].present:
+                    break
+            code, out, _ = run("--sim", str(topo), "slaves")
+            assert out.splitlines()[-1].endswith("slaves 2-3): ABSENT")
+        finally:
+            server.close()
+            runner.stop()
