@@ -24,7 +24,10 @@ ten times (``tests/interop/test_ring_interop.py``, run through pytest; its
 figures come back through the JUnit XML): cycles, cycles with a wrong
 working counter, cycles with wrong data, lost frames.
 
-The load average is printed before and after (figures of a loaded machine
+Then each target (at most 1 bad cycle per fault, 0 between frames, 100 %
+located, link recovery within 1 cycle, back in OP within 100 ms, the bad
+cable named within 1 s, interop) with "met" or "NOT MET". The load
+average is printed before and after (figures of a loaded machine
 are provisional). The last output line is one JSON object of the figures.
 Usage: python benchmarks/redundancy.py [--seconds 60] [--faults 100] [--slaves 20] [--seed 1]
                                        [--crc-seeds 10] [--interop]
@@ -73,6 +76,27 @@ def interop() -> dict[str, Any]:
                        is not None else "passed")
             figures[who] = {"outcome": outcome, **props}
         return figures
+
+
+def verdicts(summary: dict[str, Any], cycle_s: float) -> list[tuple[str, bool]]:
+    """Each target of the experiment, the bad cable and the interop run, and whether it was met."""
+    after = summary["crc_cycles_after_first_error_max"]
+    out = [
+        ("at most 1 lost or incomplete cycle per fault", summary["bad_cycles_max"] <= 1),
+        ("0 for faults between frames", summary["bad_cycles_max_between_frames"] == 0),
+        ("100 % of the faults located where injected", summary["located_pct"] == 100.0),
+        ("link faults recovered within 1 cycle", summary["recovery_cycles_max_link"] <= 1),
+        ("slaves plugged back in OP within 100 ms",
+         summary["back_in_op_ms_max"] is None or summary["back_in_op_ms_max"] <= 100),
+        ("a bad cable named within 1 s of its first CRC error",
+         after is not None and after * cycle_s <= 1.0
+         and summary["crc_named"].split("/")[0] == summary["crc_named"].split("/")[1]),
+    ]
+    for who, f in summary.get("interop", {}).items():
+        out.append((f"interop {who}: full WKC and right data through 10 cable pulls",
+                    f["outcome"] == "passed" and f.get("wrong_wkc") == 0
+                    and f.get("bad_data") == 0 and f.get("pulls") == 10))
+    return out
 
 
 def main() -> None:
@@ -124,6 +148,10 @@ def main() -> None:
                   f"WKC, {f.get('bad_data', '-')} with wrong data, {f.get('lost', '-')} lost")
         summary["interop"] = figures
     summary["load_before"] = load_before
+    checks = verdicts(summary, args.cycle_us / 1e6)
+    for text, ok in checks:
+        print(f"{'met' if ok else 'NOT MET':>7}  {text}")
+    summary["targets_met"] = all(ok for _, ok in checks)
     print(f"load average after: {load()}")
     summary["load_after"] = load()
     print(json.dumps(summary))
