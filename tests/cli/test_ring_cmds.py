@@ -139,3 +139,19 @@ def test_slaves_shows_a_hot_connect_group_of_a_running_master(tmp_path: Path) ->
         finally:
             server.close()
             runner.stop()
+
+
+def test_a_master_opened_by_ring_name_serves_the_command_line(
+        udp_ring: tuple[SimProcess, list[str]]) -> None:
+    import os
+
+    from pyethercat.master.master import Master
+
+    _sim, ports = udp_ring
+    a, b = ports[1], ports[3]
+    # a reply wait of a loaded host (the simulator is another process)
+    with Master.open(f"ring:udp:{a},udp:{b}", timeout=0.5) as m:
+        m.scan()
+        code, out, _ = run(*ports, "master")  # reaches this master, as for --udp A alone
+        assert code == 0 and f"running master, pid {os.getpid()}" in out
+        assert "Slaves: 6" in out

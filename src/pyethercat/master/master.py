@@ -686,6 +686,9 @@ def _control_spec(link_name: str) -> str | None:
     from pyethercat.master.control.endpoint import link_spec
 
     scheme, _, rest = link_name.partition(":")
+    if scheme == "ring" and "," in rest:
+        # A ring is reached as its port A is (the command line names A in --iface/--udp).
+        return _control_spec(rest.partition(",")[0])
     if scheme == "raw" and rest:
         return link_spec(iface=rest, udp=None)
     if scheme == "udp" and rest:
