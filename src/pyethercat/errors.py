@@ -15,6 +15,9 @@ __all__ = [
     "BootstrapNotSupportedError",
     "CaptureError",
     "ConfigError",
+    "DriveError",
+    "DriveFaultError",
+    "DriveTimeoutError",
     "EsiError",
     "EtherCATError",
     "FrameError",
@@ -322,3 +325,19 @@ class StateTimeoutError(TimeoutError):
 
 class TopologyMismatchError(ConfigError):
     """The scanned network does not match the expected configuration."""
+
+
+class DriveError(EtherCATError):
+    """A CiA 402 drive did not do what it was asked (``pyethercat.master.cia402``)."""
+
+
+class DriveTimeoutError(DriveError, TimeoutError):
+    """A drive did not reach a state, mode or target in time."""
+
+
+class DriveFaultError(DriveError):
+    """A drive went to Fault while it was asked to do something; ``code`` is its 0x603F."""
+
+    def __init__(self, message: str, code: int | None = None) -> None:
+        self.code = code
+        super().__init__(message)

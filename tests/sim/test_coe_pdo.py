@@ -207,4 +207,7 @@ def test_seed002_drive_objects() -> None:
     drive.download(0x1C13, 0, u8(1))
     assert drive.app.process_data_sizes() == (3, 3)  # type: ignore[attr-defined]
     to_op(drive, 3, 3)
-    assert cycle(drive, struct.pack("<Hb", 0x000F, 3), 3) == struct.pack("<Hb", 0x0250, 3)
+    # 0x0F is no transition out of Switch on disabled; bit 7 warns that there is no SYNC0
+    # (the manual's warning 63-3: the drive synchronises on the frames)
+    assert cycle(drive, struct.pack("<Hb", 0x000F, 3), 3) == struct.pack("<Hb", 0x02D0, 3)
+    assert cycle(drive, struct.pack("<Hb", 0x0006, 3), 3) == struct.pack("<Hb", 0x02B1, 3)

@@ -15,7 +15,10 @@ stack makes):
   INIT request;
 - SAFEOP -> OP before any outputs were received stays pending without an
   error (as KickCAT's emulator does) and completes with the first complete
-  output buffer;
+  output buffer; the device application may keep it pending longer
+  (``check_transition`` returning :data:`PENDING`: a DC drive waits for its
+  SYNC0 events, as Beckhoff's slave stack does) and is asked again with
+  every output buffer;
 - SM changes while running drop the slave back (mailbox: INIT + 0x0016,
   process data: PREOP + 0x001D/0x001E), as SOES re-checks on SM activation;
 - devices whose SII asks for device emulation (0x0141 bit 0) follow AL
@@ -108,6 +111,8 @@ class AlStateMachine:
     def fail(self, state: AlState, code: int) -> None:
         self.pending_op = False
         self.set_status(int(state), True, code)
+        if self.app is not None:
+            self.app.on_al_error(state, code)
 
     def set_error(self, code: int, state: AlState | None = None) -> None:
         """Error from the application: error flag, code, optionally a new state."""
@@ -270,8 +275,18 @@ class AlStateMachine:
     # --- events from the segment -----------------------------------------------------
 
     def outputs_arrived(self) -> None:
-        """A pending SAFEOP -> OP request completes with the first complete outputs."""
+        """A pending SAFEOP -> OP request completes with the first complete outputs.
+
+        The application is asked again first: it may keep the request pending
+        (a DC drive waits for its SYNC0 events) or refuse it now.
+        """
         if self._pending_op and self.state() == AlState.SAFEOP:
+            code = self.app.check_transition(AlState.SAFEOP, AlState.OP) if self.app else 0
+            if code == PENDING:
+                return
+            if code:
+                self.fail(AlState.SAFEOP, code)
+                return
             self.pending_op = False
             self.set_status(int(AlState.OP), False, 0)
 

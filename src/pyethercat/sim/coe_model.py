@@ -189,7 +189,7 @@ class CoeModel(DeviceModel):
     def instance_app(self, info: SiiInfo) -> tuple[int, MailboxDevice]:
         """A new instance: its mailbox device with a CoE server on its own dictionary."""
         instance = self.new_instance()
-        app = MailboxDevice()
+        app = self.new_app(instance)
         od = self.dictionary(info, app)
         if not self.fields:
             self._define_fields(od)
@@ -203,6 +203,10 @@ class CoeModel(DeviceModel):
         self._hook(instance, od)
         self._layout_changed(instance)
         return instance, app
+
+    def new_app(self, instance: int) -> MailboxDevice:
+        """The mailbox device of a new instance (a kind with its own AL checks returns a subclass)."""
+        return MailboxDevice()
 
     def _define_fields(self, od: SimObjectDictionary) -> None:
         """Image columns: every PDO-mappable entry and the declared ones, in dictionary order."""

@@ -126,9 +126,14 @@ class DeviceApp:
         """Extra checks of a requested state change: an AL status code, or 0 to allow it.
 
         Called after the ESC model's own checks (mailbox SMs, process-data SMs,
-        outputs received) passed.
+        outputs received) passed. For SAFEOP -> OP, -1 (``sim.al_state.PENDING``)
+        keeps the request pending: the check runs again with every complete
+        output buffer until it allows or refuses.
         """
         return 0
+
+    def on_al_error(self, state: AlState, code: int) -> None:
+        """The slave set the AL error flag with status ``code`` and stays in (or fell to) ``state``."""
 
     def process_data_sizes(self) -> tuple[int, int] | None:
         """(output bytes, input bytes) of the current PDO mapping, or None to use the SII's.

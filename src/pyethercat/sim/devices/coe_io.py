@@ -12,9 +12,11 @@ listed in ``docs/coe.md``.
 technik "Servo Positioning Controller C Series" as its EtherCAT manual lists
 them (chapter 6.1.2, "Communication objects": 0x1000, 0x1018, 0x1100,
 0x1600-0x1603, 0x1A00-0x1A03, 0x1C00, 0x1C10-0x1C13 with the values of its
-tables), identity vendor 0xE4, product 0x264860d2, revision 0x20000, plus
-the four CiA 402 objects its default PDOs map. :func:`add_seed002_objects`
-is the reusable builder a CiA 402 drive model starts from.
+tables), identity vendor 0xE4, product 0x264860d2, revision 0x20000, and
+is a CiA 402 servo drive (``sim.cia402``: power state machine, modes of
+operation, motor and load, the manual's EtherCAT errors) that also speaks
+EoE with a diagnostic web page. :func:`add_seed002_objects` is the reusable
+builder of its communication objects.
 
 Both kinds are device models (``sim.coe_model.CoeModel``): their behaviour
 is numpy over the object values of all instances at once.
@@ -29,6 +31,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from pyethercat.sim.cia402.model import Cia402Model
+from pyethercat.sim.cia402.objects import add_cia402_objects
 from pyethercat.sim.coe_model import CoeModel
 from pyethercat.sim.devices.builtin import BuiltinDevice, BuiltinPdo, BuiltinPdoEntry, BuiltinSm
 from pyethercat.sim.devices.eoe_web import device_status
@@ -44,6 +48,7 @@ from pyethercat.sim.std_objects import (
     add_sync_parameters,
 )
 from pyethercat.wire import registers as R
+from pyethercat.wire.cia402 import decode_state
 from pyethercat.wire.mailbox.datatypes import DataType
 from pyethercat.wire.mailbox.objects import (
     Cia402Object,
@@ -292,14 +297,13 @@ def add_seed002_objects(od: SimObjectDictionary, *, serial: int = 0,
         tx.entries[n].name = "PDO Mapping object number of assigned TxPDO"
 
 
-class Seed002Model(CoeModel):
-    """``builtin:seed002-drive``: the controller's communication objects, nothing of CiA 402 yet.
+class Seed002Model(Cia402Model):
+    """``builtin:seed002-drive``: the controller's communication objects and a CiA 402 drive.
 
-    The modes-of-operation display follows modes of operation (for all
-    instances at once); a CiA 402 drive model replaces :meth:`compute`.
+    The drive itself (power state machine, modes, motor and load, its
+    EtherCAT errors) is ``sim.cia402``; this kind adds the seed's objects and
+    the EoE diagnostic page.
     """
-
-    output_events = True
 
     def __init__(self) -> None:
         super().__init__(self._dictionary, details=_COE_ALL & ~int(CoeDetails.SDO_COMPLETE_ACCESS),
@@ -314,12 +318,8 @@ class Seed002Model(CoeModel):
 
         od = SimObjectDictionary()
         add_seed002_objects(od, serial=info.serial, station_address=station)
-        od.set_value(_402.STATUSWORD, 0, 0x0250)  # switch on disabled
+        add_cia402_objects(od)
         return od
-
-    def compute(self, instances: I64) -> None:
-        r = self.rows(instances)
-        self.field(_402.MODES_OF_OPERATION_DISPLAY, 0)[r] = self.field(_402.MODES_OF_OPERATION, 0)[r]
 
     def instance_app(self, info: SiiInfo) -> tuple[int, MailboxDevice]:
         """An instance that also speaks EoE and serves a diagnostic web page.
@@ -336,11 +336,14 @@ class Seed002Model(CoeModel):
                 return int.from_bytes(self._read(instance, (index, 0)), "little")
 
             statusword, control = value(_402.STATUSWORD), value(_402.CONTROLWORD)
+            position = int(self.field(_402.POSITION_ACTUAL_VALUE, 0)[instance])
+            state = decode_state(statusword)
 
             def live(t: float) -> list[tuple[str, Any]]:
-                return [("Position actual value", f"{int(t * 4096) & 0x7FFFFFFF} inc"),
+                return [("Position actual value", f"{position} inc"),
                         ("Uptime", f"{t:.3f} s"),
                         ("Statusword 0x6041", f"0x{statusword:04X}"),
+                        ("Drive state", state.label if state is not None else "?"),
                         ("Controlword 0x6040", f"0x{control:04X}"),
                         ("DC link voltage", "560.0 V")]
 
@@ -376,14 +379,15 @@ SEED002_DRIVE = BuiltinDevice(
                  0x0002))),),
     mailbox=_MBX,
     pdi_control=0x0C05,
-    description="item C series servo controller: CoE communication objects 0x1000-0x1C13 "
-                "(0x1C12/0x1C13 subindex 0 = 0 until the master assigns PDOs); EoE with a "
-                "diagnostic web page",
+    description="item C series servo controller: CiA 402 drive (CSP/CSV/CST, PP, PV, homing) "
+                "with a simulated motor; CoE objects 0x1000-0x1C13 (0x1C12/0x1C13 "
+                "subindex 0 = 0 until the master assigns PDOs); EoE with a diagnostic page",
     coe_details=_COE_ALL & ~int(CoeDetails.SDO_COMPLETE_ACCESS),
     mailbox_protocols=int(MailboxProtocol.COE | MailboxProtocol.EOE),
     vendor_id=SEED002_VENDOR,
     revision=SEED002_REVISION,
     model=Seed002Model,
+    dc_modes=True,  # "SM-Synchron" and "DC-Synchron" (SYNC0), as the ESI's <Dc>
 )
 
 

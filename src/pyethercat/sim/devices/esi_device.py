@@ -27,6 +27,8 @@ from pyethercat.errors import ConfigError, EtherCATError
 from pyethercat.esi.model import EsiDevice, EsiDictionary, EsiFile, EsiFlags, EsiOdEntry
 from pyethercat.esi.parse import load_esi
 from pyethercat.esi.sii_from_esi import SM_TYPES, esi_to_sii, pick_device
+from pyethercat.sim.cia402.model import Cia402Model
+from pyethercat.sim.cia402.objects import add_cia402_objects
 from pyethercat.sim.coe_model import CoeModel
 from pyethercat.sim.devices.eoe_web import device_status
 from pyethercat.sim.eoe import attach_eoe
@@ -50,10 +52,11 @@ from pyethercat.sim.std_objects import (
 )
 from pyethercat.wire.mailbox.coe import ObjectCode
 from pyethercat.wire.mailbox.datatypes import DataType
-from pyethercat.wire.mailbox.objects import IdentitySub, StandardObject
+from pyethercat.wire.mailbox.objects import Cia402Object, IdentitySub, StandardObject
 from pyethercat.wire.sii import CoeDetails, MailboxProtocol, SiiInfo, SyncManagerType
 
-__all__ = ["EsiCoeModel", "EsiSlave", "esi_dictionary", "esi_model", "load_esi_device"]
+__all__ = ["EsiCoeModel", "EsiDriveModel", "EsiSlave", "esi_dictionary", "esi_model",
+           "is_cia402_device", "load_esi_device"]
 
 # Room for process data when the ESI gives no SM sizes (bytes per direction).
 _PD_CAPACITY = 1024
@@ -253,20 +256,68 @@ class EsiCoeModel(CoeModel):
     def instance_app(self, info: SiiInfo) -> tuple[int, MailboxDevice]:
         """An instance; it speaks EoE too (with a diagnostic page) when its ESI lists EoE."""
         instance, app = super().instance_app(info)
-        if info.mailbox_protocols & MailboxProtocol.EOE:
-            started = time.monotonic()
-
-            def status() -> dict[str, Any]:
-                return device_status(app, info, started, kind="ESI-described device",
-                                     temperatures=(("Device", 40.0, 2.0, 60.0),),
-                                     live=lambda t: [("Uptime", f"{t:.3f} s")])
-
-            attach_eoe(app, info.tx_mailbox_size or 128, info.serial, status)
+        _with_eoe(app, info)
         return instance, app
 
 
-def esi_model(slave: EsiSlave, info: SiiInfo) -> EsiCoeModel | None:
-    """The device model of an ESI device that speaks CoE; None for any other."""
+def _with_eoe(app: MailboxDevice, info: SiiInfo) -> None:
+    """EoE with a diagnostic page for a device whose ESI lists EoE."""
+    if info.mailbox_protocols & MailboxProtocol.EOE:
+        started = time.monotonic()
+
+        def status() -> dict[str, Any]:
+            return device_status(app, info, started, kind="ESI-described device",
+                                 temperatures=(("Device", 40.0, 2.0, 60.0),),
+                                 live=lambda t: [("Uptime", f"{t:.3f} s")])
+
+        attach_eoe(app, info.tx_mailbox_size or 128, info.serial, status)
+
+
+class EsiDriveModel(Cia402Model):
+    """The CiA 402 drives of one ESI device: the ESI's dictionary, completed with the objects
+    the simulated drive uses (``sim.cia402.objects``), runs as ``sim.cia402``."""
+
+    def __init__(self, slave: EsiSlave, details: int) -> None:
+        self.slave = slave
+        self._template: SimObjectDictionary | None = None
+        super().__init__(self._dictionary, details=details,
+                         capacity_out=_capacity(slave.device, "Outputs"),
+                         capacity_in=_capacity(slave.device, "Inputs"))
+
+    def _dictionary(self, info: SiiInfo, app: MailboxDevice) -> SimObjectDictionary:
+        if self._template is None:
+            od = esi_dictionary(self.slave.device, vendor_id=self.slave.vendor_id)
+            add_cia402_objects(od)
+            self._template = od
+        od = self._template.copy()
+        serial = od.get(StandardObject.IDENTITY).entries.get(IdentitySub.SERIAL_NUMBER)
+        if serial is not None and serial.data_type.byte_size == 4:
+            serial.raw[:] = info.serial.to_bytes(4, "little")
+        return od
+
+    def instance_app(self, info: SiiInfo) -> tuple[int, MailboxDevice]:
+        """An instance; it speaks EoE too when its ESI lists EoE."""
+        instance, app = super().instance_app(info)
+        _with_eoe(app, info)
+        return instance, app
+
+
+def is_cia402_device(device: EsiDevice) -> bool:
+    """A CiA 402 drive: profile 402 (``<ProfileNo>``, ``DS402Channels``) with a controlword
+    and a statusword in its PDOs or dictionary."""
+    profile = any(402 in p.profile_no for p in device.profiles) or bool(
+        device.mailbox is not None and device.mailbox.coe is not None
+        and device.mailbox.coe.ds402_channels)
+    indices = {e.index for pdo in device.pdos for e in pdo.entries}
+    dictionary = device.dictionary
+    if dictionary is not None:
+        indices |= {o.index for o in dictionary.objects}
+    return profile and {int(Cia402Object.CONTROLWORD), int(Cia402Object.STATUSWORD)} <= indices
+
+
+def esi_model(slave: EsiSlave, info: SiiInfo) -> EsiCoeModel | EsiDriveModel | None:
+    """The device model of an ESI device that speaks CoE (a drive model for a CiA 402
+    drive); None for any other."""
     device = slave.device
     mbx = device.mailbox
     if mbx is None or mbx.coe is None:
@@ -275,4 +326,6 @@ def esi_model(slave: EsiSlave, info: SiiInfo) -> EsiCoeModel | None:
     # SDO information / complete access only where the ESI announces them.
     gen = info.general
     details = int(gen.coe_details) if gen is not None else int(CoeDetails.SDO)
+    if is_cia402_device(device):
+        return EsiDriveModel(slave, details)
     return EsiCoeModel(slave, details)

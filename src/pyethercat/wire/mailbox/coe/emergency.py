@@ -86,6 +86,7 @@ EMERGENCY_ERROR_CLASSES: dict[int, str] = {
     0x6200: "user software",
     0x6300: "data set",
     0x7000: "additional modules",
+    0x7500: "communication error (drive)",
     0x8000: "monitoring",
     0x8100: "communication",
     0x8110: "CAN overrun (objects lost)",
@@ -95,7 +96,16 @@ EMERGENCY_ERROR_CLASSES: dict[int, str] = {
     0x8200: "protocol error",
     0x8210: "PDO not processed due to length error",
     0x8220: "PDO length exceeded",
+    # CiA 402 (IEC 61800-7-201) drive codes, as Beckhoff's slave stack lists them
+    # (SSC ``cia402appl.h``); 0xA0xx: EtherCAT state machine transition errors
+    # (IEC 61158-6-12, as drive manuals such as STOBER's list them).
+    0x8600: "positioning controller",
+    0x8611: "following error",
+    0x8612: "reference limit",
+    0x8700: "sync controller",
     0x9000: "external error",
+    0xA000: "EtherCAT transition PRE-OP to SAFE-OP failed",
+    0xA001: "EtherCAT transition SAFE-OP to OP failed",
     0xF000: "additional functions",
     0xFF00: "device specific",
 }

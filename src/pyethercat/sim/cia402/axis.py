@@ -1,0 +1,185 @@
+"""Motor, load and the drive's inner control loops, for all axes of a drive kind at once.
+
+Each axis is a rigid motor and load: inertia J, viscous friction b, Coulomb
+friction (sticking at standstill up to its value), a constant load torque,
+and a torque limit (0x6072 per mille of the rated torque 0x6076). The drive
+controls it in cascade, as servo drives do: a position loop (gain 0x2100:06)
+with velocity feed-forward, a PI velocity loop tuned from the inertia for the
+bandwidth 0x2100:05, the torque limit with anti-windup. Position is kept in
+encoder increments; the actual position is the encoder's count (quantised),
+the actual velocity the change of that count over the cycle.
+
+The loops run at an internal rate of at least 2 kHz: a cycle of ``dt`` is
+integrated in ``ceil(dt / 500 us)`` substeps, the demand interpolated
+linearly from the previous cycle's set-point to this one's (what drives do
+between SYNC0 events). The number of numpy operations per cycle does not
+depend on the number of axes.
+
+The plan for the next cycle (``plan_*`` arrays) is set by the profile layer
+(``sim.cia402.engine``): the control mode (off / position / velocity /
+torque), the demand at the start and the end of the cycle, feed-forwards.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from pyethercat.sim.cia402.objects import AXIS_OBJECT, AxisSub
+from pyethercat.sim.coe_model import CoeModel
+from pyethercat.sim.mailbox import MailboxDevice
+from pyethercat.sim.od import SimObjectDictionary
+from pyethercat.wire.mailbox.objects import Cia402Object
+from pyethercat.wire.sii import SiiInfo
+
+__all__ = ["AXIS_FIELDS", "AxisModel", "CTRL_OFF", "CTRL_POSITION", "CTRL_TORQUE",
+           "CTRL_VELOCITY", "Rows"]
+
+F64 = npt.NDArray[np.float64]
+I64 = npt.NDArray[np.int64]
+Rows = slice | I64
+_O = Cia402Object
+#: Control modes of a cycle's plan.
+CTRL_OFF, CTRL_POSITION, CTRL_VELOCITY, CTRL_TORQUE = 0, 1, 2, 3
+#: Longest internal loop period (s): at least 2 kHz.
+_H_MAX = 500e-6
+_MAX_SUBSTEPS = 64
+#: Longest interval integrated at once (s): a drive whose events stopped for longer
+#: does not jump (its own loops would have held the axis meanwhile).
+_DT_MAX = 0.016
+#: Velocity below which the axis counts as standing (increments/s).
+_STANDSTILL = 1e-3
+_TWO_PI = 2.0 * math.pi
+
+#: Parameter entries the physics reads (image columns beyond the PDO-mappable ones).
+AXIS_FIELDS: tuple[tuple[int, int], ...] = (
+    *((AXIS_OBJECT, int(s)) for s in AxisSub),
+    (_O.POSITION_ENCODER_RESOLUTION, 1), (_O.POSITION_ENCODER_RESOLUTION, 2),
+    (_O.MOTOR_RATED_TORQUE, 0), (_O.MAX_TORQUE, 0), (_O.MAX_MOTOR_SPEED, 0),
+)
+
+
+class AxisModel(CoeModel):
+    """The physical axes of a drive kind and their inner loops (see the module docstring)."""
+
+    def __init__(self, dictionary: Callable[[SiiInfo, MailboxDevice], SimObjectDictionary], *,
+                 details: int, capacity_out: int = 128, capacity_in: int = 128,
+                 fields: tuple[tuple[int, int], ...] = ()) -> None:
+        super().__init__(dictionary, details=details, capacity_out=capacity_out,
+                         capacity_in=capacity_in, fields=AXIS_FIELDS + fields)
+        arr = self.array
+        #: Motor position (raw encoder increments since power-on) and velocity (inc/s).
+        self.p: F64 = arr("p", np.float64, 0.0)
+        self.v: F64 = arr("v", np.float64, 0.0)
+        #: Velocity-loop integrator and the last torque (N m).
+        self.integ: F64 = arr("integ", np.float64, 0.0)
+        self.torque: F64 = arr("torque", np.float64, 0.0)
+        #: Encoder count published last (raw) for the velocity actual value.
+        self.enc_prev: F64 = arr("enc_prev", np.float64, 0.0)
+        #: Plan of the next cycle: control mode, demand from/to (raw inc), velocity and
+        #: torque feed-forward, velocity command (velocity mode), torque command (N m).
+        self.plan_mode = arr("plan_mode", np.int8, CTRL_OFF)
+        self.plan_from: F64 = arr("plan_from", np.float64, 0.0)
+        self.plan_to: F64 = arr("plan_to", np.float64, 0.0)
+        self.plan_vff: F64 = arr("plan_vff", np.float64, 0.0)
+        self.plan_tff: F64 = arr("plan_tff", np.float64, 0.0)
+        self.plan_v: F64 = arr("plan_v", np.float64, 0.0)
+        self.plan_t: F64 = arr("plan_t", np.float64, 0.0)
+
+    # --- parameters --------------------------------------------------------------------
+
+    def col(self, index: int, sub: int, r: Rows) -> F64:
+        """Entry ``index:sub`` of rows ``r`` as float64."""
+        out: F64 = self.field(index, sub)[r].astype(np.float64)
+        return out
+
+    def counts_per_rad(self, r: Rows) -> F64:
+        """Encoder increments per radian (0x608F:01 per 0x608F:02 revolutions)."""
+        inc = self.col(_O.POSITION_ENCODER_RESOLUTION, 1, r)
+        rev = np.maximum(self.col(_O.POSITION_ENCODER_RESOLUTION, 2, r), 1.0)
+        out: F64 = np.maximum(inc, 1.0) / rev / _TWO_PI
+        return out
+
+    def max_torque(self, r: Rows) -> F64:
+        """Torque limit (N m): 0x6072 per mille of 0x6076 mNm."""
+        out: F64 = self.col(_O.MAX_TORQUE, 0, r) * self.col(_O.MOTOR_RATED_TORQUE, 0, r) * 1e-6
+        return out
+
+    def max_speed(self, r: Rows) -> F64:
+        """Speed limit (inc/s) from 0x6080 max motor speed (rpm); infinite when 0."""
+        rpm = self.col(_O.MAX_MOTOR_SPEED, 0, r)
+        out: F64 = np.where(rpm > 0, rpm / 60.0 * _TWO_PI * self.counts_per_rad(r), np.inf)
+        return out
+
+    def max_acceleration(self, r: Rows) -> F64:
+        """What the torque limit can do against inertia and friction (inc/s²)."""
+        j = self.col(AXIS_OBJECT, AxisSub.INERTIA, r)
+        spare = np.maximum(self.max_torque(r) - self.col(AXIS_OBJECT, AxisSub.COULOMB_FRICTION, r)
+                           - np.abs(self.col(AXIS_OBJECT, AxisSub.LOAD_TORQUE, r)), 0.0)
+        out: F64 = spare / j * self.counts_per_rad(r)
+        return out
+
+    # --- integration ---------------------------------------------------------------------
+
+    def integrate(self, r: Rows, dt: F64) -> None:
+        """Run the loops and the mechanics of rows ``r`` over ``dt`` seconds along their plan."""
+        dt = np.clip(dt, 0.0, _DT_MAX)
+        longest = float(dt.max()) if len(dt) else 0.0
+        if longest <= 0.0:
+            return
+        n = min(_MAX_SUBSTEPS, max(1, math.ceil(longest / _H_MAX - 1e-9)))
+        h = dt / n
+        col = self.col
+        k = self.counts_per_rad(r)
+        j = col(AXIS_OBJECT, AxisSub.INERTIA, r)
+        wv = _TWO_PI * col(AXIS_OBJECT, AxisSub.VELOCITY_BANDWIDTH, r)
+        kp = col(AXIS_OBJECT, AxisSub.POSITION_GAIN, r)
+        kv = j * wv / k                              # N m per (inc/s)
+        ki = kv * wv * 0.25                          # N m per inc (per s of error)
+        acc_gain = k / j                             # inc/s² per N m
+        b = col(AXIS_OBJECT, AxisSub.VISCOUS_FRICTION, r) / k
+        tc = col(AXIS_OBJECT, AxisSub.COULOMB_FRICTION, r)
+        load = col(AXIS_OBJECT, AxisSub.LOAD_TORQUE, r)
+        tmax = self.max_torque(r)
+        vmax = self.max_speed(r)
+        mode = self.plan_mode[r]
+        pos, trq = mode == CTRL_POSITION, mode == CTRL_TORQUE
+        on = (mode != CTRL_OFF).astype(np.float64)
+        p0, p1 = self.plan_from[r], self.plan_to[r]
+        vff, tff = self.plan_vff[r], self.plan_tff[r]
+        vcmd, tcmd = self.plan_v[r], self.plan_t[r]
+        p, v, integ = self.p[r], self.v[r], self.integ[r]
+        tq = np.zeros_like(p)
+        for step in range(1, n + 1):
+            pref = p0 + (p1 - p0) * (step / n)
+            vref = np.clip(np.where(pos, vff + kp * (pref - p), vcmd), -vmax, vmax)
+            ev = vref - v
+            integ = np.clip(integ + ki * ev * h, -tmax, tmax) * on
+            tq = np.where(trq, np.where(np.abs(v) > vmax, 0.0, tcmd), kv * ev + integ + tff) * on
+            tq = np.clip(tq, -tmax, tmax)
+            drive = tq - load - b * v
+            moving = np.abs(v) > _STANDSTILL
+            friction = np.where(moving, tc * np.sign(v), np.clip(drive, -tc, tc))
+            vn = v + (drive - friction) * acc_gain * h
+            # friction stops an axis, it never turns it round
+            vn = np.where(moving & (vn * v < 0) & (np.abs(drive) <= tc), 0.0, vn)
+            p = p + (v + vn) * 0.5 * h
+            v = vn
+        self.p[r], self.v[r], self.integ[r], self.torque[r] = p, v, integ, tq
+
+    def encoder(self, r: Rows) -> F64:
+        """The encoder's count (raw increments, whole numbers)."""
+        out: F64 = np.floor(self.p[r] + 0.5)
+        return out
+
+    def reset_axis(self, instance: int) -> None:
+        """Power-on: the axis stands at raw position 0 with its loops idle."""
+        for name in ("p", "v", "integ", "torque", "enc_prev", "plan_from", "plan_to",
+                     "plan_vff", "plan_tff", "plan_v", "plan_t"):
+            arr: Any = getattr(self, name)
+            arr[instance] = 0.0
+        self.plan_mode[instance] = CTRL_OFF

@@ -1,0 +1,599 @@
+"""One control cycle of many simulated CiA 402 drives: power state machine, modes, statusword.
+
+:meth:`DriveEngine.step` runs a cycle for a set of instances with a constant
+number of numpy operations (a few more only for modes some axis is in):
+
+1. the mechanics and inner loops over the past interval (``sim.cia402.axis``);
+2. actual values: encoder count, velocity, following error, switches;
+3. supervision: following error (0x6065 for longer than 0x6066 ms in a
+   position mode), limit switches hit outside homing;
+4. the power state machine of IEC 61800-7-201 from the controlword (only in
+   EtherCAT OP: in SAFE-OP the outputs are not valid and the drive takes no
+   commands), with the fault-reset rising edge, quick stop by 0x605A, the
+   stop option codes 0x605B/0x605C/0x605E and halt 0x605D;
+5. the set-point of the next cycle by mode of operation (CSP/CSV/CST take
+   the targets as they come; PP, PV, homing and every stop ramp generate
+   it); software position limits 0x607D clamp position targets;
+6. the statusword with the mode-dependent bits and the other inputs.
+
+Faults found here are returned to the caller (the device model), which
+sends the emergencies: rare events, plain Python per instance.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import numpy.typing as npt
+
+from pyethercat.sim.cia402.axis import (
+    CTRL_OFF,
+    CTRL_POSITION,
+    CTRL_TORQUE,
+    CTRL_VELOCITY,
+    AxisModel,
+    Rows,
+)
+from pyethercat.sim.cia402.homing import HOMING, Phase, Rule, Signal
+from pyethercat.sim.cia402.objects import AXIS_OBJECT, DRIVE_MODES, AxisSub
+from pyethercat.sim.cia402.profile import profile_move, ramp_velocity
+from pyethercat.sim.mailbox import MailboxDevice
+from pyethercat.sim.od import SimObjectDictionary
+from pyethercat.wire.cia402 import (
+    DriveErrorCode,
+    DriveState,
+    OperationMode,
+    StopOption,
+)
+from pyethercat.wire.mailbox.objects import Cia402Object, StandardObject
+from pyethercat.wire.sii import SiiInfo
+
+__all__ = ["DRIVE_FIELDS", "DriveEngine", "Faults"]
+
+F64 = npt.NDArray[np.float64]
+I64 = npt.NDArray[np.int64]
+B = npt.NDArray[np.bool_]
+_O = Cia402Object
+S = DriveState
+OM = OperationMode
+#: What a cycle found: (instances, error codes, detail values) of new faults, and the
+#: instances whose fault was reset.
+Faults = tuple[I64, I64, I64, I64]
+
+#: Parameter entries the engine reads (beyond the PDO-mappable ones and the axis').
+DRIVE_FIELDS: tuple[tuple[int, int], ...] = (
+    (_O.ERROR_CODE, 0), (_O.QUICK_STOP_OPTION_CODE, 0), (_O.SHUTDOWN_OPTION_CODE, 0),
+    (_O.DISABLE_OPERATION_OPTION_CODE, 0), (_O.HALT_OPTION_CODE, 0),
+    (_O.FAULT_REACTION_OPTION_CODE, 0), (_O.FOLLOWING_ERROR_WINDOW, 0),
+    (_O.FOLLOWING_ERROR_TIMEOUT, 0), (_O.POSITION_WINDOW, 0), (_O.POSITION_WINDOW_TIME, 0),
+    (_O.VELOCITY_WINDOW, 0), (_O.VELOCITY_WINDOW_TIME, 0), (_O.VELOCITY_THRESHOLD, 0),
+    (_O.VELOCITY_THRESHOLD_TIME, 0), (_O.HOME_OFFSET, 0), (_O.SOFTWARE_POSITION_LIMIT, 1),
+    (_O.SOFTWARE_POSITION_LIMIT, 2), (_O.MAX_PROFILE_VELOCITY, 0), (_O.PROFILE_VELOCITY, 0),
+    (_O.PROFILE_ACCELERATION, 0), (_O.PROFILE_DECELERATION, 0), (_O.QUICK_STOP_DECELERATION, 0),
+    (_O.MAX_ACCELERATION, 0), (_O.MAX_DECELERATION, 0), (_O.HOMING_METHOD, 0),
+    (_O.HOMING_SPEEDS, 1), (_O.HOMING_SPEEDS, 2), (_O.HOMING_ACCELERATION, 0),
+    (_O.TARGET_POSITION, 0), (_O.TARGET_VELOCITY, 0), (_O.TARGET_TORQUE, 0),
+    (_O.POSITION_OFFSET, 0), (_O.VELOCITY_OFFSET, 0), (_O.TORQUE_OFFSET, 0),
+    (_O.CONTROLWORD, 0), (_O.MODES_OF_OPERATION, 0), (_O.STATUSWORD, 0),
+    (_O.MODES_OF_OPERATION_DISPLAY, 0), (_O.POSITION_ACTUAL_VALUE, 0),
+    (_O.VELOCITY_ACTUAL_VALUE, 0), (_O.TORQUE_ACTUAL_VALUE, 0), (_O.POSITION_DEMAND_VALUE, 0),
+    (_O.VELOCITY_DEMAND_VALUE, 0), (_O.TORQUE_DEMAND, 0), (_O.FOLLOWING_ERROR_ACTUAL_VALUE, 0),
+    (_O.DIGITAL_INPUTS, 0), (StandardObject.ERROR_SETTINGS, 2),
+)
+
+# Supported modes by the int8 value of 0x6060 (+128).
+_SUPPORTED = np.zeros(256, bool)
+for _m in DRIVE_MODES:
+    _SUPPORTED[int(_m) + 128] = True
+# Statusword bits 0-6 by state.
+_STATE_BITS = np.array([0x00, 0x40, 0x21, 0x23, 0x27, 0x07, 0x0F, 0x08], np.int64)
+_VOLTAGE_REMOTE = 0x0010 | 0x0200
+_NO_STOP = -1
+_STAY = -1
+_THRESH_EPS = 1e-9
+
+
+class DriveEngine(AxisModel):
+    """CiA 402 behaviour of a drive kind over its axes (see the module docstring)."""
+
+    def __init__(self, dictionary: Callable[[SiiInfo, MailboxDevice], SimObjectDictionary], *,
+                 details: int, capacity_out: int = 128, capacity_in: int = 128) -> None:
+        super().__init__(dictionary, details=details, capacity_out=capacity_out,
+                         capacity_in=capacity_in, fields=DRIVE_FIELDS)
+        arr = self.array
+        self.state = arr("state", np.int8, int(S.SWITCH_ON_DISABLED))
+        self.prev_cw = arr("prev_cw", np.int64, 0)
+        #: The slave is in EtherCAT OP (its outputs are valid).
+        self.al_op = arr("al_op", bool, False)
+        #: Stop in progress: deceleration option (-1 none) and the state it ends in (-1: stay).
+        self.stop_opt = arr("stop_opt", np.int8, _NO_STOP)
+        self.stop_goal = arr("stop_goal", np.int8, _STAY)
+        #: Set-point generator: demand position (raw inc) and velocity (inc/s).
+        self.g_p: F64 = arr("g_p", np.float64, 0.0)
+        self.g_v: F64 = arr("g_v", np.float64, 0.0)
+        #: Raw encoder position of user position 0 (homing moves it).
+        self.origin: F64 = arr("origin", np.float64, 0.0)
+        # profile position: goal, buffered set-point, set-point acknowledge
+        self.pp_goal: F64 = arr("pp_goal", np.float64, 0.0)
+        self.pp_buf: F64 = arr("pp_buf", np.float64, 0.0)
+        self.pp_active = arr("pp_active", bool, False)
+        self.pp_buffered = arr("pp_buffered", bool, False)
+        self.pp_ack = arr("pp_ack", bool, False)
+        # homing
+        self.hm_phase = arr("hm_phase", np.int8, int(Phase.IDLE))
+        self.hm_method = arr("hm_method", np.int64, 0)
+        self.hm_var = arr("hm_var", np.int8, 0)
+        self.hm_home: F64 = arr("hm_home", np.float64, 0.0)
+        self.hm_attained = arr("hm_attained", bool, False)
+        self.hm_error = arr("hm_error", bool, False)
+        # window timers (s)
+        self.fe_t: F64 = arr("fe_t", np.float64, 0.0)
+        self.win_t: F64 = arr("win_t", np.float64, 0.0)
+        self.vwin_t: F64 = arr("vwin_t", np.float64, 0.0)
+        self.vzero_t: F64 = arr("vzero_t", np.float64, 0.0)
+        self.limited = arr("limited", bool, False)
+        #: Warning bit (statusword bit 7): sync fallback, missed SM events.
+        self.warn = arr("warn", bool, False)
+
+    # --- the cycle ------------------------------------------------------------------------
+
+    def step(self, inst: I64, dt: F64) -> Faults:
+        """One cycle of ``inst`` (sorted instances) after ``dt`` seconds: faults found, resets."""
+        r = self.rows(inst)
+        f, col = self.field, self.col
+        self.integrate(r, dt)
+        safe_dt = np.where(dt > 0, dt, 1.0)
+        enc = self.encoder(r)
+        v_act = np.where(dt > 0, (enc - self.enc_prev[r]) / safe_dt, 0.0)
+        self.enc_prev[r] = enc
+        p = self.p[r]
+        state = self.state[r].astype(np.int64)
+        cw = np.where(self.al_op[r], f(_O.CONTROLWORD, 0)[r].astype(np.int64), 0)
+        prev = self.prev_cw[r].copy()
+        self.prev_cw[r] = cw
+        # --- supervision ----------------------------------------------------------------
+        pos_ctrl = self.plan_mode[r] == CTRL_POSITION
+        fe = np.where(pos_ctrl, self.plan_to[r] - p, 0.0)
+        window = col(_O.FOLLOWING_ERROR_WINDOW, 0, r)
+        over = pos_ctrl & (np.abs(fe) > window) & (window < 0xFFFFFFFF) & (state == S.OPERATION_ENABLED)
+        fe_t = np.where(over, self.fe_t[r] + dt, 0.0)
+        self.fe_t[r] = fe_t
+        fe_fault = over & (fe_t * 1000.0 > col(_O.FOLLOWING_ERROR_TIMEOUT, 0, r) - _THRESH_EPS)
+        neg = p <= col(AXIS_OBJECT, AxisSub.NEGATIVE_LIMIT_SWITCH, r)
+        posl = p >= col(AXIS_OBJECT, AxisSub.POSITIVE_LIMIT_SWITCH, r)
+        home = p >= col(AXIS_OBJECT, AxisSub.HOME_SWITCH, r)
+        homing = self.hm_phase[r] >= 0
+        moving_neg = (self.g_v[r] < 0) | (self.v[r] < -1.0)
+        moving_pos = (self.g_v[r] > 0) | (self.v[r] > 1.0)
+        lim_fault = ((state == S.OPERATION_ENABLED) & ~homing
+                     & ((neg & moving_neg) | (posl & moving_pos)))
+        code = np.where(fe_fault, int(DriveErrorCode.FOLLOWING_ERROR),
+                        np.where(lim_fault, int(DriveErrorCode.REFERENCE_LIMIT), 0))
+        detail = np.where(fe_fault, np.round(fe), np.where(neg, 1, 2)).astype(np.int64)
+        faulted = code != 0
+        # --- power state machine ----------------------------------------------------------
+        new, start_stop = self._transitions(r, state, cw, prev, faulted)
+        reset = (state == S.FAULT) & (new == S.SWITCH_ON_DISABLED)
+        # --- modes and the next set-point -------------------------------------------------
+        mode = self._mode(r, inst, new, state)
+        self._plan(r, inst, new, mode, cw, prev, dt, safe_dt, start_stop, (neg, posl, home))
+        new = self._stops_done(r, new, v_act)
+        self.state[r] = new
+        # --- inputs ---------------------------------------------------------------------------
+        origin = self.origin[r]
+        f(_O.POSITION_ACTUAL_VALUE, 0)[r] = enc - origin
+        f(_O.VELOCITY_ACTUAL_VALUE, 0)[r] = np.round(v_act)
+        rated = np.maximum(col(_O.MOTOR_RATED_TORQUE, 0, r), 1e-9) * 1e-3
+        f(_O.TORQUE_ACTUAL_VALUE, 0)[r] = np.round(self.torque[r] / rated * 1000.0)
+        f(_O.TORQUE_DEMAND, 0)[r] = np.round(self.torque[r] / rated * 1000.0)
+        f(_O.POSITION_DEMAND_VALUE, 0)[r] = np.round(self.plan_from[r] - origin)
+        f(_O.VELOCITY_DEMAND_VALUE, 0)[r] = np.round(self.g_v[r])
+        f(_O.FOLLOWING_ERROR_ACTUAL_VALUE, 0)[r] = np.round(fe)
+        f(_O.DIGITAL_INPUTS, 0)[r] = neg * 1 + posl * 2 + home * 4
+        self._statusword(r, new, mode, cw, fe, v_act, dt)
+        clear = inst[reset]
+        if len(clear):
+            f(_O.ERROR_CODE, 0)[clear] = 0
+        hit = np.nonzero(faulted & (state != S.FAULT) & (state != S.FAULT_REACTION_ACTIVE))[0]
+        return inst[hit], code[hit], detail[hit], clear
+
+    def _transitions(self, r: Rows, state: I64, cw: I64, prev: I64,
+                     faulted: B) -> tuple[I64, I64]:
+        """New states and the stops they start (-1: none; else a :class:`StopOption`)."""
+        col = self.col
+        shut = (cw & 0x87) == 0x06
+        on = (cw & 0x8F) == 0x07
+        enable = (cw & 0x8F) == 0x0F
+        dv = (cw & 0x82) == 0x00
+        qs = (cw & 0x86) == 0x02
+        edge = ((cw & 0x80) != 0) & ((prev & 0x80) == 0)
+        stopping = self.stop_opt[r] >= 0
+        goal = self.stop_goal[r].astype(np.int64)
+        qs_code = col(_O.QUICK_STOP_OPTION_CODE, 0, r).astype(np.int64)
+        new = state.copy()
+        start = np.full(len(state), _NO_STOP, np.int64)
+        goal_new = goal.copy()
+        sod, rdy, son = S.SWITCH_ON_DISABLED, S.READY_TO_SWITCH_ON, S.SWITCHED_ON
+        op, qsa, fra, flt = S.OPERATION_ENABLED, S.QUICK_STOP_ACTIVE, S.FAULT_REACTION_ACTIVE, S.FAULT
+        new[(state == sod) & shut] = rdy
+        m = state == rdy
+        new[m & on] = son
+        new[m & enable] = op
+        new[m & (dv | qs)] = sod
+        m = state == son
+        new[m & enable] = op
+        new[m & shut] = rdy
+        new[m & (dv | qs)] = sod
+        # Operation enabled: stops with a ramp keep the state until the axis stands
+        m = state == op
+        new[m & dv] = sod
+        go_qs = m & qs
+        new[go_qs] = np.where(qs_code[go_qs] == 0, sod, qsa)
+        qs_opt = np.where(qs_code > 4, qs_code - 4, qs_code)
+        start[go_qs & (qs_code != 0)] = qs_opt[go_qs & (qs_code != 0)]
+        goal_new[go_qs] = np.where(qs_code[go_qs] > 4, _STAY, sod)
+        ramped = m & ~stopping
+        shut_ramp = col(_O.SHUTDOWN_OPTION_CODE, 0, r) == 1
+        off_ramp = col(_O.DISABLE_OPERATION_OPTION_CODE, 0, r) == 1
+        new[ramped & shut & ~shut_ramp] = rdy
+        new[ramped & on & ~off_ramp] = son
+        for cmd, ramp, target in ((shut, shut_ramp, rdy), (on, off_ramp, son)):
+            sel = ramped & cmd & ramp
+            start[sel] = int(StopOption.SLOW_DOWN_RAMP)
+            goal_new[sel] = target
+        # a stop towards Switched on / Ready is taken back by Enable operation
+        back = m & stopping & enable & ((goal == son) | (goal == rdy))
+        self.stop_opt[r] = np.where(back, _NO_STOP, self.stop_opt[r])
+        m = state == qsa
+        new[m & dv] = sod
+        stay_opt = (qs_code >= 5) & (self.stop_opt[r] < 0)
+        new[m & enable & stay_opt] = op
+        new[(state == flt) & edge] = sod
+        # faults: the fault reaction ramp (or straight to Fault when nothing runs)
+        react = col(_O.FAULT_REACTION_OPTION_CODE, 0, r).astype(np.int64)
+        powered = (state == op) | (state == qsa)
+        f_ramp = faulted & powered & (react != 0)
+        new[faulted & (state != flt) & (state != fra)] = flt
+        new[f_ramp] = fra
+        start[f_ramp] = react[f_ramp]
+        goal_new[f_ramp] = flt
+        # power off ends any stop
+        off = (new != op) & (new != qsa) & (new != fra)
+        start[off] = _NO_STOP
+        self.stop_opt[r] = np.where(start >= 0, start, np.where(off, _NO_STOP, self.stop_opt[r]))
+        self.stop_goal[r] = goal_new
+        return new, start
+
+    def _mode(self, r: Rows, inst: I64, new: I64, old: I64) -> I64:
+        """Mode display after this cycle (0x6061 follows 0x6060 when the mode is supported)."""
+        f = self.field
+        want = f(_O.MODES_OF_OPERATION, 0)[r].astype(np.int64)
+        shown = f(_O.MODES_OF_OPERATION_DISPLAY, 0)[r].astype(np.int64)
+        take = _SUPPORTED[want + 128] & (want != shown)
+        mode = np.where(take, want, shown)
+        f(_O.MODES_OF_OPERATION_DISPLAY, 0)[r] = mode
+        if take.any():
+            # a new mode starts from where the axis stands, with its sub-states cleared
+            changed = inst[take]
+            self.pp_active[changed] = self.pp_buffered[changed] = self.pp_ack[changed] = False
+            self.hm_phase[changed] = int(Phase.IDLE)
+            self.g_p[changed] = self.plan_to[changed]
+        return mode
+
+    def _plan(self, r: Rows, inst: I64, state: I64, mode: I64, cw: I64, prev: I64, dt: F64,
+              safe_dt: F64, start_stop: I64, switches: tuple[B, B, B]) -> None:
+        """The next cycle's plan of every axis (see :class:`~pyethercat.sim.cia402.axis.AxisModel`)."""
+        col = self.col
+        p, v = self.p[r], self.v[r]
+        powered = (state == S.OPERATION_ENABLED) | (state == S.QUICK_STOP_ACTIVE) | (
+            state == S.FAULT_REACTION_ACTIVE)
+        stop = self.stop_opt[r].astype(np.int64)
+        stopping = powered & (stop >= 0)
+        just_on = powered & (self.plan_mode[r] == CTRL_OFF)
+        # a stop brakes from where the axis is and how fast it moves (after a following
+        # error the demand may be far away)
+        fresh = just_on | (start_stop >= 0)
+        g_p = np.where(powered & ~fresh, self.g_p[r], p)
+        g_v = np.where(powered & ~fresh, self.g_v[r], np.where(powered & ~just_on, v, 0.0))
+        origin = self.origin[r]
+        ctrl = np.where(powered, CTRL_POSITION, CTRL_OFF)
+        new_p, new_v = g_p.copy(), g_v.copy()
+        vcmd = np.zeros_like(p)
+        tcmd = np.zeros_like(p)
+        vff_extra = np.zeros_like(p)
+        tff = np.zeros_like(p)
+        running = powered & ~stopping & (state == S.OPERATION_ENABLED)
+        halt = ((cw & 0x100) != 0) & running & (
+            (mode == OM.PROFILE_POSITION) | (mode == OM.PROFILE_VELOCITY) | (mode == OM.HOMING))
+        # stop ramps (quick stop, fault reaction, disable with ramp) and halt
+        ramp_to_zero = stopping | halt
+        if ramp_to_zero.any():
+            opt = np.where(stopping, stop, col(_O.HALT_OPTION_CODE, 0, r).astype(np.int64))
+            dec = self._stop_deceleration(r, opt)
+            rv = ramp_velocity(g_v, np.zeros_like(g_v), dec, dec, dt)
+            new_v = np.where(ramp_to_zero, rv, new_v)
+            new_p = np.where(ramp_to_zero, g_p + (g_v + rv) * 0.5 * dt, new_p)
+        active = running & ~halt
+        lo, hi = col(_O.SOFTWARE_POSITION_LIMIT, 1, r), col(_O.SOFTWARE_POSITION_LIMIT, 2, r)
+        limits = lo < hi
+        limited = np.zeros(len(p), bool)
+        m = active & (mode == OM.CYCLIC_SYNC_POSITION)
+        if m.any():
+            tgt = col(_O.TARGET_POSITION, 0, r) + col(_O.POSITION_OFFSET, 0, r)
+            clamped = np.where(limits, np.clip(tgt, lo, hi), tgt)
+            limited |= m & (clamped != tgt)
+            raw = clamped + origin
+            new_v = np.where(m, (raw - g_p) / safe_dt, new_v)
+            new_p = np.where(m, raw, new_p)
+            vff_extra = np.where(m, col(_O.VELOCITY_OFFSET, 0, r), vff_extra)
+            tff = np.where(m, self._torque(r, col(_O.TORQUE_OFFSET, 0, r)), tff)
+        m = active & (mode == OM.CYCLIC_SYNC_VELOCITY)
+        if m.any():
+            vel = col(_O.TARGET_VELOCITY, 0, r) + col(_O.VELOCITY_OFFSET, 0, r)
+            ctrl = np.where(m, CTRL_VELOCITY, ctrl)
+            vcmd = np.where(m, vel, vcmd)
+            new_v = np.where(m, vel, new_v)
+            new_p = np.where(m, p, new_p)
+        m = active & (mode == OM.CYCLIC_SYNC_TORQUE)
+        if m.any():
+            ctrl = np.where(m, CTRL_TORQUE, ctrl)
+            tcmd = np.where(m, self._torque(r, col(_O.TARGET_TORQUE, 0, r)
+                                           + col(_O.TORQUE_OFFSET, 0, r)), tcmd)
+            new_v = np.where(m, v, new_v)
+            new_p = np.where(m, p, new_p)
+        m = running & (mode == OM.PROFILE_POSITION)
+        if m.any():
+            new_p, new_v, lim = self._profile_position(r, inst, m, halt, cw, prev, g_p, g_v,
+                                                        new_p, new_v, dt, lo, hi, limits)
+            limited |= lim
+        m = active & (mode == OM.PROFILE_VELOCITY)
+        if m.any():
+            goal = np.clip(col(_O.TARGET_VELOCITY, 0, r), -self._vmax(r), self._vmax(r))
+            acc, dec = self._acc_dec(r)
+            rv = ramp_velocity(g_v, goal, acc, dec, dt)
+            ctrl = np.where(m, CTRL_VELOCITY, ctrl)
+            vcmd = np.where(m, rv, vcmd)
+            new_v = np.where(m, rv, new_v)
+            new_p = np.where(m, p, new_p)
+        m = running & (mode == OM.HOMING)
+        if m.any():
+            new_p, new_v = self._homing(r, inst, m, halt, cw, prev, p, g_p, g_v, new_p, new_v,
+                                        dt, switches)
+        # commit the plan
+        self.plan_mode[r] = ctrl
+        self.plan_from[r] = np.where(powered, g_p, p)
+        self.plan_to[r] = np.where(powered, new_p, p)
+        self.plan_vff[r] = np.where(ctrl == CTRL_POSITION, (new_p - g_p) / safe_dt + vff_extra, 0.0)
+        self.plan_tff[r] = tff
+        self.plan_v[r] = vcmd
+        self.plan_t[r] = tcmd
+        self.g_p[r] = np.where(powered, new_p, p)
+        self.g_v[r] = np.where(powered, new_v, v)
+        self.limited[r] = limited
+
+    # --- helpers of the plan ---------------------------------------------------------------
+
+    def _torque(self, r: Rows, per_mille: F64) -> F64:
+        out: F64 = per_mille * self.col(_O.MOTOR_RATED_TORQUE, 0, r) * 1e-6
+        return out
+
+    def _vmax(self, r: Rows) -> F64:
+        cap = self.col(_O.MAX_PROFILE_VELOCITY, 0, r)
+        out: F64 = np.where(cap > 0, cap, np.inf)
+        return out
+
+    def _acc_dec(self, r: Rows) -> tuple[F64, F64]:
+        col = self.col
+        acc = col(_O.PROFILE_ACCELERATION, 0, r)
+        dec = col(_O.PROFILE_DECELERATION, 0, r)
+        amax, dmax = col(_O.MAX_ACCELERATION, 0, r), col(_O.MAX_DECELERATION, 0, r)
+        acc = np.where(amax > 0, np.minimum(acc, amax), acc)
+        dec = np.where(dmax > 0, np.minimum(dec, dmax), dec)
+        return np.maximum(acc, 1.0), np.maximum(dec, 1.0)
+
+    def _stop_deceleration(self, r: Rows, option: I64) -> F64:
+        """Deceleration of a stop by :class:`StopOption` (inc/s²)."""
+        col = self.col
+        _acc, slow = self._acc_dec(r)
+        quick = np.maximum(col(_O.QUICK_STOP_DECELERATION, 0, r), 1.0)
+        limit = np.maximum(self.max_acceleration(r), 1.0)
+        out: F64 = np.select([option == StopOption.SLOW_DOWN_RAMP,
+                              option == StopOption.QUICK_STOP_RAMP], [slow, quick], limit)
+        return out
+
+    def _stops_done(self, r: Rows, new: I64, v_act: F64) -> I64:
+        """States after stops that finished this cycle (the axis stands)."""
+        stop = self.stop_opt[r]
+        still = (self.g_v[r] == 0) & (np.abs(v_act) <= self.col(_O.VELOCITY_THRESHOLD, 0, r))
+        done = (stop >= 0) & still
+        if done.any():
+            goal = self.stop_goal[r].astype(np.int64)
+            new = np.where(done & (goal >= 0), goal, new)
+            self.stop_opt[r] = np.where(done, _NO_STOP, stop)
+        return new
+
+    def _profile_position(self, r: Rows, inst: I64, m: B, halt: B, cw: I64, prev: I64,
+                          g_p: F64, g_v: F64, new_p: F64, new_v: F64, dt: F64, lo: F64, hi: F64,
+                          limits: B) -> tuple[F64, F64, B]:
+        """Profile position: set-point handshake (bits 4, 5, 6, 9 / status bit 12) and the move."""
+        col = self.col
+        origin = self.origin[r]
+        edge = m & ((cw & 0x10) != 0) & ((prev & 0x10) == 0)
+        ack, active = self.pp_ack[r], self.pp_active[r]
+        buffered = self.pp_buffered[r]
+        goal, buf = self.pp_goal[r], self.pp_buf[r]
+        tgt = col(_O.TARGET_POSITION, 0, r)
+        relative = (cw & 0x40) != 0
+        base = np.where(active, goal - origin, g_p - origin)
+        user = np.where(relative, base + tgt, tgt)
+        clamped = np.where(limits, np.clip(user, lo, hi), user)
+        raw = clamped + origin
+        take = edge & ~ack
+        now = take & (((cw & 0x20) != 0) | ~active)
+        later = take & ~now
+        goal = np.where(now, raw, goal)
+        active = active | now
+        buf = np.where(later, raw, buf)
+        buffered = buffered | later
+        ack = ack | take
+        vmax = np.minimum(col(_O.PROFILE_VELOCITY, 0, r), self._vmax(r))
+        acc, dec = self._acc_dec(r)
+        move = m & active & ~halt
+        pp, pv, arrived = profile_move(g_p, g_v, goal, np.maximum(vmax, 1.0), acc, dec, dt)
+        new_p = np.where(move, pp, new_p)
+        new_v = np.where(move, pv, new_v)
+        done = move & arrived
+        active = active & ~done
+        chain = done & buffered
+        goal = np.where(chain, buf, goal)
+        active = active | chain
+        buffered = buffered & ~chain
+        # the acknowledge drops with bit 4 once a set-point can be taken again
+        ack = ack & ~(m & ((cw & 0x10) == 0) & ~buffered)
+        hold = m & ~move & ~halt
+        new_p = np.where(hold, g_p, new_p)
+        new_v = np.where(hold, 0.0, new_v)
+        sel = inst[m]
+        self.pp_ack[sel], self.pp_active[sel] = ack[m], active[m]
+        self.pp_buffered[sel], self.pp_goal[sel], self.pp_buf[sel] = buffered[m], goal[m], buf[m]
+        return new_p, new_v, m & (clamped != user) & take
+
+    def _homing(self, r: Rows, inst: I64, m: B, halt: B, cw: I64, prev: I64, p: F64, g_p: F64,
+                g_v: F64, new_p: F64, new_v: F64, dt: F64,
+                switches: tuple[B, B, B]) -> tuple[F64, F64]:
+        """Homing: start on the rising edge of bit 4, run the method's program (``sim.cia402.homing``)."""
+        col = self.col
+        neg, posl, home = switches
+        phase = self.hm_phase[r].astype(np.int64)
+        method = HOMING.method_index(col(_O.HOMING_METHOD, 0, r).astype(np.int64))
+        start = m & ((cw & 0x10) != 0) & ((prev & 0x10) == 0) & ((phase < 0) | (phase >= Phase.DONE))
+        if start.any():
+            sel = inst[start]
+            self.hm_method[sel] = method[start]
+            self.hm_var[sel] = home[start]
+            self.hm_attained[sel] = False
+            self.hm_error[sel] = ~HOMING.valid[method[start]]
+            phase = np.where(start, np.where(HOMING.valid[method], 0, Phase.ERROR), phase)
+        meth = self.hm_method[r]
+        var = self.hm_var[r].astype(np.int64)
+        # bit 4 dropping interrupts the homing (as does halt): stop where it is
+        aborted = m & (((cw & 0x10) == 0) | halt) & (phase >= 0) & (phase < Phase.STOP)
+        phase = np.where(aborted, Phase.STOP, phase)
+        steps = HOMING.steps[meth, var].astype(np.int64)
+        searching = m & (phase >= 0) & (phase < steps)
+        k = np.clip(phase, 0, 2)
+        prog = HOMING.step[meth, var, k].astype(np.int64)
+        direction, speed_sel, sig, level = prog[:, 0], prog[:, 1], prog[:, 2], prog[:, 3]
+        signals = np.stack([np.ones_like(neg), neg, posl, home], axis=1)
+        met = searching & (signals[np.arange(len(p)), sig] == (level == 1))
+        # a limit switch the method does not search for ends it with an error
+        bad = m & (phase >= 0) & (phase < Phase.STOP) & (
+            (neg & HOMING.forbidden[meth, Signal.NEGATIVE_LIMIT])
+            | (posl & HOMING.forbidden[meth, Signal.POSITIVE_LIMIT]))
+        phase = np.where(met, phase + 1, phase)
+        # steps done: where is home?
+        ready = m & (phase >= 0) & (phase == steps) & ~bad
+        if ready.any():
+            rule = HOMING.rule[meth]
+            edge_sig = HOMING.edge_signal[meth, var]
+            positions = np.stack([p, col(AXIS_OBJECT, AxisSub.NEGATIVE_LIMIT_SWITCH, r),
+                                  col(AXIS_OBJECT, AxisSub.POSITIVE_LIMIT_SWITCH, r),
+                                  col(AXIS_OBJECT, AxisSub.HOME_SWITCH, r)], axis=1)
+            edge = positions[np.arange(len(p)), edge_sig]
+            edge = np.where(rule == Rule.EDGE, edge, np.where(rule == Rule.INDEX, np.where(
+                edge_sig > 0, edge, p), p))
+            cpr = col(_O.POSITION_ENCODER_RESOLUTION, 1, r) / np.maximum(
+                col(_O.POSITION_ENCODER_RESOLUTION, 2, r), 1.0)
+            idir = HOMING.index_dir[meth]
+            index = np.where(idir > 0, (np.floor(edge / cpr) + 1) * cpr,
+                             (np.ceil(edge / cpr) - 1) * cpr)
+            home_at = np.where(rule == Rule.INDEX, index, edge)
+            sel = inst[ready]
+            self.hm_home[sel] = home_at[ready]
+            nxt = np.where(rule == Rule.INDEX, Phase.APPROACH,
+                           np.where(rule == Rule.CURRENT, Phase.DONE, Phase.STOP))
+            phase = np.where(ready, nxt, phase)
+            fin = ready & (rule == Rule.CURRENT)
+            if fin.any():
+                self._home_found(inst[fin], home_at[fin], r, fin)
+        hm_home = self.hm_home[r]
+        approach = m & (phase == Phase.APPROACH)
+        idir = HOMING.index_dir[meth].astype(np.float64)
+        passed = approach & ((p - hm_home) * idir >= 0)
+        phase = np.where(passed, Phase.STOP, phase)
+        phase = np.where(bad, Phase.ERROR, phase)
+        if bad.any():
+            self.hm_error[inst[bad]] = True
+        speeds = np.stack([np.zeros_like(p), col(_O.HOMING_SPEEDS, 1, r), col(_O.HOMING_SPEEDS, 2, r)],
+                          axis=1)
+        goal_v = np.where(searching & (phase < steps),
+                          direction * speeds[np.arange(len(p)), speed_sel], 0.0)
+        goal_v = np.where(approach & ~passed, idir * col(_O.HOMING_SPEEDS, 2, r), goal_v)
+        acc = np.maximum(col(_O.HOMING_ACCELERATION, 0, r), 1.0)
+        moving = m & ~halt
+        rv = ramp_velocity(g_v, goal_v, acc, acc, dt)
+        new_v = np.where(moving, rv, new_v)
+        new_p = np.where(moving, g_p + (g_v + rv) * 0.5 * dt, new_p)
+        stopped = m & ((phase == Phase.STOP) | (phase == Phase.ERROR)) & (rv == 0)
+        done = stopped & (phase == Phase.STOP) & ~aborted
+        if done.any():
+            self._home_found(inst[done], self.hm_home[inst[done]], r, done)
+        phase = np.where(done, Phase.DONE, phase)
+        phase = np.where(stopped & aborted, Phase.IDLE, phase)
+        self.hm_phase[inst[m]] = phase[m]
+        return new_p, new_v
+
+    def _home_found(self, sel: I64, home_raw: F64, r: Rows, mask: B) -> None:
+        """Homing attained: user position of the home position = -home offset (IEC 61800-7-201:
+        "the zero position is offset from the home position by adding the home offset")."""
+        offset = self.col(_O.HOME_OFFSET, 0, r)[mask]
+        self.origin[sel] = home_raw + offset
+        self.hm_attained[sel] = True
+        self.hm_phase[sel] = int(Phase.DONE)
+
+    # --- statusword ------------------------------------------------------------------------
+
+    def _statusword(self, r: Rows, state: I64, mode: I64, cw: I64, fe: F64, v_act: F64,
+                    dt: F64) -> None:
+        col, f = self.col, self.field
+        sw = _STATE_BITS[state] | _VOLTAGE_REMOTE
+        sw |= np.where(self.warn[r], 0x0080, 0)
+        sw |= np.where(self.limited[r], 0x0800, 0)
+        op = state == S.OPERATION_ENABLED
+        stopping = self.stop_opt[r] >= 0
+        halted = op & ((cw & 0x100) != 0)
+        follows = op & ~stopping
+        user_act = f(_O.POSITION_ACTUAL_VALUE, 0)[r].astype(np.float64)
+        tgt_user = self.plan_to[r] - self.origin[r]
+        steady = self.g_v[r] == 0
+        in_win = steady & (np.abs(tgt_user - user_act) <= col(_O.POSITION_WINDOW, 0, r))
+        win_t = np.where(in_win, self.win_t[r] + dt, 0.0)
+        self.win_t[r] = win_t
+        pos_reached = in_win & (win_t * 1000.0 >= col(_O.POSITION_WINDOW_TIME, 0, r) - _THRESH_EPS)
+        stand = np.abs(v_act) <= col(_O.VELOCITY_THRESHOLD, 0, r)
+        vzero_t = np.where(stand, self.vzero_t[r] + dt, 0.0)
+        self.vzero_t[r] = vzero_t
+        speed_zero = stand & (vzero_t * 1000.0 >= col(_O.VELOCITY_THRESHOLD_TIME, 0, r) - _THRESH_EPS)
+        v_goal = np.where(halted, 0.0, col(_O.TARGET_VELOCITY, 0, r))
+        v_in = np.abs(v_act - v_goal) <= col(_O.VELOCITY_WINDOW, 0, r)
+        vwin_t = np.where(v_in, self.vwin_t[r] + dt, 0.0)
+        self.vwin_t[r] = vwin_t
+        v_reached = v_in & (vwin_t * 1000.0 >= col(_O.VELOCITY_WINDOW_TIME, 0, r) - _THRESH_EPS)
+        fe_bit = np.abs(fe) > col(_O.FOLLOWING_ERROR_WINDOW, 0, r)
+        pp, pv, hm = mode == OM.PROFILE_POSITION, mode == OM.PROFILE_VELOCITY, mode == OM.HOMING
+        csp = mode == OM.CYCLIC_SYNC_POSITION
+        csx = csp | (mode == OM.CYCLIC_SYNC_VELOCITY) | (mode == OM.CYCLIC_SYNC_TORQUE)
+        idle_hm = (self.hm_phase[r] < 0) | (self.hm_phase[r] >= Phase.DONE)
+        reached = np.select(
+            [pp, pv, hm, csp],
+            [(~self.pp_active[r] & pos_reached) | (halted & speed_zero),
+             v_reached, idle_hm & speed_zero & steady, pos_reached],
+            False)
+        bit12 = np.select([pp, pv, hm, csx],
+                          [self.pp_ack[r], speed_zero, self.hm_attained[r], follows], False)
+        bit13 = np.select([pp | csp, hm], [fe_bit, self.hm_error[r]], False)
+        sw |= np.where(op & reached, 0x0400, 0)
+        sw |= np.where(op & bit12, 0x1000, 0)
+        sw |= np.where(op & bit13, 0x2000, 0)
+        f(_O.STATUSWORD, 0)[r] = sw
