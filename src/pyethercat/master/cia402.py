@@ -206,10 +206,15 @@ class DriveGroup:
 
     ``positions``: ring positions of the drives (default: every slave with a
     mapped controlword and statusword). All must be in one process-data group.
+    ``runner``: the cyclic runner to work with when it is not the master's own
+    (one built by hand, e.g. on virtual time).
     """
 
-    def __init__(self, master: Master, positions: Sequence[int] | None = None) -> None:
+    def __init__(self, master: Master, positions: Sequence[int] | None = None, *,
+                 runner: CyclicRunner | None = None) -> None:
         self.master = master
+        #: The runner to step (default: the master's, :meth:`Master.start`).
+        self.runner = runner
         if master.process_data is None:
             raise ConfigError("the master has no process-data configuration: configure() first")
         if positions is None:
@@ -302,9 +307,7 @@ class DriveGroup:
 
     def attach(self, runner: CyclicRunner | None = None) -> DriveGroup:
         """Run :meth:`on_cycle` in ``runner``'s cycle (default: the master's runner)."""
-        runner = runner or self.master.runner
-        if runner is None:
-            raise DriveError("no cyclic exchange: start it first (master.start(...))")
+        runner = runner or self._current()
         cb = runner.callback
         if not (isinstance(cb, _Chain) and cb.group is self):
             runner.callback = _Chain(self, cb)
@@ -391,19 +394,20 @@ class DriveGroup:
 
     # --- stepping and waiting ---------------------------------------------------------------
 
+    def _current(self) -> CyclicRunner:
+        runner = self.runner or self.master.runner
+        if runner is None:
+            raise DriveError("no cyclic exchange: start it first (master.start(...))")
+        return runner
+
     @property
     def cycle_s(self) -> float:
         """The runner's cycle time (s)."""
-        runner = self._runner or self.master.runner
-        if runner is None:
-            raise DriveError("no cyclic exchange: start it first (master.start(...))")
-        return runner.period_ns * 1e-9
+        return self._current().period_ns * 1e-9
 
     def step(self, cycles: int = 1) -> None:
         """Let ``cycles`` cycles pass (wait for the runner's thread, or run them)."""
-        runner = self.master.runner
-        if runner is None:
-            raise DriveError("no cyclic exchange: start it first (master.start(...))")
+        runner = self._current()
         if self._runner is not runner:
             self.attach(runner)
         if runner.running:

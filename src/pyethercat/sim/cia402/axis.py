@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -42,7 +43,8 @@ __all__ = ["AXIS_FIELDS", "AxisModel", "CTRL_OFF", "CTRL_POSITION", "CTRL_TORQUE
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
 Rows = slice | I64
-_O = Cia402Object
+_O: Any = SimpleNamespace(**{m.name: int(m) for m in Cia402Object})  # plain ints: cheap lookups
+_AX: Any = SimpleNamespace(**{m.name: int(m) for m in AxisSub})
 #: Control modes of a cycle's plan.
 CTRL_OFF, CTRL_POSITION, CTRL_VELOCITY, CTRL_TORQUE = 0, 1, 2, 3
 #: Longest internal loop period (s): at least 2 kHz.
@@ -71,6 +73,9 @@ class AxisModel(CoeModel):
                  fields: tuple[tuple[int, int], ...] = ()) -> None:
         super().__init__(dictionary, details=details, capacity_out=capacity_out,
                          capacity_in=capacity_in, fields=AXIS_FIELDS + fields)
+        self._pcache: dict[tuple[int, int], F64] = {}
+        self._live: frozenset[tuple[int, int]] | None = None
+        self._live_count = -1
         arr = self.array
         #: Motor position (raw encoder increments since power-on) and velocity (inc/s).
         self.p: F64 = arr("p", np.float64, 0.0)
@@ -93,9 +98,42 @@ class AxisModel(CoeModel):
     # --- parameters --------------------------------------------------------------------
 
     def col(self, index: int, sub: int, r: Rows) -> F64:
-        """Entry ``index:sub`` of rows ``r`` as float64."""
-        out: F64 = self.field(index, sub)[r].astype(np.float64)
+        """Entry ``index:sub`` of rows ``r`` as float64 (read-only).
+
+        Parameters change only by SDO, so their float columns are cached until
+        one is written; entries a PDO maps into the outputs are read afresh.
+        """
+        key = (index, sub)
+        cached = self._pcache.get(key)
+        if cached is None:
+            cached = self.field(index, sub).astype(np.float64)
+            if key not in self._live_keys():
+                self._pcache[key] = cached
+        out: F64 = cached[r]
         return out
+
+    def _live_keys(self) -> frozenset[tuple[int, int]]:
+        """Entries some instance's PDO layout maps into its outputs."""
+        if self._live is None or self._live_count != len(self._layouts):
+            keys: set[tuple[int, int]] = set()
+            for layout in self._layouts:
+                keys |= layout.rx_keys
+            self._live = frozenset(keys)
+            self._live_count = len(self._layouts)
+        return self._live
+
+    def _write(self, instance: int, key: tuple[int, int], raw: bytes) -> None:
+        super()._write(instance, key, raw)
+        self._pcache.pop(key, None)
+
+    def _grow(self, capacity: int) -> None:
+        super()._grow(capacity)
+        self._pcache.clear()
+
+    def instance_app(self, info: SiiInfo) -> tuple[int, MailboxDevice]:
+        instance, app = super().instance_app(info)
+        self._pcache.clear()
+        return instance, app
 
     def counts_per_rad(self, r: Rows) -> F64:
         """Encoder increments per radian (0x608F:01 per 0x608F:02 revolutions)."""
@@ -117,9 +155,9 @@ class AxisModel(CoeModel):
 
     def max_acceleration(self, r: Rows) -> F64:
         """What the torque limit can do against inertia and friction (inc/s²)."""
-        j = self.col(AXIS_OBJECT, AxisSub.INERTIA, r)
-        spare = np.maximum(self.max_torque(r) - self.col(AXIS_OBJECT, AxisSub.COULOMB_FRICTION, r)
-                           - np.abs(self.col(AXIS_OBJECT, AxisSub.LOAD_TORQUE, r)), 0.0)
+        j = self.col(AXIS_OBJECT, _AX.INERTIA, r)
+        spare = np.maximum(self.max_torque(r) - self.col(AXIS_OBJECT, _AX.COULOMB_FRICTION, r)
+                           - np.abs(self.col(AXIS_OBJECT, _AX.LOAD_TORQUE, r)), 0.0)
         out: F64 = spare / j * self.counts_per_rad(r)
         return out
 
@@ -135,39 +173,56 @@ class AxisModel(CoeModel):
         h = dt / n
         col = self.col
         k = self.counts_per_rad(r)
-        j = col(AXIS_OBJECT, AxisSub.INERTIA, r)
-        wv = _TWO_PI * col(AXIS_OBJECT, AxisSub.VELOCITY_BANDWIDTH, r)
-        kp = col(AXIS_OBJECT, AxisSub.POSITION_GAIN, r)
+        j = col(AXIS_OBJECT, _AX.INERTIA, r)
+        wv = _TWO_PI * col(AXIS_OBJECT, _AX.VELOCITY_BANDWIDTH, r)
+        kp = col(AXIS_OBJECT, _AX.POSITION_GAIN, r)
         kv = j * wv / k                              # N m per (inc/s)
         ki = kv * wv * 0.25                          # N m per inc (per s of error)
         acc_gain = k / j                             # inc/s² per N m
-        b = col(AXIS_OBJECT, AxisSub.VISCOUS_FRICTION, r) / k
-        tc = col(AXIS_OBJECT, AxisSub.COULOMB_FRICTION, r)
-        load = col(AXIS_OBJECT, AxisSub.LOAD_TORQUE, r)
+        b = col(AXIS_OBJECT, _AX.VISCOUS_FRICTION, r) / k
+        tc = col(AXIS_OBJECT, _AX.COULOMB_FRICTION, r)
+        load = col(AXIS_OBJECT, _AX.LOAD_TORQUE, r)
         tmax = self.max_torque(r)
         vmax = self.max_speed(r)
         mode = self.plan_mode[r]
-        pos, trq = mode == CTRL_POSITION, mode == CTRL_TORQUE
+        pos = mode == CTRL_POSITION
+        any_torque = bool((mode == CTRL_TORQUE).any())
+        trq = mode == CTRL_TORQUE
+        all_on = bool((mode != CTRL_OFF).all())
         on = (mode != CTRL_OFF).astype(np.float64)
+        all_pos = bool(pos.all())
+        limit_speed = bool(np.isfinite(vmax).any())
         p0, p1 = self.plan_from[r], self.plan_to[r]
+        span = (p1 - p0) / n
         vff, tff = self.plan_vff[r], self.plan_tff[r]
         vcmd, tcmd = self.plan_v[r], self.plan_t[r]
         p, v, integ = self.p[r], self.v[r], self.integ[r]
+        ki_h, gain_h = ki * h, acc_gain * h
+        neg_tmax, neg_tc = -tmax, -tc
         tq = np.zeros_like(p)
         for step in range(1, n + 1):
-            pref = p0 + (p1 - p0) * (step / n)
-            vref = np.clip(np.where(pos, vff + kp * (pref - p), vcmd), -vmax, vmax)
+            # ufunc minimum/maximum rather than np.clip: clip's Python wrapper costs more
+            # than the arithmetic on these short arrays
+            pref = p0 + span * step
+            vref = vff + kp * (pref - p) if all_pos else np.where(pos, vff + kp * (pref - p), vcmd)
+            if limit_speed:
+                vref = np.minimum(np.maximum(vref, -vmax), vmax)
             ev = vref - v
-            integ = np.clip(integ + ki * ev * h, -tmax, tmax) * on
-            tq = np.where(trq, np.where(np.abs(v) > vmax, 0.0, tcmd), kv * ev + integ + tff) * on
-            tq = np.clip(tq, -tmax, tmax)
+            integ = np.minimum(np.maximum(integ + ki_h * ev, neg_tmax), tmax)
+            tq = kv * ev + integ + tff
+            if any_torque:
+                tq = np.where(trq, np.where(np.abs(v) > vmax, 0.0, tcmd), tq)
+            if not all_on:
+                integ = integ * on
+                tq = tq * on
+            tq = np.minimum(np.maximum(tq, neg_tmax), tmax)
             drive = tq - load - b * v
             moving = np.abs(v) > _STANDSTILL
-            friction = np.where(moving, tc * np.sign(v), np.clip(drive, -tc, tc))
-            vn = v + (drive - friction) * acc_gain * h
+            friction = np.where(moving, tc * np.sign(v), np.minimum(np.maximum(drive, neg_tc), tc))
+            vn = v + (drive - friction) * gain_h
             # friction stops an axis, it never turns it round
             vn = np.where(moving & (vn * v < 0) & (np.abs(drive) <= tc), 0.0, vn)
-            p = p + (v + vn) * 0.5 * h
+            p = p + (v + vn) * (0.5 * h)
             v = vn
         self.p[r], self.v[r], self.integ[r], self.torque[r] = p, v, integ, tq
 

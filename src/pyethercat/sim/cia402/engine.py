@@ -23,6 +23,9 @@ sends the emergencies: rare events, plain Python per instance.
 from __future__ import annotations
 
 from collections.abc import Callable
+from enum import IntEnum
+from types import SimpleNamespace
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -41,10 +44,12 @@ from pyethercat.sim.cia402.profile import profile_move, ramp_velocity
 from pyethercat.sim.mailbox import MailboxDevice
 from pyethercat.sim.od import SimObjectDictionary
 from pyethercat.wire.cia402 import (
+    DriveCommand,
     DriveErrorCode,
     DriveState,
     OperationMode,
     StopOption,
+    decode_command,
 )
 from pyethercat.wire.mailbox.objects import Cia402Object, StandardObject
 from pyethercat.wire.sii import SiiInfo
@@ -54,9 +59,23 @@ __all__ = ["DRIVE_FIELDS", "DriveEngine", "Faults"]
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
 B = npt.NDArray[np.bool_]
-_O = Cia402Object
-S = DriveState
-OM = OperationMode
+
+
+def _ints(enum: type[IntEnum]) -> Any:
+    """An enum's members as plain ints: IntEnum attribute lookups cost microseconds each,
+    and the drive cycle makes hundreds of them."""
+    return SimpleNamespace(**{m.name: int(m) for m in enum})
+
+
+_O = _ints(Cia402Object)
+S = _ints(DriveState)
+OM = _ints(OperationMode)
+_PH = _ints(Phase)
+_RU = _ints(Rule)
+_SG = _ints(Signal)
+_AX = _ints(AxisSub)
+_SO = _ints(StopOption)
+_DE = _ints(DriveErrorCode)
 #: What a cycle found: (instances, error codes, detail values) of new faults, and the
 #: instances whose fault was reset.
 Faults = tuple[I64, I64, I64, I64]
@@ -89,6 +108,47 @@ for _m in DRIVE_MODES:
 # Statusword bits 0-6 by state.
 _STATE_BITS = np.array([0x00, 0x40, 0x21, 0x23, 0x27, 0x07, 0x0F, 0x08], np.int64)
 _VOLTAGE_REMOTE = 0x0010 | 0x0200
+# Device-control commands by the controlword's low byte (COMMAND_MASKS: bit 7 must be 0).
+_NONE_CMD, _SHUTDOWN, _SWITCH_ON, _ENABLE, _DISABLE_VOLTAGE, _QUICK_STOP = range(6)
+_CMD = np.zeros(256, np.int64)
+for _cw in range(256):
+    _c = decode_command(_cw)
+    _CMD[_cw] = {None: _NONE_CMD, DriveCommand.SHUTDOWN: _SHUTDOWN,
+                 DriveCommand.SWITCH_ON: _SWITCH_ON, DriveCommand.ENABLE_OPERATION: _ENABLE,
+                 DriveCommand.DISABLE_VOLTAGE: _DISABLE_VOLTAGE,
+                 DriveCommand.QUICK_STOP: _QUICK_STOP}[_c]
+# Transitions by (state, command); the ones that depend on option codes, stops, edges
+# and faults are handled beside the table.
+_TRANS = np.repeat(np.arange(8, dtype=np.int64)[:, None], 6, axis=1)
+_TRANS[DriveState.SWITCH_ON_DISABLED, _SHUTDOWN] = DriveState.READY_TO_SWITCH_ON
+for _st in (DriveState.READY_TO_SWITCH_ON, DriveState.SWITCHED_ON):
+    _TRANS[_st, _ENABLE] = DriveState.OPERATION_ENABLED          # 3 and 4 at once from ready
+    _TRANS[_st, _SHUTDOWN] = DriveState.READY_TO_SWITCH_ON
+    _TRANS[_st, _DISABLE_VOLTAGE] = _TRANS[_st, _QUICK_STOP] = DriveState.SWITCH_ON_DISABLED
+_TRANS[DriveState.READY_TO_SWITCH_ON, _SWITCH_ON] = DriveState.SWITCHED_ON
+_TRANS[DriveState.OPERATION_ENABLED, _SHUTDOWN] = DriveState.READY_TO_SWITCH_ON
+_TRANS[DriveState.OPERATION_ENABLED, _SWITCH_ON] = DriveState.SWITCHED_ON
+_TRANS[DriveState.OPERATION_ENABLED, _DISABLE_VOLTAGE] = DriveState.SWITCH_ON_DISABLED
+_TRANS[DriveState.OPERATION_ENABLED, _QUICK_STOP] = DriveState.QUICK_STOP_ACTIVE
+_TRANS[DriveState.QUICK_STOP_ACTIVE, _DISABLE_VOLTAGE] = DriveState.SWITCH_ON_DISABLED
+_NONE = np.zeros(0, np.int64)
+# The entries the cycle reads and writes, as (index, subindex).
+_K_CW, _K_MODE, _K_MODE_DISPLAY = (0x6040, 0), (0x6060, 0), (0x6061, 0)
+_K_ERROR, _K_STATUSWORD = (0x603F, 0), (0x6041, 0)
+_K_FE_WINDOW, _K_FE_TIMEOUT = (0x6065, 0), (0x6066, 0)
+_K_NEG_LIMIT, _K_POS_LIMIT, _K_HOME = ((AXIS_OBJECT, int(AxisSub.NEGATIVE_LIMIT_SWITCH)),
+                                       (AXIS_OBJECT, int(AxisSub.POSITIVE_LIMIT_SWITCH)),
+                                       (AXIS_OBJECT, int(AxisSub.HOME_SWITCH)))
+_K_POSITION, _K_VELOCITY, _K_TORQUE = (0x6064, 0), (0x606C, 0), (0x6077, 0)
+_K_TORQUE_DEMAND, _K_POSITION_DEMAND, _K_VELOCITY_DEMAND = (0x6074, 0), (0x6062, 0), (0x606B, 0)
+_K_FE, _K_INPUTS, _K_RATED = (0x60F4, 0), (0x60FD, 0), (0x6076, 0)
+_K_QS_OPTION, _K_SHUTDOWN_OPTION, _K_DISABLE_OPTION = (0x605A, 0), (0x605B, 0), (0x605C, 0)
+_K_FAULT_OPTION = (0x605E, 0)
+_K_POS_WINDOW, _K_POS_WINDOW_TIME = (0x6067, 0), (0x6068, 0)
+_K_V_WINDOW, _K_V_WINDOW_TIME = (0x606D, 0), (0x606E, 0)
+_K_V_THRESHOLD, _K_V_THRESHOLD_TIME = (0x606F, 0), (0x6070, 0)
+_K_TARGET_VELOCITY = (0x60FF, 0)
+_FALSE = np.zeros(1 << 16, bool)
 _NO_STOP = -1
 _STAY = -1
 _THRESH_EPS = 1e-9
@@ -121,7 +181,7 @@ class DriveEngine(AxisModel):
         self.pp_buffered = arr("pp_buffered", bool, False)
         self.pp_ack = arr("pp_ack", bool, False)
         # homing
-        self.hm_phase = arr("hm_phase", np.int8, int(Phase.IDLE))
+        self.hm_phase = arr("hm_phase", np.int8, int(_PH.IDLE))
         self.hm_method = arr("hm_method", np.int64, 0)
         self.hm_var = arr("hm_var", np.int8, 0)
         self.hm_home: F64 = arr("hm_home", np.float64, 0.0)
@@ -143,121 +203,126 @@ class DriveEngine(AxisModel):
         r = self.rows(inst)
         f, col = self.field, self.col
         self.integrate(r, dt)
-        safe_dt = np.where(dt > 0, dt, 1.0)
+        safe_dt = dt if dt.min(initial=1.0) > 0 else np.where(dt > 0, dt, 1.0)
         enc = self.encoder(r)
-        v_act = np.where(dt > 0, (enc - self.enc_prev[r]) / safe_dt, 0.0)
+        v_act = (enc - self.enc_prev[r]) / safe_dt
         self.enc_prev[r] = enc
         p = self.p[r]
         state = self.state[r].astype(np.int64)
-        cw = np.where(self.al_op[r], f(_O.CONTROLWORD, 0)[r].astype(np.int64), 0)
+        cw = f(*_K_CW)[r].astype(np.int64)
+        al = self.al_op[r]
+        if not al.all():
+            cw = np.where(al, cw, 0)  # outputs count in OP only
         prev = self.prev_cw[r].copy()
         self.prev_cw[r] = cw
         # --- supervision ----------------------------------------------------------------
-        pos_ctrl = self.plan_mode[r] == CTRL_POSITION
-        fe = np.where(pos_ctrl, self.plan_to[r] - p, 0.0)
-        window = col(_O.FOLLOWING_ERROR_WINDOW, 0, r)
-        over = pos_ctrl & (np.abs(fe) > window) & (window < 0xFFFFFFFF) & (state == S.OPERATION_ENABLED)
-        fe_t = np.where(over, self.fe_t[r] + dt, 0.0)
+        enabled = state == S.OPERATION_ENABLED
+        fe = (self.plan_to[r] - p) * (self.plan_mode[r] == CTRL_POSITION)
+        over = (np.abs(fe) > col(*_K_FE_WINDOW, r)) & enabled
+        fe_t = (self.fe_t[r] + dt) * over
         self.fe_t[r] = fe_t
-        fe_fault = over & (fe_t * 1000.0 > col(_O.FOLLOWING_ERROR_TIMEOUT, 0, r) - _THRESH_EPS)
-        neg = p <= col(AXIS_OBJECT, AxisSub.NEGATIVE_LIMIT_SWITCH, r)
-        posl = p >= col(AXIS_OBJECT, AxisSub.POSITIVE_LIMIT_SWITCH, r)
-        home = p >= col(AXIS_OBJECT, AxisSub.HOME_SWITCH, r)
-        homing = self.hm_phase[r] >= 0
-        moving_neg = (self.g_v[r] < 0) | (self.v[r] < -1.0)
-        moving_pos = (self.g_v[r] > 0) | (self.v[r] > 1.0)
-        lim_fault = ((state == S.OPERATION_ENABLED) & ~homing
-                     & ((neg & moving_neg) | (posl & moving_pos)))
-        code = np.where(fe_fault, int(DriveErrorCode.FOLLOWING_ERROR),
-                        np.where(lim_fault, int(DriveErrorCode.REFERENCE_LIMIT), 0))
-        detail = np.where(fe_fault, np.round(fe), np.where(neg, 1, 2)).astype(np.int64)
-        faulted = code != 0
+        fe_fault = over & (fe_t * 1000.0 > col(*_K_FE_TIMEOUT, r) - _THRESH_EPS)
+        neg = p <= col(*_K_NEG_LIMIT, r)
+        posl = p >= col(*_K_POS_LIMIT, r)
+        home = p >= col(*_K_HOME, r)
+        faulted: B | None = None
+        code = detail = None
+        switch = neg | posl
+        if fe_fault.any() or switch.any():
+            homing = self.hm_phase[r] >= 0
+            moving_neg = (self.g_v[r] < 0) | (self.v[r] < -1.0)
+            moving_pos = (self.g_v[r] > 0) | (self.v[r] > 1.0)
+            lim_fault = enabled & ~homing & ((neg & moving_neg) | (posl & moving_pos))
+            faulted = fe_fault | lim_fault
+            code = np.where(fe_fault, _DE.FOLLOWING_ERROR, np.where(lim_fault, _DE.REFERENCE_LIMIT, 0))
+            detail = np.where(fe_fault, np.round(fe), np.where(neg, 1, 2)).astype(np.int64)
+            if not faulted.any():
+                faulted = None
         # --- power state machine ----------------------------------------------------------
-        new, start_stop = self._transitions(r, state, cw, prev, faulted)
+        cmd = _CMD[cw & 0xFF]
+        stopping = self.stop_opt[r] >= 0
+        if faulted is None and enabled.all() and (cmd == _ENABLE).all() and not stopping.any():
+            new, start_stop = state, None  # the usual cycle: enabled, stays enabled
+        else:
+            new, start_stop = self._transitions(r, state, cmd, cw, prev, stopping, faulted)
         reset = (state == S.FAULT) & (new == S.SWITCH_ON_DISABLED)
         # --- modes and the next set-point -------------------------------------------------
-        mode = self._mode(r, inst, new, state)
+        mode = self._mode(r, inst)
         self._plan(r, inst, new, mode, cw, prev, dt, safe_dt, start_stop, (neg, posl, home))
-        new = self._stops_done(r, new, v_act)
+        if self.stop_opt[r].max(initial=-1) >= 0:
+            new = self._stops_done(r, new, v_act)
         self.state[r] = new
         # --- inputs ---------------------------------------------------------------------------
         origin = self.origin[r]
-        f(_O.POSITION_ACTUAL_VALUE, 0)[r] = enc - origin
-        f(_O.VELOCITY_ACTUAL_VALUE, 0)[r] = np.round(v_act)
-        rated = np.maximum(col(_O.MOTOR_RATED_TORQUE, 0, r), 1e-9) * 1e-3
-        f(_O.TORQUE_ACTUAL_VALUE, 0)[r] = np.round(self.torque[r] / rated * 1000.0)
-        f(_O.TORQUE_DEMAND, 0)[r] = np.round(self.torque[r] / rated * 1000.0)
-        f(_O.POSITION_DEMAND_VALUE, 0)[r] = np.round(self.plan_from[r] - origin)
-        f(_O.VELOCITY_DEMAND_VALUE, 0)[r] = np.round(self.g_v[r])
-        f(_O.FOLLOWING_ERROR_ACTUAL_VALUE, 0)[r] = np.round(fe)
-        f(_O.DIGITAL_INPUTS, 0)[r] = neg * 1 + posl * 2 + home * 4
+        f(*_K_POSITION)[r] = enc - origin
+        f(*_K_VELOCITY)[r] = np.round(v_act)
+        per_mille = np.round(self.torque[r] * (1e6 / np.maximum(col(*_K_RATED, r), 1e-9)))
+        f(*_K_TORQUE)[r] = per_mille
+        f(*_K_TORQUE_DEMAND)[r] = per_mille
+        f(*_K_POSITION_DEMAND)[r] = np.round(self.plan_from[r] - origin)
+        f(*_K_VELOCITY_DEMAND)[r] = np.round(self.g_v[r])
+        f(*_K_FE)[r] = np.round(fe)
+        f(*_K_INPUTS)[r] = neg * 1 + posl * 2 + home * 4
         self._statusword(r, new, mode, cw, fe, v_act, dt)
         clear = inst[reset]
         if len(clear):
-            f(_O.ERROR_CODE, 0)[clear] = 0
+            f(*_K_ERROR)[clear] = 0
+        if faulted is None:
+            return _NONE, _NONE, _NONE, clear
+        assert code is not None and detail is not None
         hit = np.nonzero(faulted & (state != S.FAULT) & (state != S.FAULT_REACTION_ACTIVE))[0]
         return inst[hit], code[hit], detail[hit], clear
 
-    def _transitions(self, r: Rows, state: I64, cw: I64, prev: I64,
-                     faulted: B) -> tuple[I64, I64]:
-        """New states and the stops they start (-1: none; else a :class:`StopOption`)."""
+    def _transitions(self, r: Rows, state: I64, cmd: I64, cw: I64, prev: I64, stopping: B,
+                     faulted: B | None) -> tuple[I64, I64]:
+        """New states and the stops they start (-1: none; else a stop option)."""
         col = self.col
-        shut = (cw & 0x87) == 0x06
-        on = (cw & 0x8F) == 0x07
-        enable = (cw & 0x8F) == 0x0F
-        dv = (cw & 0x82) == 0x00
-        qs = (cw & 0x86) == 0x02
-        edge = ((cw & 0x80) != 0) & ((prev & 0x80) == 0)
-        stopping = self.stop_opt[r] >= 0
-        goal = self.stop_goal[r].astype(np.int64)
-        qs_code = col(_O.QUICK_STOP_OPTION_CODE, 0, r).astype(np.int64)
-        new = state.copy()
+        new = _TRANS[state, cmd]
         start = np.full(len(state), _NO_STOP, np.int64)
+        goal = self.stop_goal[r].astype(np.int64)
         goal_new = goal.copy()
         sod, rdy, son = S.SWITCH_ON_DISABLED, S.READY_TO_SWITCH_ON, S.SWITCHED_ON
-        op, qsa, fra, flt = S.OPERATION_ENABLED, S.QUICK_STOP_ACTIVE, S.FAULT_REACTION_ACTIVE, S.FAULT
-        new[(state == sod) & shut] = rdy
-        m = state == rdy
-        new[m & on] = son
-        new[m & enable] = op
-        new[m & (dv | qs)] = sod
-        m = state == son
-        new[m & enable] = op
-        new[m & shut] = rdy
-        new[m & (dv | qs)] = sod
-        # Operation enabled: stops with a ramp keep the state until the axis stands
+        op, qsa, fra, flt = (S.OPERATION_ENABLED, S.QUICK_STOP_ACTIVE, S.FAULT_REACTION_ACTIVE,
+                             S.FAULT)
         m = state == op
-        new[m & dv] = sod
-        go_qs = m & qs
-        new[go_qs] = np.where(qs_code[go_qs] == 0, sod, qsa)
-        qs_opt = np.where(qs_code > 4, qs_code - 4, qs_code)
-        start[go_qs & (qs_code != 0)] = qs_opt[go_qs & (qs_code != 0)]
-        goal_new[go_qs] = np.where(qs_code[go_qs] > 4, _STAY, sod)
-        ramped = m & ~stopping
-        shut_ramp = col(_O.SHUTDOWN_OPTION_CODE, 0, r) == 1
-        off_ramp = col(_O.DISABLE_OPERATION_OPTION_CODE, 0, r) == 1
-        new[ramped & shut & ~shut_ramp] = rdy
-        new[ramped & on & ~off_ramp] = son
-        for cmd, ramp, target in ((shut, shut_ramp, rdy), (on, off_ramp, son)):
-            sel = ramped & cmd & ramp
-            start[sel] = int(StopOption.SLOW_DOWN_RAMP)
-            goal_new[sel] = target
-        # a stop towards Switched on / Ready is taken back by Enable operation
-        back = m & stopping & enable & ((goal == son) | (goal == rdy))
-        self.stop_opt[r] = np.where(back, _NO_STOP, self.stop_opt[r])
+        if m.any():
+            qs_code = col(*_K_QS_OPTION, r).astype(np.int64)
+            go_qs = m & (cmd == _QUICK_STOP)
+            new[go_qs & (qs_code == 0)] = sod         # option 0: torque off at once
+            ramp_qs = go_qs & (qs_code != 0)
+            start[ramp_qs] = np.where(qs_code > 4, qs_code - 4, qs_code)[ramp_qs]
+            goal_new[ramp_qs] = np.where(qs_code > 4, _STAY, sod)[ramp_qs]
+            # shutdown / disable operation with a ramp (0x605B / 0x605C = 1) keep the state
+            # until the axis stands; a stop already on its way is not started again
+            for command, key, target in ((_SHUTDOWN, _K_SHUTDOWN_OPTION, rdy),
+                                         (_SWITCH_ON, _K_DISABLE_OPTION, son)):
+                asked = m & (cmd == command)
+                if asked.any():
+                    ramp = col(*key, r) == 1
+                    keep = asked & (ramp | stopping)
+                    new[keep] = op
+                    sel = asked & ramp & ~stopping
+                    start[sel] = _SO.SLOW_DOWN_RAMP
+                    goal_new[sel] = target
+            # Enable operation takes back a stop towards Switched on / Ready
+            back = m & stopping & (cmd == _ENABLE) & ((goal == son) | (goal == rdy))
+            if back.any():
+                self.stop_opt[r] = np.where(back, _NO_STOP, self.stop_opt[r])
         m = state == qsa
-        new[m & dv] = sod
-        stay_opt = (qs_code >= 5) & (self.stop_opt[r] < 0)
-        new[m & enable & stay_opt] = op
+        if m.any():
+            qs_code = col(*_K_QS_OPTION, r).astype(np.int64)
+            back = m & (cmd == _ENABLE) & (qs_code >= 5) & ~stopping
+            new[back] = op
+        edge = ((cw & 0x80) != 0) & ((prev & 0x80) == 0)
         new[(state == flt) & edge] = sod
-        # faults: the fault reaction ramp (or straight to Fault when nothing runs)
-        react = col(_O.FAULT_REACTION_OPTION_CODE, 0, r).astype(np.int64)
-        powered = (state == op) | (state == qsa)
-        f_ramp = faulted & powered & (react != 0)
-        new[faulted & (state != flt) & (state != fra)] = flt
-        new[f_ramp] = fra
-        start[f_ramp] = react[f_ramp]
-        goal_new[f_ramp] = flt
+        if faulted is not None:
+            react = col(*_K_FAULT_OPTION, r).astype(np.int64)
+            powered = (state == op) | (state == qsa)
+            f_ramp = faulted & powered & (react != 0)
+            new[faulted & (state != flt) & (state != fra)] = flt
+            new[f_ramp] = fra
+            start[f_ramp] = react[f_ramp]
+            goal_new[f_ramp] = flt
         # power off ends any stop
         off = (new != op) & (new != qsa) & (new != fra)
         start[off] = _NO_STOP
@@ -265,24 +330,25 @@ class DriveEngine(AxisModel):
         self.stop_goal[r] = goal_new
         return new, start
 
-    def _mode(self, r: Rows, inst: I64, new: I64, old: I64) -> I64:
+    def _mode(self, r: Rows, inst: I64) -> I64:
         """Mode display after this cycle (0x6061 follows 0x6060 when the mode is supported)."""
         f = self.field
-        want = f(_O.MODES_OF_OPERATION, 0)[r].astype(np.int64)
-        shown = f(_O.MODES_OF_OPERATION_DISPLAY, 0)[r].astype(np.int64)
-        take = _SUPPORTED[want + 128] & (want != shown)
-        mode = np.where(take, want, shown)
-        f(_O.MODES_OF_OPERATION_DISPLAY, 0)[r] = mode
-        if take.any():
-            # a new mode starts from where the axis stands, with its sub-states cleared
-            changed = inst[take]
-            self.pp_active[changed] = self.pp_buffered[changed] = self.pp_ack[changed] = False
-            self.hm_phase[changed] = int(Phase.IDLE)
-            self.g_p[changed] = self.plan_to[changed]
+        want = f(*_K_MODE)[r].astype(np.int64)
+        shown = f(*_K_MODE_DISPLAY)[r].astype(np.int64)
+        take = (want != shown) & _SUPPORTED[want + 128]
+        if not take.any():
+            return shown
+        mode: I64 = np.where(take, want, shown)
+        f(*_K_MODE_DISPLAY)[r] = mode
+        # a new mode starts from where the axis stands, with its sub-states cleared
+        changed = inst[take]
+        self.pp_active[changed] = self.pp_buffered[changed] = self.pp_ack[changed] = False
+        self.hm_phase[changed] = _PH.IDLE
+        self.g_p[changed] = self.plan_to[changed]
         return mode
 
     def _plan(self, r: Rows, inst: I64, state: I64, mode: I64, cw: I64, prev: I64, dt: F64,
-              safe_dt: F64, start_stop: I64, switches: tuple[B, B, B]) -> None:
+              safe_dt: F64, start_stop: I64 | None, switches: tuple[B, B, B]) -> None:
         """The next cycle's plan of every axis (see :class:`~pyethercat.sim.cia402.axis.AxisModel`)."""
         col = self.col
         p, v = self.p[r], self.v[r]
@@ -293,9 +359,12 @@ class DriveEngine(AxisModel):
         just_on = powered & (self.plan_mode[r] == CTRL_OFF)
         # a stop brakes from where the axis is and how fast it moves (after a following
         # error the demand may be far away)
-        fresh = just_on | (start_stop >= 0)
-        g_p = np.where(powered & ~fresh, self.g_p[r], p)
-        g_v = np.where(powered & ~fresh, self.g_v[r], np.where(powered & ~just_on, v, 0.0))
+        fresh = just_on if start_stop is None else just_on | (start_stop >= 0)
+        if powered.all() and not fresh.any():
+            g_p, g_v = self.g_p[r].copy(), self.g_v[r].copy()
+        else:
+            g_p = np.where(powered & ~fresh, self.g_p[r], p)
+            g_v = np.where(powered & ~fresh, self.g_v[r], np.where(powered & ~just_on, v, 0.0))
         origin = self.origin[r]
         ctrl = np.where(powered, CTRL_POSITION, CTRL_OFF)
         new_p, new_v = g_p.copy(), g_v.copy()
@@ -398,8 +467,8 @@ class DriveEngine(AxisModel):
         _acc, slow = self._acc_dec(r)
         quick = np.maximum(col(_O.QUICK_STOP_DECELERATION, 0, r), 1.0)
         limit = np.maximum(self.max_acceleration(r), 1.0)
-        out: F64 = np.select([option == StopOption.SLOW_DOWN_RAMP,
-                              option == StopOption.QUICK_STOP_RAMP], [slow, quick], limit)
+        out: F64 = np.select([option == _SO.SLOW_DOWN_RAMP,
+                              option == _SO.QUICK_STOP_RAMP], [slow, quick], limit)
         return out
 
     def _stops_done(self, r: Rows, new: I64, v_act: F64) -> I64:
@@ -467,19 +536,19 @@ class DriveEngine(AxisModel):
         neg, posl, home = switches
         phase = self.hm_phase[r].astype(np.int64)
         method = HOMING.method_index(col(_O.HOMING_METHOD, 0, r).astype(np.int64))
-        start = m & ((cw & 0x10) != 0) & ((prev & 0x10) == 0) & ((phase < 0) | (phase >= Phase.DONE))
+        start = m & ((cw & 0x10) != 0) & ((prev & 0x10) == 0) & ((phase < 0) | (phase >= _PH.DONE))
         if start.any():
             sel = inst[start]
             self.hm_method[sel] = method[start]
             self.hm_var[sel] = home[start]
             self.hm_attained[sel] = False
             self.hm_error[sel] = ~HOMING.valid[method[start]]
-            phase = np.where(start, np.where(HOMING.valid[method], 0, Phase.ERROR), phase)
+            phase = np.where(start, np.where(HOMING.valid[method], 0, _PH.ERROR), phase)
         meth = self.hm_method[r]
         var = self.hm_var[r].astype(np.int64)
         # bit 4 dropping interrupts the homing (as does halt): stop where it is
-        aborted = m & (((cw & 0x10) == 0) | halt) & (phase >= 0) & (phase < Phase.STOP)
-        phase = np.where(aborted, Phase.STOP, phase)
+        aborted = m & (((cw & 0x10) == 0) | halt) & (phase >= 0) & (phase < _PH.STOP)
+        phase = np.where(aborted, _PH.STOP, phase)
         steps = HOMING.steps[meth, var].astype(np.int64)
         searching = m & (phase >= 0) & (phase < steps)
         k = np.clip(phase, 0, 2)
@@ -488,41 +557,41 @@ class DriveEngine(AxisModel):
         signals = np.stack([np.ones_like(neg), neg, posl, home], axis=1)
         met = searching & (signals[np.arange(len(p)), sig] == (level == 1))
         # a limit switch the method does not search for ends it with an error
-        bad = m & (phase >= 0) & (phase < Phase.STOP) & (
-            (neg & HOMING.forbidden[meth, Signal.NEGATIVE_LIMIT])
-            | (posl & HOMING.forbidden[meth, Signal.POSITIVE_LIMIT]))
+        bad = m & (phase >= 0) & (phase < _PH.STOP) & (
+            (neg & HOMING.forbidden[meth, _SG.NEGATIVE_LIMIT])
+            | (posl & HOMING.forbidden[meth, _SG.POSITIVE_LIMIT]))
         phase = np.where(met, phase + 1, phase)
         # steps done: where is home?
         ready = m & (phase >= 0) & (phase == steps) & ~bad
         if ready.any():
             rule = HOMING.rule[meth]
             edge_sig = HOMING.edge_signal[meth, var]
-            positions = np.stack([p, col(AXIS_OBJECT, AxisSub.NEGATIVE_LIMIT_SWITCH, r),
-                                  col(AXIS_OBJECT, AxisSub.POSITIVE_LIMIT_SWITCH, r),
-                                  col(AXIS_OBJECT, AxisSub.HOME_SWITCH, r)], axis=1)
+            positions = np.stack([p, col(AXIS_OBJECT, _AX.NEGATIVE_LIMIT_SWITCH, r),
+                                  col(AXIS_OBJECT, _AX.POSITIVE_LIMIT_SWITCH, r),
+                                  col(AXIS_OBJECT, _AX.HOME_SWITCH, r)], axis=1)
             edge = positions[np.arange(len(p)), edge_sig]
-            edge = np.where(rule == Rule.EDGE, edge, np.where(rule == Rule.INDEX, np.where(
+            edge = np.where(rule == _RU.EDGE, edge, np.where(rule == _RU.INDEX, np.where(
                 edge_sig > 0, edge, p), p))
             cpr = col(_O.POSITION_ENCODER_RESOLUTION, 1, r) / np.maximum(
                 col(_O.POSITION_ENCODER_RESOLUTION, 2, r), 1.0)
             idir = HOMING.index_dir[meth]
             index = np.where(idir > 0, (np.floor(edge / cpr) + 1) * cpr,
                              (np.ceil(edge / cpr) - 1) * cpr)
-            home_at = np.where(rule == Rule.INDEX, index, edge)
+            home_at = np.where(rule == _RU.INDEX, index, edge)
             sel = inst[ready]
             self.hm_home[sel] = home_at[ready]
-            nxt = np.where(rule == Rule.INDEX, Phase.APPROACH,
-                           np.where(rule == Rule.CURRENT, Phase.DONE, Phase.STOP))
+            nxt = np.where(rule == _RU.INDEX, _PH.APPROACH,
+                           np.where(rule == _RU.CURRENT, _PH.DONE, _PH.STOP))
             phase = np.where(ready, nxt, phase)
-            fin = ready & (rule == Rule.CURRENT)
+            fin = ready & (rule == _RU.CURRENT)
             if fin.any():
                 self._home_found(inst[fin], home_at[fin], r, fin)
         hm_home = self.hm_home[r]
-        approach = m & (phase == Phase.APPROACH)
+        approach = m & (phase == _PH.APPROACH)
         idir = HOMING.index_dir[meth].astype(np.float64)
         passed = approach & ((p - hm_home) * idir >= 0)
-        phase = np.where(passed, Phase.STOP, phase)
-        phase = np.where(bad, Phase.ERROR, phase)
+        phase = np.where(passed, _PH.STOP, phase)
+        phase = np.where(bad, _PH.ERROR, phase)
         if bad.any():
             self.hm_error[inst[bad]] = True
         speeds = np.stack([np.zeros_like(p), col(_O.HOMING_SPEEDS, 1, r), col(_O.HOMING_SPEEDS, 2, r)],
@@ -535,12 +604,12 @@ class DriveEngine(AxisModel):
         rv = ramp_velocity(g_v, goal_v, acc, acc, dt)
         new_v = np.where(moving, rv, new_v)
         new_p = np.where(moving, g_p + (g_v + rv) * 0.5 * dt, new_p)
-        stopped = m & ((phase == Phase.STOP) | (phase == Phase.ERROR)) & (rv == 0)
-        done = stopped & (phase == Phase.STOP) & ~aborted
+        stopped = m & ((phase == _PH.STOP) | (phase == _PH.ERROR)) & (rv == 0)
+        done = stopped & (phase == _PH.STOP) & ~aborted
         if done.any():
             self._home_found(inst[done], self.hm_home[inst[done]], r, done)
-        phase = np.where(done, Phase.DONE, phase)
-        phase = np.where(stopped & aborted, Phase.IDLE, phase)
+        phase = np.where(done, _PH.DONE, phase)
+        phase = np.where(stopped & aborted, _PH.IDLE, phase)
         self.hm_phase[inst[m]] = phase[m]
         return new_p, new_v
 
@@ -550,7 +619,7 @@ class DriveEngine(AxisModel):
         offset = self.col(_O.HOME_OFFSET, 0, r)[mask]
         self.origin[sel] = home_raw + offset
         self.hm_attained[sel] = True
-        self.hm_phase[sel] = int(Phase.DONE)
+        self.hm_phase[sel] = int(_PH.DONE)
 
     # --- statusword ------------------------------------------------------------------------
 
@@ -558,42 +627,56 @@ class DriveEngine(AxisModel):
                     dt: F64) -> None:
         col, f = self.col, self.field
         sw = _STATE_BITS[state] | _VOLTAGE_REMOTE
-        sw |= np.where(self.warn[r], 0x0080, 0)
-        sw |= np.where(self.limited[r], 0x0800, 0)
+        warn, limited = self.warn[r], self.limited[r]
+        if warn.any():
+            sw |= warn * 0x0080
+        if limited.any():
+            sw |= limited * 0x0800
         op = state == S.OPERATION_ENABLED
-        stopping = self.stop_opt[r] >= 0
+        if not op.any():
+            f(*_K_STATUSWORD)[r] = sw
+            return
         halted = op & ((cw & 0x100) != 0)
-        follows = op & ~stopping
-        user_act = f(_O.POSITION_ACTUAL_VALUE, 0)[r].astype(np.float64)
-        tgt_user = self.plan_to[r] - self.origin[r]
         steady = self.g_v[r] == 0
-        in_win = steady & (np.abs(tgt_user - user_act) <= col(_O.POSITION_WINDOW, 0, r))
-        win_t = np.where(in_win, self.win_t[r] + dt, 0.0)
-        self.win_t[r] = win_t
-        pos_reached = in_win & (win_t * 1000.0 >= col(_O.POSITION_WINDOW_TIME, 0, r) - _THRESH_EPS)
-        stand = np.abs(v_act) <= col(_O.VELOCITY_THRESHOLD, 0, r)
-        vzero_t = np.where(stand, self.vzero_t[r] + dt, 0.0)
-        self.vzero_t[r] = vzero_t
-        speed_zero = stand & (vzero_t * 1000.0 >= col(_O.VELOCITY_THRESHOLD_TIME, 0, r) - _THRESH_EPS)
-        v_goal = np.where(halted, 0.0, col(_O.TARGET_VELOCITY, 0, r))
-        v_in = np.abs(v_act - v_goal) <= col(_O.VELOCITY_WINDOW, 0, r)
-        vwin_t = np.where(v_in, self.vwin_t[r] + dt, 0.0)
-        self.vwin_t[r] = vwin_t
-        v_reached = v_in & (vwin_t * 1000.0 >= col(_O.VELOCITY_WINDOW_TIME, 0, r) - _THRESH_EPS)
-        fe_bit = np.abs(fe) > col(_O.FOLLOWING_ERROR_WINDOW, 0, r)
         pp, pv, hm = mode == OM.PROFILE_POSITION, mode == OM.PROFILE_VELOCITY, mode == OM.HOMING
         csp = mode == OM.CYCLIC_SYNC_POSITION
         csx = csp | (mode == OM.CYCLIC_SYNC_VELOCITY) | (mode == OM.CYCLIC_SYNC_TORQUE)
-        idle_hm = (self.hm_phase[r] < 0) | (self.hm_phase[r] >= Phase.DONE)
-        reached = np.select(
-            [pp, pv, hm, csp],
-            [(~self.pp_active[r] & pos_reached) | (halted & speed_zero),
-             v_reached, idle_hm & speed_zero & steady, pos_reached],
-            False)
-        bit12 = np.select([pp, pv, hm, csx],
-                          [self.pp_ack[r], speed_zero, self.hm_attained[r], follows], False)
-        bit13 = np.select([pp | csp, hm], [fe_bit, self.hm_error[r]], False)
-        sw |= np.where(op & reached, 0x0400, 0)
-        sw |= np.where(op & bit12, 0x1000, 0)
-        sw |= np.where(op & bit13, 0x2000, 0)
-        f(_O.STATUSWORD, 0)[r] = sw
+        zero = _FALSE[: len(sw)] if isinstance(r, slice) else np.zeros(len(sw), bool)
+        reached, bit12, bit13 = zero, zero, zero
+        if (pp | csp).any():
+            user_act = f(*_K_POSITION)[r]
+            tgt_user = self.plan_to[r] - self.origin[r]
+            in_win = steady & (np.abs(tgt_user - user_act) <= col(*_K_POS_WINDOW, r))
+            win_t = (self.win_t[r] + dt) * in_win
+            self.win_t[r] = win_t
+            pos_reached = in_win & (win_t * 1000.0 >= col(*_K_POS_WINDOW_TIME, r) - _THRESH_EPS)
+            fe_bit = np.abs(fe) > col(*_K_FE_WINDOW, r)
+            reached = reached | (csp & pos_reached)
+            bit13 = bit13 | ((pp | csp) & fe_bit)
+        if (pp | pv | hm).any():
+            stand = np.abs(v_act) <= col(*_K_V_THRESHOLD, r)
+            vzero_t = (self.vzero_t[r] + dt) * stand
+            self.vzero_t[r] = vzero_t
+            speed_zero = stand & (vzero_t * 1000.0 >= col(*_K_V_THRESHOLD_TIME, r) - _THRESH_EPS)
+            if pp.any():
+                reached = reached | (pp & ((~self.pp_active[r] & pos_reached)
+                                           | (halted & speed_zero)))
+                bit12 = bit12 | (pp & self.pp_ack[r])
+            if pv.any():
+                v_goal = np.where(halted, 0.0, col(*_K_TARGET_VELOCITY, r))
+                v_in = np.abs(v_act - v_goal) <= col(*_K_V_WINDOW, r)
+                vwin_t = (self.vwin_t[r] + dt) * v_in
+                self.vwin_t[r] = vwin_t
+                v_reached = v_in & (vwin_t * 1000.0 >= col(*_K_V_WINDOW_TIME, r) - _THRESH_EPS)
+                reached = reached | (pv & v_reached)
+                bit12 = bit12 | (pv & speed_zero)
+            if hm.any():
+                phase = self.hm_phase[r]
+                idle_hm = (phase < 0) | (phase >= _PH.DONE)
+                reached = reached | (hm & idle_hm & speed_zero & steady)
+                bit12 = bit12 | (hm & self.hm_attained[r])
+                bit13 = bit13 | (hm & self.hm_error[r])
+        if csx.any():
+            bit12 = bit12 | (csx & (self.stop_opt[r] < 0))
+        sw |= (op & reached) * 0x0400 | (op & bit12) * 0x1000 | (op & bit13) * 0x2000
+        f(*_K_STATUSWORD)[r] = sw

@@ -59,12 +59,14 @@ I64 = npt.NDArray[np.int64]
 F64 = npt.NDArray[np.float64]
 _O = Cia402Object
 _STD = StandardObject
+_ERROR_SETTINGS = int(StandardObject.ERROR_SETTINGS)
 S = DriveState
 #: How long a SAFE-OP -> OP request waits for the first SYNC0 pulse (ns).
 SYNC_WAIT_NS = 1_000_000_000
 #: SYNC0 watchdog: pulses missing for two cycles, at least 1 ms (Beckhoff slave stack).
 _WATCHDOG_MIN_NS = 1_000_000
 _DC_MODES = (int(SyncMode.DC_SYNC0), int(SyncMode.DC_SYNC1))
+_SAFEOP, _OP = int(AlState.SAFEOP), int(AlState.OP)
 _PROFILE_ERRORS = (int(DriveErrorCode.FOLLOWING_ERROR), int(DriveErrorCode.REFERENCE_LIMIT))
 #: Statusword bits 4 (voltage enabled) and 9 (remote): the drive has its DC link and
 #: takes its commands from EtherCAT.
@@ -82,10 +84,11 @@ class DriveApp(MailboxDevice):
         self.waiting_since = -1
 
     def check_transition(self, current: AlState, requested: AlState) -> int:
-        code = super().check_transition(current, requested)
+        # the drive's own sync checks first: they raise its errors (emergency, fault)
+        code = self.model.check_sync(self.instance, self, current, requested)
         if code:
             return code
-        return self.model.check_sync(self.instance, self, current, requested)
+        return super().check_transition(current, requested)
 
     def on_al_error(self, state: AlState, code: int) -> None:
         self.model.al_error(self.instance, self, state, code)
@@ -191,7 +194,7 @@ class Cia402Model(DriveEngine):
         r = self.rows(instances)
         self.prev_out_ns[r] = self.last_out_ns[r]
         self.last_out_ns[r] = now
-        active = self.al_state[instances] >= AlState.SAFEOP
+        active = self.al_state[instances] >= _SAFEOP
         self.started[instances] |= active
         dc = self.sync_dc[instances]
         if dc.any():
@@ -199,7 +202,7 @@ class Cia402Model(DriveEngine):
             self.fresh[d] = True
             last = self.last_sync_ns[d]
             wd = np.maximum(2 * self.sync_cycle[d], _WATCHDOG_MIN_NS)
-            lost = (self.al_state[d] == AlState.OP) & ((last < 0) | (now - last > wd))
+            lost = (self.al_state[d] == _OP) & ((last < 0) | (now - last > wd))
             for i in d[lost].tolist():
                 self._sync_lost(i, 2)
         sm = instances[~dc & active]
@@ -215,7 +218,7 @@ class Cia402Model(DriveEngine):
             return
         now = io.now_ns()
         self.last_sync_ns[instances] = now
-        run = self.sync_dc[instances] & (self.al_state[instances] >= AlState.SAFEOP)
+        run = self.sync_dc[instances] & (self.al_state[instances] >= _SAFEOP)
         inst = instances[run]
         if not len(inst):
             return
@@ -231,9 +234,9 @@ class Cia402Model(DriveEngine):
                           np.maximum(self.sync_errors[inst] - 1, 0))
         self.sync_errors[inst] = errors
         self.warn[inst] = errors > 0
-        limit = np.maximum(self.field(_STD.ERROR_SETTINGS, 2)[inst].astype(np.int64), 1)
+        limit = np.maximum(self.field(_ERROR_SETTINGS, 2)[inst].astype(np.int64), 1)
         self._cycle(inst, dt_ns * 1e-9)
-        over = (errors >= limit) & (self.al_state[inst] == AlState.OP)
+        over = (errors >= limit) & (self.al_state[inst] == _OP)
         for i in inst[over].tolist():
             self._sync_lost(i, 1)
 

@@ -340,8 +340,8 @@ class Seed002Model(Cia402Model):
             state = decode_state(statusword)
 
             def live(t: float) -> list[tuple[str, Any]]:
-                return [("Position actual value", f"{position} inc"),
-                        ("Uptime", f"{t:.3f} s"),
+                return [("Uptime", f"{t:.3f} s"),
+                        ("Position actual value", f"{position} inc"),
                         ("Statusword 0x6041", f"0x{statusword:04X}"),
                         ("Drive state", state.label if state is not None else "?"),
                         ("Controlword 0x6040", f"0x{control:04X}"),
