@@ -203,7 +203,7 @@ class AxisModel(CoeModel):
         for step in range(1, n + 1):
             # ufunc minimum/maximum rather than np.clip: clip's Python wrapper costs more
             # than the arithmetic on these short arrays
-            pref = p0 + span * step
+            pref = p0 + span * (step - 1)  # the demand where this substep starts
             vref = vff + kp * (pref - p) if all_pos else np.where(pos, vff + kp * (pref - p), vcmd)
             if limit_speed:
                 vref = np.minimum(np.maximum(vref, -vmax), vmax)

@@ -286,7 +286,7 @@ class DriveEngine(AxisModel):
                              S.FAULT)
         m = state == op
         if m.any():
-            qs_code = col(*_K_QS_OPTION, r).astype(np.int64)
+            qs_code = self._qs_code(r)
             go_qs = m & (cmd == _QUICK_STOP)
             new[go_qs & (qs_code == 0)] = sod         # option 0: torque off at once
             ramp_qs = go_qs & (qs_code != 0)
@@ -310,7 +310,7 @@ class DriveEngine(AxisModel):
                 self.stop_opt[r] = np.where(back, _NO_STOP, self.stop_opt[r])
         m = state == qsa
         if m.any():
-            qs_code = col(*_K_QS_OPTION, r).astype(np.int64)
+            qs_code = self._qs_code(r)
             back = m & (cmd == _ENABLE) & (qs_code >= 5) & ~stopping
             new[back] = op
         edge = ((cw & 0x80) != 0) & ((prev & 0x80) == 0)
@@ -329,6 +329,12 @@ class DriveEngine(AxisModel):
         self.stop_opt[r] = np.where(start >= 0, start, np.where(off, _NO_STOP, self.stop_opt[r]))
         self.stop_goal[r] = goal_new
         return new, start
+
+    def _qs_code(self, r: Rows) -> I64:
+        """0x605A; negative (manufacturer-specific) values act as 2, the quick stop ramp."""
+        code = self.col(*_K_QS_OPTION, r).astype(np.int64)
+        out: I64 = np.where(code < 0, 2, code)
+        return out
 
     def _mode(self, r: Rows, inst: I64) -> I64:
         """Mode display after this cycle (0x6061 follows 0x6060 when the mode is supported)."""
@@ -433,8 +439,14 @@ class DriveEngine(AxisModel):
         self.plan_mode[r] = ctrl
         self.plan_from[r] = np.where(powered, g_p, p)
         self.plan_to[r] = np.where(powered, new_p, p)
-        self.plan_vff[r] = np.where(ctrl == CTRL_POSITION, (new_p - g_p) / safe_dt + vff_extra, 0.0)
-        self.plan_tff[r] = tff
+        position = ctrl == CTRL_POSITION
+        vff = ((new_p - g_p) / safe_dt + vff_extra) * position
+        # acceleration feed-forward: the torque the demanded change of velocity needs
+        # (inertia), as servo drives add it to the velocity loop's output
+        accel = (vff - self.plan_vff[r]) / safe_dt * (position & (self.plan_mode[r] == CTRL_POSITION))
+        inertia = col(AXIS_OBJECT, _AX.INERTIA, r) / self.counts_per_rad(r)
+        self.plan_vff[r] = vff
+        self.plan_tff[r] = tff + inertia * accel
         self.plan_v[r] = vcmd
         self.plan_t[r] = tcmd
         self.g_p[r] = np.where(powered, new_p, p)

@@ -227,11 +227,17 @@ class Cia402Model(DriveEngine):
         dt_ns = np.where(last >= 0, time_ns - last, cycle)
         dt_ns = np.where((dt_ns <= 0) | (dt_ns > 64 * cycle), cycle, dt_ns)
         self.last_sync_sys[inst] = time_ns
-        missed = ~self.fresh[inst] & self.started[inst]
+        # Pulses handled together had no frame between them (the segment fires the pulses
+        # due before it processes a frame): all but the first missed their SM event, the
+        # first too unless a frame came since the last pulse.
+        pulses = np.maximum(np.rint(dt_ns / cycle), 1).astype(np.int64)
+        fresh = self.fresh[inst]
+        started = self.started[inst]
+        missed = (pulses - fresh) * started
         self.fresh[inst] = False
         self.missed[inst] += missed
-        errors = np.where(missed, self.sync_errors[inst] + 3,
-                          np.maximum(self.sync_errors[inst] - 1, 0))
+        # the sync error counter: +3 per missed event, -1 per good one (Beckhoff slave stack)
+        errors = np.maximum(self.sync_errors[inst] - fresh, 0) + 3 * missed
         self.sync_errors[inst] = errors
         self.warn[inst] = errors > 0
         limit = np.maximum(self.field(_ERROR_SETTINGS, 2)[inst].astype(np.int64), 1)
