@@ -108,6 +108,7 @@ class _Layout:
         self.out_len = (sum(m.bits for m in outputs) + 7) // 8
         self.in_len = (sum(m.bits for m in inputs) + 7) // 8
         self.rx_keys = frozenset((m.index, m.subindex) for m in outputs if m.entry is not None)
+        self.tx_keys = frozenset((m.index, m.subindex) for m in inputs if m.entry is not None)
         # outputs: buffer -> image; inputs: image -> buffer
         self.out_buf, self.out_img, out_bits = self._plan(outputs, fields, True)
         self.in_buf, self.in_img, in_bits = self._plan(inputs, fields, False)

@@ -9,8 +9,9 @@ bandwidth 0x2100:05, the torque limit with anti-windup. Position is kept in
 encoder increments; the actual position is the encoder's count (quantised),
 the actual velocity the change of that count over the cycle.
 
-The loops run at an internal rate of at least 2 kHz: a cycle of ``dt`` is
-integrated in ``ceil(dt / 500 us)`` substeps, the demand interpolated
+The loops run at an internal rate of at least 1 kHz, with steps short enough
+that bandwidth x step of the velocity loop stays below 0.8: a cycle of ``dt`` is integrated
+in that many substeps, the demand interpolated
 linearly from the previous cycle's set-point to this one's (what drives do
 between SYNC0 events). The number of numpy operations per cycle does not
 depend on the number of axes.
@@ -25,7 +26,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from types import SimpleNamespace
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -47,14 +48,12 @@ _O: Any = SimpleNamespace(**{m.name: int(m) for m in Cia402Object})  # plain int
 _AX: Any = SimpleNamespace(**{m.name: int(m) for m in AxisSub})
 #: Control modes of a cycle's plan.
 CTRL_OFF, CTRL_POSITION, CTRL_VELOCITY, CTRL_TORQUE = 0, 1, 2, 3
-#: Longest internal loop period (s): at least 2 kHz.
-_H_MAX = 500e-6
+#: Longest internal loop period (s): at least 1 kHz.
+_H_MAX = 1e-3
 _MAX_SUBSTEPS = 64
 #: Longest interval integrated at once (s): a drive whose events stopped for longer
 #: does not jump (its own loops would have held the axis meanwhile).
 _DT_MAX = 0.016
-#: Velocity below which the axis counts as standing (increments/s).
-_STANDSTILL = 1e-3
 _TWO_PI = 2.0 * math.pi
 
 #: Parameter entries the physics reads (image columns beyond the PDO-mappable ones).
@@ -63,6 +62,22 @@ AXIS_FIELDS: tuple[tuple[int, int], ...] = (
     (_O.POSITION_ENCODER_RESOLUTION, 1), (_O.POSITION_ENCODER_RESOLUTION, 2),
     (_O.MOTOR_RATED_TORQUE, 0), (_O.MAX_TORQUE, 0), (_O.MAX_MOTOR_SPEED, 0),
 )
+
+
+class _Constants(NamedTuple):
+    """Per-axis constants of the loops and the mechanics (arrays)."""
+
+    counts_per_rad: F64
+    inertia: F64
+    kp: F64
+    kv: F64
+    ki: F64
+    acc_gain: F64
+    viscous: F64
+    coulomb: F64
+    load: F64
+    max_torque: F64
+    max_speed: F64
 
 
 class AxisModel(CoeModel):
@@ -74,7 +89,9 @@ class AxisModel(CoeModel):
         super().__init__(dictionary, details=details, capacity_out=capacity_out,
                          capacity_in=capacity_in, fields=AXIS_FIELDS + fields)
         self._pcache: dict[tuple[int, int], F64] = {}
+        self._consts: _Constants | None = None
         self._live: frozenset[tuple[int, int]] | None = None
+        self._tx: frozenset[tuple[int, int]] | None = None
         self._live_count = -1
         arr = self.array
         #: Motor position (raw encoder increments since power-on) and velocity (inc/s).
@@ -114,26 +131,64 @@ class AxisModel(CoeModel):
 
     def _live_keys(self) -> frozenset[tuple[int, int]]:
         """Entries some instance's PDO layout maps into its outputs."""
-        if self._live is None or self._live_count != len(self._layouts):
-            keys: set[tuple[int, int]] = set()
-            for layout in self._layouts:
-                keys |= layout.rx_keys
-            self._live = frozenset(keys)
-            self._live_count = len(self._layouts)
+        self._layout_keys()
+        assert self._live is not None
         return self._live
+
+    def tx_keys(self) -> frozenset[tuple[int, int]]:
+        """Entries some instance's PDO layout maps into its inputs."""
+        self._layout_keys()
+        assert self._tx is not None
+        return self._tx
+
+    def _layout_keys(self) -> None:
+        if self._live is None or self._live_count != len(self._layouts):
+            rx: set[tuple[int, int]] = set()
+            tx: set[tuple[int, int]] = set()
+            for layout in self._layouts:
+                rx |= layout.rx_keys
+                tx |= layout.tx_keys
+            self._live, self._tx = frozenset(rx), frozenset(tx)
+            self._live_count = len(self._layouts)
 
     def _write(self, instance: int, key: tuple[int, int], raw: bytes) -> None:
         super()._write(instance, key, raw)
         self._pcache.pop(key, None)
+        self._consts = None
 
     def _grow(self, capacity: int) -> None:
         super()._grow(capacity)
         self._pcache.clear()
+        self._consts = None
 
     def instance_app(self, info: SiiInfo) -> tuple[int, MailboxDevice]:
         instance, app = super().instance_app(info)
         self._pcache.clear()
+        self._consts = None
         return instance, app
+
+    def constants(self, r: Rows) -> _Constants:
+        """The loops' gains and the mechanics of rows ``r``, from the parameters (cached with them)."""
+        consts = self._consts
+        if consts is None:
+            live = self._live_keys()
+            every = slice(None)
+            col = self.col
+            k = self.counts_per_rad(every)
+            j = col(AXIS_OBJECT, _AX.INERTIA, every)
+            wv = _TWO_PI * col(AXIS_OBJECT, _AX.VELOCITY_BANDWIDTH, every)
+            kv = j * wv / k                              # N m per (inc/s)
+            consts = _Constants(
+                k, j, col(AXIS_OBJECT, _AX.POSITION_GAIN, every), kv,
+                kv * wv * 0.25,                          # N m per inc (per s of error)
+                k / np.maximum(j, 1e-12),                # inc/s² per N m
+                col(AXIS_OBJECT, _AX.VISCOUS_FRICTION, every) / k,
+                col(AXIS_OBJECT, _AX.COULOMB_FRICTION, every),
+                col(AXIS_OBJECT, _AX.LOAD_TORQUE, every),
+                self.max_torque(every), self.max_speed(every))
+            if not any(key in live for key in AXIS_FIELDS):
+                self._consts = consts
+        return _Constants(*(a[r] for a in consts))
 
     def counts_per_rad(self, r: Rows) -> F64:
         """Encoder increments per radian (0x608F:01 per 0x608F:02 revolutions)."""
@@ -165,25 +220,17 @@ class AxisModel(CoeModel):
 
     def integrate(self, r: Rows, dt: F64) -> None:
         """Run the loops and the mechanics of rows ``r`` over ``dt`` seconds along their plan."""
-        dt = np.clip(dt, 0.0, _DT_MAX)
+        dt = np.minimum(np.maximum(dt, 0.0), _DT_MAX)
         longest = float(dt.max()) if len(dt) else 0.0
         if longest <= 0.0:
             return
-        n = min(_MAX_SUBSTEPS, max(1, math.ceil(longest / _H_MAX - 1e-9)))
+        _k, _j, kp, kv, ki, acc_gain, b, tc, load, tmax, vmax = self.constants(r)
+        # at least 1 kHz, and few enough steps per velocity-loop time constant that the
+        # explicit integration stays well damped (bandwidth x step < 0.8)
+        wv_max = float((kv / np.maximum(_j / _k, 1e-300)).max(initial=0.0))
+        n = min(_MAX_SUBSTEPS, max(1, math.ceil(longest / _H_MAX - 1e-9),
+                                   math.ceil(longest * wv_max / 0.8 - 1e-9)))
         h = dt / n
-        col = self.col
-        k = self.counts_per_rad(r)
-        j = col(AXIS_OBJECT, _AX.INERTIA, r)
-        wv = _TWO_PI * col(AXIS_OBJECT, _AX.VELOCITY_BANDWIDTH, r)
-        kp = col(AXIS_OBJECT, _AX.POSITION_GAIN, r)
-        kv = j * wv / k                              # N m per (inc/s)
-        ki = kv * wv * 0.25                          # N m per inc (per s of error)
-        acc_gain = k / j                             # inc/s² per N m
-        b = col(AXIS_OBJECT, _AX.VISCOUS_FRICTION, r) / k
-        tc = col(AXIS_OBJECT, _AX.COULOMB_FRICTION, r)
-        load = col(AXIS_OBJECT, _AX.LOAD_TORQUE, r)
-        tmax = self.max_torque(r)
-        vmax = self.max_speed(r)
         mode = self.plan_mode[r]
         pos = mode == CTRL_POSITION
         any_torque = bool((mode == CTRL_TORQUE).any())
@@ -217,11 +264,12 @@ class AxisModel(CoeModel):
                 tq = tq * on
             tq = np.minimum(np.maximum(tq, neg_tmax), tmax)
             drive = tq - load - b * v
-            moving = np.abs(v) > _STANDSTILL
-            friction = np.where(moving, tc * np.sign(v), np.minimum(np.maximum(drive, neg_tc), tc))
-            vn = v + (drive - friction) * gain_h
-            # friction stops an axis, it never turns it round
-            vn = np.where(moving & (vn * v < 0) & (np.abs(drive) <= tc), 0.0, vn)
+            vn = v + (drive - tc * np.sign(v)) * gain_h
+            stick = vn * v <= 0.0  # standing, or friction would turn the axis round
+            if stick.any():
+                # Coulomb friction holds the axis up to its value, and only stops it
+                rest = drive - np.minimum(np.maximum(drive, neg_tc), tc)
+                vn = np.where(stick, np.where(np.abs(drive) <= tc, 0.0, rest * gain_h), vn)
             p = p + (v + vn) * (0.5 * h)
             v = vn
         self.p[r], self.v[r], self.integ[r], self.torque[r] = p, v, integ, tq

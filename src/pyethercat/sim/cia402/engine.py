@@ -148,7 +148,13 @@ _K_POS_WINDOW, _K_POS_WINDOW_TIME = (0x6067, 0), (0x6068, 0)
 _K_V_WINDOW, _K_V_WINDOW_TIME = (0x606D, 0), (0x606E, 0)
 _K_V_THRESHOLD, _K_V_THRESHOLD_TIME = (0x606F, 0), (0x6070, 0)
 _K_TARGET_VELOCITY = (0x60FF, 0)
+_K_TARGET_POSITION, _K_POSITION_OFFSET = (0x607A, 0), (0x60B0, 0)
+_K_VELOCITY_OFFSET, _K_TORQUE_OFFSET = (0x60B1, 0), (0x60B2, 0)
+_K_LIMIT_MIN, _K_LIMIT_MAX = (0x607D, 1), (0x607D, 2)
 _FALSE = np.zeros(1 << 16, bool)
+#: Actual values written when a PDO maps them, else when an SDO reads them.
+_LAZY = frozenset({_K_POSITION, _K_VELOCITY, _K_TORQUE, _K_TORQUE_DEMAND, _K_POSITION_DEMAND,
+                   _K_VELOCITY_DEMAND, _K_FE, _K_INPUTS})
 _NO_STOP = -1
 _STAY = -1
 _THRESH_EPS = 1e-9
@@ -193,6 +199,9 @@ class DriveEngine(AxisModel):
         self.vwin_t: F64 = arr("vwin_t", np.float64, 0.0)
         self.vzero_t: F64 = arr("vzero_t", np.float64, 0.0)
         self.limited = arr("limited", bool, False)
+        #: Actual velocity (encoder, inc/s) and following error of the last cycle.
+        self.v_act: F64 = arr("v_act", np.float64, 0.0)
+        self.fe_val: F64 = arr("fe_val", np.float64, 0.0)
         #: Warning bit (statusword bit 7): sync fallback, missed SM events.
         self.warn = arr("warn", bool, False)
 
@@ -252,17 +261,10 @@ class DriveEngine(AxisModel):
         if self.stop_opt[r].max(initial=-1) >= 0:
             new = self._stops_done(r, new, v_act)
         self.state[r] = new
-        # --- inputs ---------------------------------------------------------------------------
-        origin = self.origin[r]
-        f(*_K_POSITION)[r] = enc - origin
-        f(*_K_VELOCITY)[r] = np.round(v_act)
-        per_mille = np.round(self.torque[r] * (1e6 / np.maximum(col(*_K_RATED, r), 1e-9)))
-        f(*_K_TORQUE)[r] = per_mille
-        f(*_K_TORQUE_DEMAND)[r] = per_mille
-        f(*_K_POSITION_DEMAND)[r] = np.round(self.plan_from[r] - origin)
-        f(*_K_VELOCITY_DEMAND)[r] = np.round(self.g_v[r])
-        f(*_K_FE)[r] = np.round(fe)
-        f(*_K_INPUTS)[r] = neg * 1 + posl * 2 + home * 4
+        # --- inputs: the ones a PDO maps now; the others when an SDO reads them -------------
+        self.v_act[r] = v_act
+        self.fe_val[r] = fe
+        self.inputs(r, self.tx_keys())
         self._statusword(r, new, mode, cw, fe, v_act, dt)
         clear = inst[reset]
         if len(clear):
@@ -272,6 +274,34 @@ class DriveEngine(AxisModel):
         assert code is not None and detail is not None
         hit = np.nonzero(faulted & (state != S.FAULT) & (state != S.FAULT_REACTION_ACTIVE))[0]
         return inst[hit], code[hit], detail[hit], clear
+
+    def inputs(self, r: Rows, keys: frozenset[tuple[int, int]] | None) -> None:
+        """Actual values into the image: the ``keys`` among them (None: all of them)."""
+        f, col = self.field, self.col
+        origin = self.origin[r]
+        if keys is None or _K_POSITION in keys:
+            f(*_K_POSITION)[r] = self.enc_prev[r] - origin
+        if keys is None or _K_VELOCITY in keys:
+            f(*_K_VELOCITY)[r] = np.round(self.v_act[r])
+        if keys is None or _K_TORQUE in keys or _K_TORQUE_DEMAND in keys:
+            per_mille = np.round(self.torque[r] * (1e6 / np.maximum(col(*_K_RATED, r), 1e-9)))
+            f(*_K_TORQUE)[r] = per_mille
+            f(*_K_TORQUE_DEMAND)[r] = per_mille
+        if keys is None or _K_POSITION_DEMAND in keys:
+            f(*_K_POSITION_DEMAND)[r] = np.round(self.plan_from[r] - origin)
+        if keys is None or _K_VELOCITY_DEMAND in keys:
+            f(*_K_VELOCITY_DEMAND)[r] = np.round(self.g_v[r])
+        if keys is None or _K_FE in keys:
+            f(*_K_FE)[r] = np.round(self.fe_val[r])
+        if keys is None or _K_INPUTS in keys:
+            p = self.p[r]
+            f(*_K_INPUTS)[r] = ((p <= col(*_K_NEG_LIMIT, r)) * 1 + (p >= col(*_K_POS_LIMIT, r)) * 2
+                                + (p >= col(*_K_HOME, r)) * 4)
+
+    def _read(self, instance: int, key: tuple[int, int]) -> bytes:
+        if key in _LAZY and key not in self.tx_keys():
+            self.inputs(np.array([instance], np.int64), None)
+        return super()._read(instance, key)
 
     def _transitions(self, r: Rows, state: I64, cmd: I64, cw: I64, prev: I64, stopping: B,
                      faulted: B | None) -> tuple[I64, I64]:
@@ -356,6 +386,12 @@ class DriveEngine(AxisModel):
     def _plan(self, r: Rows, inst: I64, state: I64, mode: I64, cw: I64, prev: I64, dt: F64,
               safe_dt: F64, start_stop: I64 | None, switches: tuple[B, B, B]) -> None:
         """The next cycle's plan of every axis (see :class:`~pyethercat.sim.cia402.axis.AxisModel`)."""
+        if (start_stop is None and (state == S.OPERATION_ENABLED).all()
+                and (mode == OM.CYCLIC_SYNC_POSITION).all()
+                and (self.plan_mode[r] == CTRL_POSITION).all()
+                and self.stop_opt[r].max(initial=-1) < 0):
+            self._plan_csp(r, safe_dt)  # the usual cycle of a CSP group: its own short path
+            return
         col = self.col
         p, v = self.p[r], self.v[r]
         powered = (state == S.OPERATION_ENABLED) | (state == S.QUICK_STOP_ACTIVE) | (
@@ -444,13 +480,39 @@ class DriveEngine(AxisModel):
         # acceleration feed-forward: the torque the demanded change of velocity needs
         # (inertia), as servo drives add it to the velocity loop's output
         accel = (vff - self.plan_vff[r]) / safe_dt * (position & (self.plan_mode[r] == CTRL_POSITION))
-        inertia = col(AXIS_OBJECT, _AX.INERTIA, r) / self.counts_per_rad(r)
+        consts = self.constants(r)
+        inertia = consts.inertia / consts.counts_per_rad
         self.plan_vff[r] = vff
         self.plan_tff[r] = tff + inertia * accel
         self.plan_v[r] = vcmd
         self.plan_t[r] = tcmd
         self.g_p[r] = np.where(powered, new_p, p)
         self.g_v[r] = np.where(powered, new_v, v)
+        self.limited[r] = limited
+
+    def _plan_csp(self, r: Rows, safe_dt: F64) -> None:
+        """Every axis enabled in CSP and running: the target is the next demand."""
+        col = self.col
+        g_p = self.g_p[r].copy()
+        tgt = col(*_K_TARGET_POSITION, r) + col(*_K_POSITION_OFFSET, r)
+        lo, hi = col(*_K_LIMIT_MIN, r), col(*_K_LIMIT_MAX, r)
+        limits = lo < hi
+        limited = np.zeros(len(g_p), bool)
+        if limits.any():
+            clamped = np.where(limits, np.minimum(np.maximum(tgt, lo), hi), tgt)
+            limited = clamped != tgt
+            tgt = clamped
+        raw = tgt + self.origin[r]
+        vff = (raw - g_p) / safe_dt + col(*_K_VELOCITY_OFFSET, r)
+        consts = self.constants(r)
+        accel = (vff - self.plan_vff[r]) / safe_dt
+        self.plan_from[r] = g_p
+        self.plan_to[r] = raw
+        self.plan_vff[r] = vff
+        self.plan_tff[r] = (col(*_K_TORQUE_OFFSET, r) * col(*_K_RATED, r) * 1e-6
+                            + consts.inertia / consts.counts_per_rad * accel)
+        self.g_p[r] = raw
+        self.g_v[r] = (raw - g_p) / safe_dt
         self.limited[r] = limited
 
     # --- helpers of the plan ---------------------------------------------------------------
@@ -656,7 +718,7 @@ class DriveEngine(AxisModel):
         zero = _FALSE[: len(sw)] if isinstance(r, slice) else np.zeros(len(sw), bool)
         reached, bit12, bit13 = zero, zero, zero
         if (pp | csp).any():
-            user_act = f(*_K_POSITION)[r]
+            user_act = self.enc_prev[r] - self.origin[r]
             tgt_user = self.plan_to[r] - self.origin[r]
             in_win = steady & (np.abs(tgt_user - user_act) <= col(*_K_POS_WINDOW, r))
             win_t = (self.win_t[r] + dt) * in_win

@@ -63,10 +63,12 @@ _ERROR_SETTINGS = int(StandardObject.ERROR_SETTINGS)
 S = DriveState
 #: How long a SAFE-OP -> OP request waits for the first SYNC0 pulse (ns).
 SYNC_WAIT_NS = 1_000_000_000
-#: SYNC0 watchdog: pulses missing for two cycles, at least 1 ms (Beckhoff slave stack).
+#: SAFE-OP -> OP: SYNC0 counts as running when a pulse came within two cycles, at least 1 ms
+#: (the watchdog time of Beckhoff's slave stack).
 _WATCHDOG_MIN_NS = 1_000_000
 _DC_MODES = (int(SyncMode.DC_SYNC0), int(SyncMode.DC_SYNC1))
 _SAFEOP, _OP = int(AlState.SAFEOP), int(AlState.OP)
+_SYNC0_ON = int(R.DcActivation.CYCLIC | R.DcActivation.SYNC0)
 _PROFILE_ERRORS = (int(DriveErrorCode.FOLLOWING_ERROR), int(DriveErrorCode.REFERENCE_LIMIT))
 #: Statusword bits 4 (voltage enabled) and 9 (remote): the drive has its DC link and
 #: takes its commands from EtherCAT.
@@ -200,11 +202,15 @@ class Cia402Model(DriveEngine):
         if dc.any():
             d = instances[dc]
             self.fresh[d] = True
-            last = self.last_sync_ns[d]
-            wd = np.maximum(2 * self.sync_cycle[d], _WATCHDOG_MIN_NS)
-            lost = (self.al_state[d] == _OP) & ((last < 0) | (now - last > wd))
-            for i in d[lost].tolist():
-                self._sync_lost(i, 2)
+            # The SYNC0 watchdog: the simulated cyclic unit fires every pulse it has planned
+            # (the segment fires the ones due before it processes a frame), so SYNC0 is
+            # missing exactly when the unit is off. (Wall time would see the simulator's own
+            # scheduling stalls as missing pulses.)
+            act = io.memory.mem[self.slaves[d], R.DC_ACTIVATION]
+            lost = (self.al_state[d] == _OP) & ((act & _SYNC0_ON) != _SYNC0_ON)
+            if lost.any():
+                for i in d[lost].tolist():
+                    self._sync_lost(i, 2)
         sm = instances[~dc & active]
         if len(sm):
             last_tick = self.last_tick_ns[sm]
@@ -299,15 +305,13 @@ class Cia402Model(DriveEngine):
             else:
                 # not set by the master: DC when SYNC0 runs, else on the frames with a warning
                 dc = running
-                od.set_value(_STD.SM_OUTPUT_SYNC, SyncSub.SYNC_MODE,
-                             int(SyncMode.DC_SYNC0) if dc else int(SyncMode.SM_EVENT))
-                self.warn[instance] = not dc
-            if _STD.SM_INPUT_SYNC in od:
-                od.set_value(_STD.SM_INPUT_SYNC, SyncSub.SYNC_MODE,
-                             int(SyncMode.DC_SYNC0) if dc else int(SyncMode.SM2_EVENT))
-            self.sync_dc[instance] = dc
-            self.sync_cycle[instance] = cycle if dc else 0
+            self._choose_sync(instance, od, dc, cycle)
             return 0
+        if (current == AlState.SAFEOP and requested == AlState.OP and not self.sync_dc[instance]
+                and not self.user_sync[instance] and running):
+            # SOEM requests SAFE-OP at the end of config_map, before dc_sync(): SYNC0 that
+            # runs by now still makes the drive take its outputs on SYNC0
+            self._choose_sync(instance, od, True, cycle)
         if current == AlState.SAFEOP and requested == AlState.OP and self.sync_dc[instance]:
             io = self.io
             now = io.now_ns() if io is not None else 0
@@ -328,6 +332,18 @@ class Cia402Model(DriveEngine):
                 return int(AlStatusCode.NO_SYNC_ERROR)
             return PENDING
         return 0
+
+    def _choose_sync(self, instance: int, od: SimObjectDictionary, dc: bool, cycle: int) -> None:
+        """Take the outputs on SYNC0 (``dc``) or on the frames; 0x1C32/0x1C33:01 show it."""
+        if not self.user_sync[instance]:
+            od.set_value(_STD.SM_OUTPUT_SYNC, SyncSub.SYNC_MODE,
+                         int(SyncMode.DC_SYNC0) if dc else int(SyncMode.SM_EVENT))
+            self.warn[instance] = not dc  # the manual's warning 63-3: no hardware SYNC
+        if _STD.SM_INPUT_SYNC in od:
+            od.set_value(_STD.SM_INPUT_SYNC, SyncSub.SYNC_MODE,
+                         int(SyncMode.DC_SYNC0) if dc else int(SyncMode.SM2_EVENT))
+        self.sync_dc[instance] = dc
+        self.sync_cycle[instance] = cycle if dc else 0
 
     def al_error(self, instance: int, app: DriveApp, state: AlState, code: int) -> None:
         """The ESC refused a transition or fell back: the drive's own error for SM lengths."""
