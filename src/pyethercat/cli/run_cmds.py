@@ -240,10 +240,11 @@ def register(cli: click.Group) -> None:
         console = Console() if sys.stdout.isatty() else Console(width=140)
         with connect(obj, pcap=pcap) as conn, serving(obj, conn.master):
             m = conn.master
-            if dc:
-                from pyethercat.cli.dc_cmds import wall_clock_for_sim
+            # an in-process simulator keeps real time while the master cycles in real time
+            # (its drives, watchdogs and DC clocks move with the cycle's clock)
+            from pyethercat.cli.dc_cmds import wall_clock_for_sim
 
-                wall_clock_for_sim(conn)
+            wall_clock_for_sim(conn)
             if eni is not None:
                 from pyethercat.master.esi_config import start_from_eni
 

@@ -250,14 +250,17 @@ class DriveGroup:
         self._fe = column(_O.FOLLOWING_ERROR_ACTUAL_VALUE, False, "<i4")
         self._err = column(_O.ERROR_CODE, False, "<u2")
         n = len(self.positions)
-        self._state = np.full(n, -1, np.int64)
+        # what the image shows now (a group made on a running master knows its drives at once)
+        self._state = decode_states(self._sw.get()).astype(np.int64)  # type: ignore[union-attr]
         #: In Fault or Fault reaction active; a fault reset was asked for.
-        self._bad = np.zeros(n, bool)
+        self._bad = (self._state == S.FAULT) | (self._state == S.FAULT_REACTION_ACTIVE)
         self._reset = np.zeros(n, bool)
         self._goal = np.full(n, _NO_GOAL, np.int64)
-        self._dc = np.zeros(n, np.int64)          # device-control part of the controlword
-        self._bits = np.zeros(n, np.int64)        # mode-specific bits 4-6, 8, 9
-        self._prev = np.zeros(n, np.int64)
+        # the controlword the image holds goes on unchanged until the group is asked to act
+        cw = self._cw.get()  # type: ignore[union-attr]
+        self._dc = cw & _DEVICE_BITS              # device-control part of the controlword
+        self._bits = cw & ~_DEVICE_BITS & 0xFFFF  # mode-specific bits 4-6, 8, 9
+        self._prev = cw
         self._pp = np.zeros(n, np.int64)
         self._hm = np.zeros(n, np.int64)
         self._stream: tuple[I64, _Column, MotionRecord | None] | None = None
@@ -663,7 +666,12 @@ class DriveGroup:
                                (int(_O.PROFILE_ACCELERATION), acceleration, "uint32"),
                                (int(_O.PROFILE_DECELERATION), deceleration, "uint32")))
         tgt = np.broadcast_to(np.rint(np.asarray(targets, np.float64)).astype(np.int64), (len(self),))
-        self._need(self._target, "target position 0x607A").set(tgt, sel)
+        if self._target is not None:
+            self._target.set(tgt, sel)
+        else:  # a profile move may take its target by SDO (not cyclic)
+            for i in np.nonzero(sel)[0].tolist():
+                self.master.slaves[self.positions[i]].sdo_write(int(_O.TARGET_POSITION), 0,
+                                                               int(tgt[i]), "int32")
         extra = (0x20 if immediate else 0) | (0x40 if relative else 0)
         self._bits = np.where(sel, (self._bits & ~0x60) | extra, self._bits)
         self._pp[sel] = _SEND

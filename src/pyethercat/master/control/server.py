@@ -34,7 +34,8 @@ if TYPE_CHECKING:
 __all__ = ["ControlServer", "MasterRunningError", "serve", "HANDLER_MODULES"]
 
 #: Modules whose import registers more handlers (one per mailbox protocol, added as they come).
-HANDLER_MODULES: tuple[str, ...] = ("pyethercat.master.control.ring_ops",)
+HANDLER_MODULES: tuple[str, ...] = ("pyethercat.master.control.ring_ops",
+                                     "pyethercat.master.control.drive_ops")
 _CRED = struct.Struct("3i")
 
 

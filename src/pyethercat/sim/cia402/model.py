@@ -223,10 +223,10 @@ class Cia402Model(DriveEngine):
         if io is None:
             return
         now = io.now_ns()
-        self.last_sync_ns[instances] = now
         run = self.sync_dc[instances] & (self.al_state[instances] >= _SAFEOP)
         inst = instances[run]
         if not len(inst):
+            self.last_sync_ns[instances] = now
             return
         cycle = np.maximum(self.sync_cycle[inst], 1)
         last = self.last_sync_sys[inst]
@@ -235,12 +235,17 @@ class Cia402Model(DriveEngine):
         self.last_sync_sys[inst] = time_ns
         # Pulses handled together had no frame between them (the segment fires the pulses
         # due before it processes a frame): all but the first missed their SM event, the
-        # first too unless a frame came since the last pulse.
+        # first too unless a frame came since the last pulse. When the segment itself did
+        # not run for longer than three cycles (a simulator held up by its host), the
+        # frames were held up with it: those pulses count as one.
         pulses = np.maximum(np.rint(dt_ns / cycle), 1).astype(np.int64)
+        held_up = now - self.last_sync_ns[inst] > 3 * cycle
+        pulses = np.where(held_up, 1, pulses)
         fresh = self.fresh[inst]
         started = self.started[inst]
         missed = (pulses - fresh) * started
         self.fresh[inst] = False
+        self.last_sync_ns[instances] = now
         self.missed[inst] += missed
         # the sync error counter: +3 per missed event, -1 per good one (Beckhoff slave stack)
         errors = np.maximum(self.sync_errors[inst] - fresh, 0) + 3 * missed
