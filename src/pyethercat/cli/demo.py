@@ -246,16 +246,34 @@ def register(cli: click.Group) -> None:
                   help="With --redundancy: slaves in the ring.")
     @click.option("--seed", default=1, show_default=True, type=int,
                   help="With --redundancy: seed of the fault draw.")
+    @click.option("--motion", is_flag=True,
+                  help="Simulated servo drives on DC follow S-curve moves (CSP); prints the "
+                       "following error and writes a plot.")
+    @click.option("--drives", default=4, show_default=True, type=int, metavar="N",
+                  help="--motion: how many drives.")
+    @click.option("--plot", default=None, metavar="FILE.png",
+                  help="--motion: where the plot goes (default: a temp directory).")
     @click.pass_obj
     def demo_cmd(obj: dict[str, Any], seconds: float | None, cycle_us: int,
                  topology: str | None, pcap: str | None, redundancy: bool, faults: int,
-                 slaves: int, seed: int) -> None:
+                 slaves: int, seed: int, motion: bool, drives: int, plot: str | None) -> None:
         """Run the main job: scan, configure, OP, 1 ms cycles with loop-back checks, pcap.
 
-        With --redundancy: the cable-redundancy experiment on a simulated ring."""
+        With --redundancy: the cable-redundancy experiment on a simulated ring.
+        With --motion: simulated servo drives on DC SYNC0 follow S-curve moves."""
+        if redundancy and motion:
+            raise ConfigError("demo: --redundancy or --motion, not both")
         if redundancy:
             run_redundancy_demo(seconds if seconds is not None else 60.0, cycle_us, faults,
                                 slaves, seed)
+            return
+        if motion:
+            from pyethercat.cli.demo_motion import run_motion
+
+            if topology is not None:
+                raise ConfigError("demo --motion makes its own segment of drives: no --topology")
+            run_motion(obj, drives=drives, cycle_us=cycle_us, plot=plot, pcap=pcap,
+                       console=Console() if sys.stdout.isatty() else Console(width=140))
             return
         seconds = 5.0 if seconds is None else seconds
         # Off a terminal (make demo | tee, CI logs) rich would squeeze tables
