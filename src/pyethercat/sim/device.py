@@ -126,7 +126,7 @@ class DeviceApp:
         """Extra checks of a requested state change: an AL status code, or 0 to allow it.
 
         Called after the ESC model's own checks (mailbox SMs, process-data SMs,
-        outputs received) passed. For SAFEOP -> OP, -1 (``sim.al_state.PENDING``)
+        outputs received) passed. For SAFEOP -> OP, -1 (``wire.al.PENDING``)
         keeps the request pending: the check runs again with every complete
         output buffer until it allows or refuses.
         """

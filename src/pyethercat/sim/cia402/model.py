@@ -41,13 +41,12 @@ from collections.abc import Callable
 import numpy as np
 import numpy.typing as npt
 
-from pyethercat.sim.al_state import PENDING
 from pyethercat.sim.cia402.engine import DriveEngine
 from pyethercat.sim.coe import coe_server
 from pyethercat.sim.mailbox import MailboxDevice
 from pyethercat.sim.od import SimObjectDictionary
 from pyethercat.wire import registers as R
-from pyethercat.wire.al import AlState, AlStatusCode
+from pyethercat.wire.al import PENDING, AlState, AlStatusCode
 from pyethercat.wire.cia402 import DriveErrorCode, DriveState
 from pyethercat.wire.mailbox.coe import ErrorRegister
 from pyethercat.wire.mailbox.objects import Cia402Object, StandardObject, SyncMode, SyncSub
