@@ -50,7 +50,7 @@ class DeviceApps:
         self._output_models: list[int] = []
         self._sync_models: list[int] = []
         self._groups: dict[bytes, _Groups] = {}
-        self._pulses: dict[int, tuple[list[int], int]] = {}
+        self._pulses: dict[int, tuple[list[I64], int]] = {}
 
     def add(self, app: DeviceApp | None, model: DeviceModel | None, instance: int) -> None:
         self.apps.append(app)
@@ -126,19 +126,34 @@ class DeviceApps:
             app.on_sync0(time_ns)
         mid = int(self.model_id[slave])
         if mid >= 0 and self.models[mid].sync_events:
-            pending = self._pulses.get(mid)
-            if pending is None:
-                self._pulses[mid] = ([int(self.instance[slave])], time_ns)
-            else:
-                pending[0].append(int(self.instance[slave]))
+            self._pulse(mid, self.instance[slave:slave + 1], time_ns)
+
+    def sync0_models(self, slaves: I64, times: npt.NDArray[np.uint64]) -> None:
+        """SYNC0 pulses of ``slaves`` whose applications do not listen (system time of each
+        one's first pulse): their models take them at :meth:`flush`, no Python per slave."""
+        mids = self.model_id[slaves]
+        for mid in self._sync_models:
+            sel = mids == mid
+            if sel.any():
+                self._pulse(mid, self.instance[slaves[sel]], int(times[sel][0]))
+
+    def _pulse(self, mid: int, instances: I64, time_ns: int) -> None:
+        pending = self._pulses.get(mid)
+        if pending is None:
+            self._pulses[mid] = ([instances], time_ns)
+        else:
+            pending[0].append(instances)
 
     def flush(self) -> None:
         """Hand the SYNC0 pulses collected since the last flush to their models (one call each)."""
         if not self._pulses:
             return
         pulses, self._pulses = self._pulses, {}
-        for mid, (instances, time_ns) in pulses.items():
-            self.models[mid].on_sync0(np.unique(np.array(instances, np.int64)), time_ns)
+        for mid, (parts, time_ns) in pulses.items():
+            instances = parts[0] if len(parts) == 1 else np.concatenate(parts)
+            if len(instances) > 1:
+                instances = np.unique(instances)
+            self.models[mid].on_sync0(instances, time_ns)
 
     @property
     def sync_models(self) -> Sequence[int]:

@@ -134,11 +134,17 @@ class DcClocks:
         #: Slaves with a planned pulse (index -> 1): the segment only ticks the unit then.
         self.sync_next: dict[int, int] = {}
         self._active: I64 | None = np.zeros(0, np.int64)
-        #: Slaves whose application or device model wants to hear each pulse.
-        self._listeners: set[int] = set()
-        #: Receives each SYNC0 pulse (slave, system time) of a listening slave; None:
-        #: the slave's application is called directly.
+        #: Per slave: its application (per pulse) or its device model wants to hear pulses.
+        self.app_listens = np.zeros(0, bool)
+        self.model_listens = np.zeros(0, bool)
+        self._any_listener = False
+        #: Receives each SYNC0 pulse (slave, system time) of a slave whose application
+        #: listens; None: the slave's application is called directly.
         self.sync0_sink: Callable[[int, int], None] | None = None
+        #: Receives the SYNC0 pulses of one tick of all slaves only their device model
+        #: listens to, as arrays (slaves, system time of each one's first pulse): no
+        #: Python per slave. None: they go through :attr:`sync0_sink` too.
+        self.sync0_models: Callable[[I64, npt.NDArray[np.uint64]], None] | None = None
         #: Segment time at which the current frame entered the first slave.
         self.frame_t0 = 0
         #: The last time-loop update (write key, difference, filter gain, tau, bound):
@@ -151,7 +157,8 @@ class DcClocks:
                            ("wide", True), ("filtered", 0.0), ("learned", 0.0),
                            ("last_update", np.nan), ("period", 0.0), ("next0", 0), ("cycle0", 0), ("cycle1", 0),
                            ("sync0_on", False), ("sync1_on", False), ("pulses", 0),
-                           ("rec_sys", 0), ("rec_true", np.nan)):
+                           ("rec_sys", 0), ("rec_true", np.nan), ("app_listens", False),
+                           ("model_listens", False)):
             setattr(self, name, _grown(getattr(self, name), n, fill))
         self.n = max(self.n, n)
         self.t0[index] = now
@@ -160,13 +167,16 @@ class DcClocks:
         esc = self.escs[index]
         self.wide[index] = esc.profile.dc_64bit
         app = esc.app
-        if app is not None and (type(app).on_sync0 is not _base_hook("on_sync0")
-                                or type(app).on_sync1 is not _base_hook("on_sync1")):
-            self._listeners.add(index)
+        self.app_listens[index] = app is not None and (
+            type(app).on_sync0 is not _base_hook("on_sync0")
+            or type(app).on_sync1 is not _base_hook("on_sync1"))
+        self.model_listens[index] = False
+        self._any_listener = bool(self.app_listens.any() or self.model_listens.any())
 
     def listen(self, index: int) -> None:
         """``index`` wants its pulses (its device model takes SYNC0 events)."""
-        self._listeners.add(index)
+        self.model_listens[index] = True
+        self._any_listener = True
 
     def reset(self, index: int, now: int) -> None:
         """Power-on of one slave: its local clock starts again from 0, no loop state, no pulses."""
@@ -476,14 +486,23 @@ class DcClocks:
         single = slaves[cycle == 0]
         for s in single.tolist():
             self.sync_drop(s)
-        if self._listeners:
+        if self._any_listener:
             self._notify(slaves, first, count, before)
 
     def _notify(self, slaves: I64, first: npt.NDArray[np.uint64], count: I64, before: I64) -> None:
-        """Applications that listen hear each pulse (at most 16 per slave and tick)."""
-        for k, s in enumerate(slaves.tolist()):
-            if s not in self._listeners:
-                continue
+        """Listeners hear the pulses: device models alone all at once, applications each
+        pulse (at most 16 per slave and tick)."""
+        app_listens = self.app_listens[slaves]
+        per_pulse = app_listens | self.model_listens[slaves]
+        models = self.sync0_models
+        if models is not None:
+            alone = per_pulse & ~app_listens
+            on = alone & self.sync0_on[slaves]
+            if on.any():
+                models(slaves[on], first[on])
+            per_pulse = app_listens
+        for k in np.flatnonzero(per_pulse).tolist():
+            s = int(slaves[k])
             app = self.escs[s].app
             sink = self.sync0_sink
             c0, c1 = int(self.cycle0[s]), int(self.cycle1[s])

@@ -193,6 +193,7 @@ class Segment(RingMixin):
         self.arrival = OutputArrival(self.escs, self.sm, self.watchdogs, self.apps, self.wiring, self.now_ns)
         self.pdio = ProcessIo(self.memory, self.escs, self.now_ns, self._host.has_outputs)
         self.dc.sync0_sink = self.apps.sync0
+        self.dc.sync0_models = self.apps.sync0_models
         # dirty flags (see sim.host.Dirty)
         self.topology_dirty = True
         self.sm_dirty = True
