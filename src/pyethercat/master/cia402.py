@@ -66,9 +66,10 @@ if TYPE_CHECKING:
     from pyethercat.master.coe import EmergencyEvent
     from pyethercat.master.cyclic import Cycle, CyclicRunner
     from pyethercat.master.master import Master
+    from pyethercat.master.slave import Slave
 
 __all__ = ["Drive", "DriveEmergency", "DriveErrorRecord", "DriveEvent", "DriveFault", "DriveGroup",
-           "MotionRecord"]
+           "MotionRecord", "read_error_history"]
 
 I64 = npt.NDArray[np.int64]
 F64 = npt.NDArray[np.float64]
@@ -469,15 +470,7 @@ class DriveGroup:
         return f"{label}, statusword 0x{sw:04X}"
 
     def _select(self, drives: Sequence[int] | None) -> B:
-        sel = np.zeros(len(self.positions), bool)
-        if drives is None:
-            sel[:] = True
-        else:
-            for d in drives:
-                if not 0 <= d < len(sel):
-                    raise ConfigError(f"no drive {d} in a group of {len(sel)}")
-                sel[d] = True
-        return sel
+        return _selection(len(self.positions), drives)
 
     # --- reading ----------------------------------------------------------------------------
 
@@ -704,14 +697,7 @@ class DriveGroup:
 
     def error_history(self, index: int = 0) -> list[DriveErrorRecord]:
         """0x1003 of drive ``index`` (newest first), by SDO."""
-        slave = self.master.slaves[self.positions[index]]
-        count = int(slave.sdo_read(int(StandardObject.ERROR_HISTORY), 0, "uint8"))
-        out = []
-        for sub in range(1, count + 1):
-            word = int(slave.sdo_read(int(StandardObject.ERROR_HISTORY), sub, "uint32"))
-            code = word & 0xFFFF
-            out.append(DriveErrorRecord(code, word >> 16, emergency_error_name(code)))
-        return out
+        return read_error_history(self.master.slaves[self.positions[index]])
 
 
 class Drive:
@@ -768,6 +754,30 @@ class Drive:
     def __repr__(self) -> str:
         st = self.state
         return f"<Drive {self.position} {st.label if st is not None else '?'}>"
+
+
+def read_error_history(slave: Slave) -> list[DriveErrorRecord]:
+    """The pre-defined error field 0x1003 of ``slave`` (newest first), by SDO."""
+    count = int(slave.sdo_read(int(StandardObject.ERROR_HISTORY), 0, "uint8"))
+    out = []
+    for sub in range(1, count + 1):
+        word = int(slave.sdo_read(int(StandardObject.ERROR_HISTORY), sub, "uint32"))
+        code = word & 0xFFFF
+        out.append(DriveErrorRecord(code, word >> 16, emergency_error_name(code)))
+    return out
+
+
+def _selection(n: int, drives: Sequence[int] | None) -> B:
+    """Drives ``drives`` (indices in the group; None: all) of a group of ``n`` as a mask."""
+    sel = np.zeros(n, bool)
+    if drives is None:
+        sel[:] = True
+        return sel
+    for d in drives:
+        if not 0 <= d < n:
+            raise ConfigError(f"no drive {d} in a group of {n}")
+        sel[d] = True
+    return sel
 
 
 def _has(io: Any, key: Cia402Object) -> bool:

@@ -710,7 +710,7 @@ def start_sim_process(
     topology: str | os.PathLike[str],
     link: str = "unix",
     pcap: str | os.PathLike[str] | None = None,
-    ready_timeout: float = 20.0,
+    ready_timeout: float = 60.0,
     realtime: int = 0,
     ring: bool = False,
     link_b: str | None = None,

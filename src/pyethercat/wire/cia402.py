@@ -14,7 +14,7 @@
   (:data:`HOMING_METHODS`), the emergency error codes drives use
   (:class:`DriveErrorCode`).
 
-The masks are the standard's (facts sheet section 16.6): a state is decoded
+The masks are those of IEC 61800-7-201 (statusword 0x6041; also ETG.6010): a state is decoded
 from bits 0-3, 5 and 6; bit 4 (voltage enabled), 7 (warning) and bits 8-15
 do not take part.
 """
