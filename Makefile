@@ -4,7 +4,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: venv test demo lint typecheck bench clean tools
+.PHONY: venv test demo demo-motion lint typecheck bench clean tools
 
 # A .venv without a working pip (a half-made one, e.g. after ensurepip was missing)
 # is made again. On Debian/Ubuntu the venv module is a separate package: installed
@@ -60,6 +60,10 @@ lint: $(STAMP)
 
 demo: $(STAMP)
 	$(PY) -m pyethercat demo
+
+# simulated servo drives on DC follow S-curve moves; the plot goes to pyethercat-motion.png
+demo-motion: $(STAMP)
+	$(PY) -m pyethercat demo --motion --plot pyethercat-motion.png
 
 bench: $(STAMP)
 	for b in benchmarks/*.py; do $(PY) $$b || exit 1; done

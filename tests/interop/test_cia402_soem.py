@@ -15,6 +15,11 @@ ESI) on one end of a veth pair. pysoem, on the other end:
   to Fault, sends emergency 0x8611 and shows it in 0x603F; a fault reset
   brings it back.
 
+Our master's ``DriveGroup`` does the same over the same veth pair (SYNC0 at 1 ms,
+CSP mapping, OP, enable, the ramp, the deliberate following error with its
+typed events, the fault reset), the way a user of ``pyethercat.master.cia402``
+would.
+
 Then the drive refuses OP once SYNC0 is gone (AL status code 0x002D, "no
 sync"), and, in OP, reports "sync unstable" when SYNC0 stops (0x002C and
 emergency 0x8700 with the manual's number 62-5).
@@ -34,10 +39,15 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
+from pyethercat.errors import DriveFaultError
+from pyethercat.master.cia402 import DriveEmergency, DriveFault, DriveGroup
+from pyethercat.master.master import Master
 from pyethercat.sim.server import SimProcess, start_sim_process
 from pyethercat.wire import registers as R
+from pyethercat.wire.cia402 import DriveState
 
 pysoem = pytest.importorskip("pysoem")
 
@@ -257,3 +267,65 @@ def test_op_refused_without_sync0_when_set_for_dc(served: tuple[SimProcess, str]
         assert R.DC_ACTIVATION  # (the register SOEM's dc_sync wrote)
     finally:
         s.m.close()
+
+
+CSP_MAPPING = {0x1C12: [(0x1600, [(0x6040, 0, 16), (0x6060, 0, 8), (0x607A, 0, 32)])],
+               0x1C13: [(0x1A00, [(0x6041, 0, 16), (0x6061, 0, 8), (0x6064, 0, 32),
+                                  (0x60F4, 0, 32), (0x603F, 0, 16)])]}
+
+
+@pytest.mark.root
+def test_our_drive_group_drives_the_drive_in_csp_on_dc(served: tuple[SimProcess, str],
+                                                       realtime: None) -> None:
+    _handle, iface = served
+    with Master.open(iface) as m:
+        m.scan()
+        m.set_state("PREOP")
+        drive = m.slaves[0]
+        drive.set_pdo_mapping(CSP_MAPPING)
+        # sync error counter limit (see above): higher than for SOEM's C loop - under load
+        # this host's Python cycle skips deadlines (the runner's stats are printed)
+        drive.sdo_write(0x10F1, 2, 60_000, "uint16")
+        m.configure()
+        m.dc.setup()
+        m.dc.configure_sync(CYCLE_NS)
+        runner = m.start(0.001, dc="master")  # the runner's thread inherits SCHED_FIFO 5
+        g = DriveGroup(m)
+        assert g.states()[0] is not None
+        # --- CSP, then 0x06, 0x07, 0x0F (one transition per answer) to Operation enabled
+        g.set_mode("csp")
+        g.enable()
+        assert g.statuswords()[0] & 0x6F == 0x27
+        assert drive.sdo_read(0x1C32, 1, "uint16") == 2  # DC SYNC0
+        # --- 100,000 increments on a ramp (500 ms), then target reached
+        start = int(g.positions_actual()[0])
+        window = int(drive.sdo_read(0x6065, 0, "uint32"))
+        ramp = start + 100_000 * np.arange(1, 501) // 500
+        rec = g.stream(ramp, settle=100)
+        assert rec is not None and rec.following_error is not None
+        worst = int(np.abs(rec.following_error).max())
+        assert 0 < worst < window, worst
+        assert g.statuswords()[0] & 0x0400 and abs(int(g.positions_actual()[0]) - ramp[-1]) <= 100
+        print(f"our master: max following error {worst} (window {window}), "
+              f"SM events missed {drive.sdo_read(0x1C32, 0x0B, 'uint16')}, cycles "
+              f"{runner.stats.cycles}, skipped {runner.stats.skipped}")
+        # --- a following error on purpose: a fault with its code, typed events, 0x603F
+        here = int(g.positions_actual()[0])
+        with pytest.raises(DriveFaultError) as fault:
+            g.stream(np.full(1000, here + 2_000_000), record=False)
+        assert fault.value.code == 0x8611
+        for _ in range(100):  # through Fault reaction active (a stop ramp) to Fault
+            if g.states()[0] == DriveState.FAULT:
+                break
+            g.step(10)
+        assert g.statuswords()[0] & 0x4F == 0x08
+        assert drive.sdo_read(0x603F, 0, "uint16") == 0x8611
+        assert any(isinstance(e, DriveFault) and e.code == 0x8611 for e in g.events), g.events
+        assert any(isinstance(e, DriveEmergency) and e.code == 0x8611 for e in g.events), g.events
+        assert [r.code for r in g.error_history(0)][0] == 0x8611
+        # --- fault reset (rising edge of bit 7) and back to operation
+        g.fault_reset()
+        assert g.statuswords()[0] & 0x4F == 0x40 and drive.sdo_read(0x603F, 0, "uint16") == 0
+        g.enable()
+        assert g.statuswords()[0] & 0x6F == 0x27
+        g.disable()

@@ -419,8 +419,8 @@ class DriveGroup:
                 raise DriveError("the cyclic exchange stopped (or does not keep up)")
         else:
             runner.run(cycles=cycles)
-        if self._err is None:
-            self.master.poll_mailboxes()
+        if self._err is None or self._bad.any():  # emergencies: the code, a fault's events
+            self.master.mailboxes.poll([self.master.slaves[p] for p in self.positions])
 
     def _wait(self, done: Callable[[], bool], timeout: float, what: str, sel: B,
               expect_fault: bool = False) -> None:
