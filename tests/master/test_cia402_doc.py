@@ -59,8 +59,8 @@ def test_two_axis_csp_example_moves_both_axes_within_the_window() -> None:
     peak = np.abs(rec.following_error).max(axis=0)
     assert (peak > 0).all() and (peak < 200).all(), peak
     assert out.getvalue().startswith("peak following error:")
-    # the axes really moved together (synchronized=True): both stop in the same cycle
-    still = np.abs(np.diff(rec.commanded, axis=0)).sum(axis=1) == 0
-    last_moving = np.nonzero(np.abs(np.diff(rec.commanded, axis=0)) > 0)
-    ends = [last_moving[0][last_moving[1] == k].max() for k in (0, 1)]
-    assert ends[0] == ends[1] and still[-50:].all()
+    # the axes moved together (synchronized=True): their commanded positions stop changing
+    # in the same cycle (give or take the rounding of the last sample to whole increments)
+    steps = np.abs(np.diff(rec.commanded, axis=0)) > 0
+    ends = [int(np.nonzero(steps[:, k])[0].max()) for k in (0, 1)]
+    assert abs(ends[0] - ends[1]) <= 1 and not steps[-50:].any(), ends
