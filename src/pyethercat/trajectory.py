@@ -119,7 +119,7 @@ def trapezoid(start: ArrayLike, end: ArrayLike, vmax: ArrayLike, amax: ArrayLike
                             0.5 * acc * t1 ** 2 + vpeak * tc + vpeak * td - 0.5 * acc * td ** 2))
     vel = np.where(up, acc * tt, np.where(cruise, vpeak, vpeak - acc * td))
     accel = np.where(up, acc, np.where(cruise, 0.0, -acc))
-    done = t >= total
+    done = t >= np.minimum(total, t[-1])  # the last sample is the end (the grid rounds)
     pos = np.where(done, d, pos)
     vel = np.where(done, 0.0, vel)
     accel = np.where(done, 0.0, accel)
@@ -174,7 +174,7 @@ def s_curve(start: ArrayLike, end: ArrayLike, vmax: ArrayLike, amax: ArrayLike,
         pos = np.where(m, p0[i] + v0[i] * h + a0[i] * h ** 2 / 2 + j * h ** 3 / 6, pos)
         vel = np.where(m, v0[i] + a0[i] * h + j * h ** 2 / 2, vel)
         acc = np.where(m, a0[i] + j * h, acc)
-    done = t >= total
+    done = t >= np.minimum(total, t[-1])  # the last sample is the end (the grid rounds)
     pos = np.where(done, d, pos)
     vel = np.where(done, 0.0, vel)
     acc = np.where(done, 0.0, acc)
