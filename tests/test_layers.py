@@ -145,8 +145,10 @@ ALLOWED = {
     "clock": set(),
     # The topology file format (text in, typed entries out), read by both sides.
     "topology": {"errors"},
+    # Motion profiles (numpy only), sampled for the master's drive helper and for users.
+    "trajectory": {"errors"},
     "link": {"errors", "wire"},
-    "master": {"errors", "wire", "esi", "link", "clock", "topology"},
+    "master": {"errors", "wire", "esi", "link", "clock", "topology", "trajectory"},
     "sim": {"errors", "wire", "esi", "link", "clock", "topology"},
 }
 

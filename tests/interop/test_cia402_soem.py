@@ -52,6 +52,11 @@ from pyethercat.wire.cia402 import DriveState
 pysoem = pytest.importorskip("pysoem")
 
 CYCLE_NS = 1_000_000
+#: 0x10F1:02 for these tests: +3 per missed SM event, -1 per good one. On the loaded host
+#: our Python loop missed ~500 events in the 1.2 s ramp, and in full suite runs the SOEM
+#: test failed where it passes alone (1000 was the limit then). SYNC0 stopping is still
+#: found at once (by the SYNC0 watchdog, not by this counter).
+SYNC_ERROR_LIMIT = 60_000
 RX = [0x60400010, 0x60600008, 0x607A0020]
 TX = [0x60410010, 0x60610008, 0x60640020, 0x60F40020, 0x603F0010]
 OUT_FMT, IN_FMT = "<HbI", "<HbiiH"
@@ -93,7 +98,7 @@ def map_csp(slave: Any) -> None:
         slave.sdo_write(obj, 0, u8(len(words)))
         slave.sdo_write(assign, 1, struct.pack("<H", obj))
         slave.sdo_write(assign, 0, u8(1))
-    slave.sdo_write(0x10F1, 2, struct.pack("<H", 1000))  # sync error counter limit (see above)
+    slave.sdo_write(0x10F1, 2, struct.pack("<H", SYNC_ERROR_LIMIT))  # (see above)
 
 
 class Soem:
@@ -283,9 +288,7 @@ def test_our_drive_group_drives_the_drive_in_csp_on_dc(served: tuple[SimProcess,
         m.set_state("PREOP")
         drive = m.slaves[0]
         drive.set_pdo_mapping(CSP_MAPPING)
-        # sync error counter limit (see above): higher than for SOEM's C loop - under load
-        # this host's Python cycle skips deadlines (the runner's stats are printed)
-        drive.sdo_write(0x10F1, 2, 60_000, "uint16")
+        drive.sdo_write(0x10F1, 2, SYNC_ERROR_LIMIT, "uint16")  # (see above)
         m.configure()
         m.dc.setup()
         m.dc.configure_sync(CYCLE_NS)
