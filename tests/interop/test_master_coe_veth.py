@@ -161,7 +161,8 @@ def test_our_master_coe_against_the_simulator(served: tuple[SimProcess, str]) ->
             assert _wait_echo(lambda: io.inputs["Value 32"] == 0x01020304)
             assert (io.inputs["Digital inputs"], io.inputs["Value 16"]) == (0x5A, 0xBEEF)
             assert _wait_echo(lambda: drive.inputs[(0x6061, 0)] == 3)
-            assert drive.inputs[(0x6041, 0)] == 0x0250
+            # shutdown (0x06) in OP: the drive goes to Ready to switch on (CiA 402)
+            assert _wait_echo(lambda: drive.inputs[(0x6041, 0)] & 0x6F == 0x21)
 
             # SDOs while cyclic exchange runs: the status comes from the cyclic frame
             start = time.time_ns()

@@ -168,10 +168,12 @@ def test_soem_coe_against_the_simulator(served: tuple[SimProcess, str, Path], ts
         drive.output = struct.pack("<Hb", 0x0006, 3)
         for _ in range(50):
             cycle(master)
-            if io.input == io.output:
+            sw, mode = struct.unpack("<Hb", drive.input)
+            if io.input == io.output and sw & 0x6F == 0x21 and mode == 3:
                 break
         assert io.input == struct.pack("<BHI", 0x5A, 0xBEEF, 0x01020304)
-        assert drive.input == struct.pack("<Hb", 0x0250, 3)
+        # shutdown (0x06) in OP: Ready to switch on (CiA 402), the mode shown in 0x6061
+        assert (sw & 0x6F, mode) == (0x21, 3)
         # mapping objects are PREOP-only
         with pytest.raises(pysoem.SdoError) as err:
             io.sdo_write(0x1C12, 0, u8(0))
