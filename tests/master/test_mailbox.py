@@ -73,14 +73,28 @@ def test_mailbox_error_reply_is_typed() -> None:
     assert s.describe() in str(err.value)
 
 
+def test_unanswered_request_is_sent_again_with_the_next_counter() -> None:
+    m, apps, drop = _master()
+    s = m.slaves[0]
+    assert s.mbx is not None
+    apps[0].silent = 1  # the slave drops the first request (as it drops a repeated counter)
+    before = len(drop.frames)
+    assert s.sdo_read(0x1018, 2, "uint32", timeout=0.2) == 0x00040002
+    writes = _sm0_writes(drop.frames[before:], s.station_address, s.mbx.rx_offset)
+    assert [MailboxHeader.decode(w).counter for w in writes] == [1, 2]
+    assert writes[0][6:] == writes[1][6:]  # the same request
+    assert s.mbx.stats.resent == 1
+
+
 def test_timeout_names_slave_and_what_and_aborts() -> None:
     m, apps, _drop = _master()
     s = m.slaves[0]
-    apps[0].silent = 1
+    apps[0].silent = 2  # the request and its second sending
     with pytest.raises(EcTimeoutError) as err:
         s.sdo_read(0x1018, 2, timeout=0.05)
     text = str(err.value)
     assert s.describe() in text and "0x1018:02" in text
+    assert "sent twice" in text
     # the master told the slave it gave up: SDO protocol timeout
     aborts = [r for r in apps[0].requests if isinstance(r, SdoAbortTransfer)]
     assert aborts and aborts[-1].code == SdoAbortCode.TIMEOUT

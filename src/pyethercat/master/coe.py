@@ -330,16 +330,13 @@ class CoeClient:
         span = self.timeout if timeout is None else timeout
         limit = mbx.clock() + span
         msg: CoeMessage = first
-        answer = f"answer to {what}"
         clock = mbx.clock
         with mbx.lock:
             mbx.drop(_is_sdo)  # answers to transfers that timed out earlier
             while True:
                 try:
-                    mbx.send(MailboxType.COE, msg.encode(), what=what,
-                             timeout=max(0.0, limit - clock()))
-                    reply = mbx.receive(_is_sdo, what=answer,
-                                        timeout=max(0.0, limit - clock()))
+                    reply = mbx.transact(MailboxType.COE, msg.encode(), _is_sdo, what=what,
+                                         timeout=max(0.0, limit - clock()))
                 except EcTimeoutError:
                     self._abort(index, subindex, SdoAbortCode.TIMEOUT)
                     raise
@@ -381,11 +378,11 @@ class CoeClient:
         limit = mbx.clock() + span
         with mbx.lock:
             mbx.drop(_is_info)
-            mbx.send(MailboxType.COE, request.encode(), what=what, timeout=span)
+            # The first fragment answers the request (sent again if unanswered).
+            reply = mbx.transact(MailboxType.COE, request.encode(), _is_info, what=what,
+                                 timeout=span)
             reasm = SdoInfoReassembler()
             while True:
-                reply = mbx.receive(_is_info, what=f"answer to {what}",
-                                    timeout=max(0.0, limit - mbx.clock()))
                 try:
                     got = reasm.feed(reply.payload)
                 except MailboxError as exc:
@@ -394,6 +391,8 @@ class CoeClient:
                         raise MailboxError(f"{self.label}: {what}: {exc}") from None
                     got = SdoInfoError(code=code)
                 if got is None:
+                    reply = mbx.receive(_is_info, what=f"answer to {what}",
+                                        timeout=max(0.0, limit - mbx.clock()))
                     continue
                 if isinstance(got, SdoInfoError):
                     err = got.to_error(index, subindex)

@@ -31,6 +31,15 @@ mailbox mode as the ET1100 datasheet section II "SyncManager" describes):
   and the read found nothing, the master toggles SM1 activate bit 1, waits
   for the slave to echo it in PDI control bit 1 (repeat acknowledge), and
   reads the re-posted message.
+- **Take-over**: a slave drops a request whose counter repeats the last one
+  it took (ETG.1000.4, mailbox header "Cnt"), and a slave that another
+  master (SOEM, IgH, an earlier session) left in PREOP may remember any
+  counter 1..7, so our first request (counter 1) may be dropped without a
+  word. :meth:`Mailbox.transact` therefore sends a request that got no
+  answer within half its timeout once more, with the next counter, which
+  the slave cannot have taken last. Before the first request, whatever an
+  earlier master left in SM1 (a reply it never read) is read and dropped
+  (:meth:`Mailbox.drain`), so it cannot pass for the answer.
 - **Check**: length word against the SM size, duplicate counters (a message
   with the same non-zero counter as the previous one is a repetition and is
   dropped), mailbox error replies (type 0) raise
@@ -180,6 +189,8 @@ class MailboxStats:
     #: Speculative SM1 reads that found the answer already there.
     early_replies: int = 0
     repeat_requests: int = 0
+    #: Requests sent again with the next counter after getting no answer.
+    resent: int = 0
     #: Messages dropped because they repeated the previous counter.
     duplicates: int = 0
     error_replies: int = 0
@@ -455,13 +466,32 @@ class Mailbox:
     def transact(self, mtype: MailboxType | int, payload: bytes, accept: Accept | None = None,
                  *, what: str = "mailbox request", timeout: float | None = None,
                  ) -> ReceivedMessage:
-        """Send a request and wait for the message ``accept`` takes as its answer."""
+        """Send a request and wait for the message ``accept`` takes as its answer.
+
+        Unanswered within half of ``timeout``, the request is sent once more
+        with the next counter (see the module text: the slave may have
+        dropped it as a repetition of another master's last counter).
+        """
         span = self.timeout if timeout is None else timeout
-        limit = self.clock() + span
+        clock = self.clock
+        limit = clock() + span
+        answer = f"reply to {what}"
         with self.lock:
             self.send(mtype, payload, what=what, timeout=span)
-            return self.receive(accept, what=f"reply to {what}",
-                                timeout=max(0.0, limit - self.clock()))
+            try:
+                return self.receive(accept, what=answer,
+                                    timeout=max(0.0, limit - span / 2 - clock()))
+            except EcTimeoutError:
+                pass
+            self.stats.resent += 1
+            _log.info("%s: no %s, %s sent again with the next counter", self.label, answer,
+                      what)
+            self.send(mtype, payload, what=what, timeout=max(0.0, limit - clock()))
+            try:
+                return self.receive(accept, what=answer, timeout=max(0.0, limit - clock()))
+            except EcTimeoutError:
+                raise EcTimeoutError(f"{self.label}: no {answer} within {span:.3g} s (sent "
+                                     "twice, with two counters)") from None
 
     def fetch(self) -> bool:
         """Read SM1 once; True when a message came (it is dispatched or queued)."""
