@@ -38,6 +38,7 @@ __all__ = [
     "FoeTimeoutError",
     "FrameTooLargeError",
     "LinkClosedError",
+    "LinkDownError",
     "LinkError",
     "MailboxError",
     "MailboxErrorReply",
@@ -265,6 +266,13 @@ class PermissionError(LinkError, builtins.PermissionError):  # noqa: A001 - deli
 
 class LinkClosedError(LinkError):
     """The link was closed (by us or by the peer)."""
+
+
+class LinkDownError(LinkError):
+    """The link is down for now (interface down, no carrier, segment unreachable).
+
+    Not final: the same link works again once the medium is back.
+    """
 
 
 # --- master runtime errors -----------------------------------------------------

@@ -83,8 +83,8 @@ def test_pdo_choice_init_cmds_and_dc_mode_from_esi(tmp_path: Path, corpus_dir: P
     m.pd.bring_up(m.slaves, 2.0)  # to SAFE-OP: the PS commands ran, no outputs yet
     assert drive.sdo_read(0x6060, 0) == b"\x03"  # type: ignore[attr-defined]
     assert drive.sdo_read(0x1C13, 0) == b"\x02"  # type: ignore[attr-defined]
-    m.run(cycle=0.002, seconds=0.05)
-    assert all(s.al_state == AlState.OP for s in m.slaves)
+    with m.start(cycle=0.002):  # (its orderly stop takes them back to PREOP)
+        assert all(s.al_state == AlState.OP for s in m.slaves)
     assert "Velocity_Actual_Value" in dict(drive.inputs.items())  # type: ignore[attr-defined]
 
 
@@ -109,8 +109,8 @@ def test_eni_round_trip_and_start_without_sii(tmp_path: Path, corpus_dir: Path) 
     assert again == eni
     m2.pd.bring_up(m2.slaves, 2.0)
     assert m2.slaves[0].sdo_read(0x6060, 0) == b"\x03"  # type: ignore[attr-defined]
-    m2.run(cycle=0.002, seconds=0.05)
-    assert all(s.al_state == AlState.OP for s in m2.slaves)
+    with m2.start(cycle=0.002):  # (its orderly stop takes them back to PREOP)
+        assert all(s.al_state == AlState.OP for s in m2.slaves)
 
 
 def test_eni_import_checks_identity(tmp_path: Path, corpus_dir: Path) -> None:

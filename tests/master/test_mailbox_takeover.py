@@ -16,6 +16,7 @@ from pathlib import Path
 
 import pytest
 
+from pyethercat.clock import VirtualClock
 from pyethercat.link.pair import PairLink
 from pyethercat.master.master import Master
 from pyethercat.wire.al import AlState
@@ -50,7 +51,7 @@ def segment(tmp_path: Path) -> object:
 
 
 def other_master(segment: object, uploads: int) -> Master:
-    a = Master(PairLink.responder_link(segment.process), deterministic=True)  # type: ignore[attr-defined]
+    a = Master(PairLink.responder_link(segment.process), clock=VirtualClock())  # type: ignore[attr-defined]
     a.scan()
     a.set_state("PREOP")
     for _ in range(uploads):
@@ -67,7 +68,7 @@ def sm0_counters(frames: list[bytes], offset: int) -> list[int]:
 def test_upload_after_another_master_did_k_uploads(segment: object, k: int) -> None:
     other_master(segment, k).close()
     rec = Recorder(segment)
-    b = Master(PairLink.responder_link(rec), deterministic=True)
+    b = Master(PairLink.responder_link(rec), clock=VirtualClock())
     b.scan(reset=False)
     s = b.slaves[0]
     assert s.al_state == AlState.PREOP  # left there by the other master
@@ -90,7 +91,7 @@ def test_a_reply_the_other_master_never_read_is_dropped_first(segment: object) -
     # The other master asks for 0x1018:02 and goes away before reading the answer.
     box.send(MailboxType.COE, SdoInitiateUploadRequest(0x1018, 2).encode(), fetch=False)
     a.close()
-    b = Master(PairLink.responder_link(segment.process), deterministic=True)  # type: ignore[attr-defined]
+    b = Master(PairLink.responder_link(segment.process), clock=VirtualClock())  # type: ignore[attr-defined]
     b.scan(reset=False)
     # 0x1018:01, not the stale answer about 0x1018:02 still waiting in SM1
     assert b.slaves[0].sdo_read(0x1018, 1, "uint32") == VENDOR  # type: ignore[attr-defined]

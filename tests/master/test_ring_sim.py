@@ -14,6 +14,7 @@ import pytest
 
 from pyethercat.clock import VirtualClock
 from pyethercat.link.pair import PairLink
+from pyethercat.master.cycleplan import plan_frames
 from pyethercat.master.cyclic import CyclicRunner
 from pyethercat.master.master import Master
 from pyethercat.sim.ring import ring_link
@@ -112,7 +113,7 @@ def test_split_ring_halves_come_back_on_their_own_ports() -> None:
     seg, m = open_ring()
     r = start(seg, m)
     seg.break_link(1, 1)
-    ticket = m.scheduler.send_prepared(r._plan(list(r.groups))[0][0].template)  # noqa: SLF001
+    ticket = m.scheduler.send_prepared(plan_frames(m.scheduler, list(r.groups))[0][0].template)
     assert ticket.wait_raw() is not None
     assert ticket.copies is not None and set(ticket.copies) == {0, 1}
     m.close()

@@ -79,9 +79,10 @@ def test_esi_slaves_reach_op_with_the_declared_layout(tmp_path: Path, corpus_dir
         }
         want = {s.sm.index: (s.byte_size, s.pdo_indices) for s in layout.sms if s.pdos}
         assert got == want == by_hand, path.name
-    stats = m.run(cycle=0.002, seconds=0.1)
-    assert all(s.al_state == AlState.OP for s in m.slaves)
-    assert stats.wkc_errors == 0  # type: ignore[union-attr]
+    with m.start(cycle=0.002) as runner:  # (its orderly stop takes them back to PREOP)
+        assert all(s.al_state == AlState.OP for s in m.slaves)
+        assert runner.wait_exchanges("main", 20, 5.0)
+    assert runner.stats.wkc_errors == 0
     # The dictionary is served: identity and a default value from the ESI.
     seed = m.slaves[0]
     assert int.from_bytes(seed.sdo_read(0x1018, 2), "little") == 0x264860D2  # type: ignore[attr-defined]

@@ -28,6 +28,9 @@ class _Slave:
         self.index = index
         self.name = name
 
+    def u16(self, address: int) -> int:
+        return 0x0002 if address == 0x0130 else 0  # AL status: PREOP
+
 
 class FakeSegment:
     """Adds 1 to every datagram's working counter; records fault calls."""
@@ -147,7 +150,8 @@ def test_control_channel(running: tuple[SimServer, FakeSegment, UnixLink, str]) 
         {"cmd": "stats"},
     )
     assert answers[0] == {"ok": True}
-    assert answers[1]["slaves"] == [{"index": 0, "name": "a"}, {"index": 1, "name": "b"}]
+    assert answers[1]["slaves"] == [{"index": 0, "name": "a", "al_status": 2},
+                                    {"index": 1, "name": "b", "al_status": 2}]
     assert all(a["ok"] for a in answers[2:7])
     assert answers[7] == {"ok": False, "error": "no slave named 'zz'"}
     assert answers[8]["ok"] is False and "unknown command" in answers[8]["error"]

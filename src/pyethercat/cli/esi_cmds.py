@@ -278,5 +278,7 @@ def register(cli: click.Group) -> None:
                 click.echo(f"{s.position:>3} {s.address_text:<8} {s.name:<24} identity ok  "
                            f"out {sc.output_bits} bit in {sc.input_bits} bit")  # fmt: skip
             if op:
-                m.run(cycle=0.001, seconds=0.2)
-                click.echo("states: " + " ".join(s.al_state_name for s in m.slaves))
+                # The states reached while cycling (the stop takes the slaves back to PREOP).
+                with m.start(cycle=0.001):
+                    reached = " ".join(s.al_state_name for s in m.slaves)
+                click.echo("states: " + reached)

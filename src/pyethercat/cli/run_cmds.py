@@ -4,7 +4,11 @@
 IgH's ``ethercat pdos`` does) plus where the master maps them: the logical
 address and bit of every block. ``run [--cycle US] [--seconds S]`` brings the
 segment to OP and runs the cyclic exchange with a live view (states, working
-counters, cycle statistics) refreshed in place; Ctrl-C ends it early.
+counters, cycle statistics, the link) refreshed in place. The run survives
+link loss (the view says "link DOWN"; slaves come back to OP when it
+returns). Ctrl-C or SIGTERM ends it early; every end is an orderly stop
+(safe outputs, SAFEOP, ``--final-state``) followed by the statistics, and
+the exit status is 1 when the segment did not come back.
 ``run --eni FILE`` starts from an ENI file instead of an SII scan (identities
 checked, PDO assignment and InitCmds from the file, its cycle time the default).
 """
@@ -24,6 +28,7 @@ from rich.table import Table
 from rich.text import Text
 
 from pyethercat.cli._connect import connect
+from pyethercat.cli._lifecycle import FINAL_STATES, StopSignals, cycle_until, segment_lost_error
 from pyethercat.cli._select import selection_options
 from pyethercat.cli._session import open_session, serving
 from pyethercat.cli._util import parse_int
@@ -106,10 +111,17 @@ def live_view(master: Master, runner: CyclicRunner, extra: Callable[[], list[str
         slaves.add_column(col, no_wrap=True)
     for s in master.slaves:
         h = runner.health.get(s.position)
-        state = state_name(h.state | (AL_ERROR_FLAG if h.error else 0)) if h and h.state else \
-            s.al_state_name
+        current = runner.slave_state(s.position)
+        if h is None:
+            state = Text(s.al_state_name)
+        elif current is not None:
+            state = Text(state_name(current))
+        else:
+            # Never a stale state as if it were current.
+            last = state_name(h.state | (AL_ERROR_FLAG if h.error else 0)) if h.state else ""
+            state = Text("unknown" + (f" (was {last})" if last else ""), style="yellow")
         status = h.status if h else "-"
-        style = "green" if status == "ok" else "red"
+        style = "green" if status == "ok" else ("yellow" if status == "lost" else "red")
         slaves.add_row(str(s.position), s.address_text, s.name or "?", state,
                        Text(status, style=style))
     st = runner.stats
@@ -119,6 +131,7 @@ def live_view(master: Master, runner: CyclicRunner, extra: Callable[[], list[str
     stats = Table(title="cycles", show_header=False, show_edge=False)
     stats.add_column("what")
     stats.add_column("value")
+    stats.add_row("link", _link_text(runner))
     stats.add_row("cycles", f"{st.cycles} at {st.period_ns / 1000:g} us")
     stats.add_row("period mean/min/max us",
                   f"{_fmt(per['mean'])} / {_fmt(per['min'])} / {_fmt(per['max'])}")
@@ -129,14 +142,30 @@ def live_view(master: Master, runner: CyclicRunner, extra: Callable[[], list[str
     stats.add_row("WKC errors / lost frames", f"{st.wkc_errors} / {st.lost_frames}")
     for g in runner.groups:
         ok = Text("ok", style="green") if g.wkc_ok else Text("BAD", style="red")
-        stats.add_row(f"group {g.name} WKC", Text.assemble(f"{g.total_wkc}/{g.expected_wkc} ", ok))
+        age = g.image.input_age
+        stale = Text(f" inputs {age} cycles old", style="yellow") if age else Text("")
+        stats.add_row(f"group {g.name} WKC",
+                      Text.assemble(f"{g.total_wkc}/{g.expected_wkc} ", ok, stale))
     parts: list[Any] = [slaves, stats]
     lines = list(extra()) if extra is not None else []
-    lines += runner.status_lines()[len(runner.groups):]  # DC, when it runs
+    dc = runner.dc_status_line()
+    if dc is not None:
+        lines.append(dc)
     lines += [e.text for e in list(runner.events)[-4:]]
     if lines:
         parts.append(Text("\n".join(lines)))
     return Group(*parts)
+
+
+def _link_text(runner: CyclicRunner) -> Text:
+    st = runner.stats
+    if not st.link_up:
+        return Text(f"DOWN for {runner.down_for():.1f} s ({st.down_cycles} cycles lost)",
+                    style="bold red")
+    if st.link_downs:
+        return Text(f"up; down {st.link_downs}x before ({st.down_ns / 1e9:.2f} s, "
+                    f"{st.down_cycles} cycles lost)", style="yellow")
+    return Text("up", style="green")
 
 
 def format_summary(runner: CyclicRunner) -> str:
@@ -145,6 +174,7 @@ def format_summary(runner: CyclicRunner) -> str:
     jit = st.jitter_us((50, 90, 99, 99.9, 100))
     rtt = st.round_trip_us()
     per = st.period_us()
+    down = (st.down_ns + st.down_for_ns(st.last_ns or 0)) / 1e9
     return "\n".join([
         f"cycles: {st.cycles} at {st.period_ns / 1000:g} us (mean period {_fmt(per['mean'], 2)} us)",
         "jitter us: " + ", ".join(f"{k} {_fmt(v)}" for k, v in jit.items()),
@@ -152,7 +182,9 @@ def format_summary(runner: CyclicRunner) -> str:
         f"late cycles: {st.late}, overruns: {st.overruns} (callback {st.callback_overruns}), "
         f"skipped: {st.skipped}",
         f"WKC errors: {st.wkc_errors}, lost frames: {st.lost_frames}",
-    ] + runner.status_lines()[len(runner.groups):])
+        f"link: {'up' if st.link_up else 'DOWN'} at the end; down {st.link_downs} times, "
+        f"{down:.2f} s, {st.down_cycles} cycles lost",
+    ] + ([dc] if (dc := runner.dc_status_line()) is not None else []))
 
 
 def register(cli: click.Group) -> None:
@@ -177,7 +209,7 @@ def register(cli: click.Group) -> None:
     @click.option("--cycle", "cycle_us", default=None, metavar="US",
                   help="Cycle time in microseconds [default: the ENI's, else 1000].")
     @click.option("--seconds", default=None, type=float, metavar="S",
-                  help="Stop after S seconds (default: until Ctrl-C).")
+                  help="Stop after S seconds (default: until Ctrl-C or SIGTERM).")
     @click.option("--pcap", default=None, metavar="FILE", help="Record every frame to FILE.")
     @click.option("--layout", type=click.Choice(["packed", "byte"]), default="packed",
                   show_default=True, help="Bit-packed or byte-aligned process image.")
@@ -212,13 +244,19 @@ def register(cli: click.Group) -> None:
     @click.option("--hot-connect", "hot_connect", multiple=True, metavar="NAME=ALIAS[:SIZE]",
                   help="A hot connect group: the slave with ALIAS and SIZE-1 behind it may go "
                        "and come back while cycling (repeatable).")
+    @click.option("--final-state", "final_state", default="PREOP", show_default=True,
+                  type=click.Choice(FINAL_STATES, case_sensitive=False),
+                  help="State the slaves are left in when the run ends.")
+    @click.option("--give-up", "give_up", default=60.0, show_default=True, type=float,
+                  metavar="S", help="End with an error once no frame came back for S seconds "
+                                    "(0: keep waiting).")
     @click.pass_obj
     def run_cmd(obj: dict[str, Any], cycle_us: str | None, seconds: float | None,
                 pcap: str | None, layout: str, eni_file: str | None, dc: bool,
                 sync0_us: str | None, sync1_us: str | None, shift_us: str | None,
                 dc_mode: str, plot: str | None, eoe: bool, eoe_tap: str,
                 eoe_host_ip: str | None, eoe_per_slave: bool,
-                hot_connect: tuple[str, ...]) -> None:
+                hot_connect: tuple[str, ...], final_state: str, give_up: float) -> None:
         """Bring the segment to OP and run cyclic exchange with a live view."""
         dc = dc or any(x is not None for x in (sync0_us, sync1_us, shift_us))
         eni = None
@@ -236,9 +274,12 @@ def register(cli: click.Group) -> None:
             raise ConfigError(f"cycle time must be positive, got {cycle_us} us")
         if seconds is not None and seconds <= 0:
             raise ConfigError(f"run: --seconds must be positive, got {seconds:g}")
+        if give_up < 0:
+            raise ConfigError(f"run: --give-up must be 0 (never) or positive, got {give_up:g}")
         # Off a terminal rich would squeeze the table into 80 columns: give it room.
         console = Console() if sys.stdout.isatty() else Console(width=140)
-        with connect(obj, pcap=pcap) as conn, serving(obj, conn.master):
+        with StopSignals() as signals, connect(obj, pcap=pcap) as conn, \
+                serving(obj, conn.master):
             m = conn.master
             # an in-process simulator keeps real time while the master cycles in real time
             # (its drives, watchdogs and DC clocks move with the cycle's clock)
@@ -261,7 +302,8 @@ def register(cli: click.Group) -> None:
                 m.dc.setup(DcSettings(trace_every=250 if plot else 0))
                 configure_sync_from_options(m, int(round(cycle * 1e9)), sync0_us, sync1_us,
                                             shift_us)
-            runner = m.start(cycle, dc=dc_mode if dc else None)
+            runner = m.start(cycle, dc=dc_mode if dc else None, final_state=final_state.upper())
+            signals.cycling_with(runner)
             eoe_run = None
             extra = None
             if eoe:
@@ -279,15 +321,15 @@ def register(cli: click.Group) -> None:
                 def extra() -> list[str]:
                     return format_eoe(eoe_rows(run.clients, run.bridge.names, True,
                                                time.monotonic() - run.started))
-            end = None if seconds is None else time.monotonic() + seconds
+            console.print(f"{len(m.slaves)} slaves in OP, cycling every {cycle * 1e6:g} us "
+                          f"(Ctrl-C ends the run; slaves then go to {final_state.upper()})")
             try:
                 with Live(live_view(m, runner, extra), console=console, refresh_per_second=4,
                           transient=False) as live:
-                    while runner.running and (end is None or time.monotonic() < end):
-                        time.sleep(0.25)
-                        live.update(live_view(m, runner, extra))
-            except KeyboardInterrupt:
-                pass
+                    why = cycle_until(runner, signals, seconds, give_up,
+                                      lambda: live.update(live_view(m, runner, extra)))
+                # Judged while the slaves are still cycling (the stop takes them down).
+                failure = segment_lost_error(runner, m)
             finally:
                 if eoe_run is not None:
                     eoe_run.close()
@@ -305,6 +347,12 @@ def register(cli: click.Group) -> None:
                 click.echo(f"plot written to {plot}")
             if eoe_run is not None and extra is not None:
                 click.echo("\n".join(extra()))
+            if runner.stop_report:
+                click.echo(runner.stop_report)
+            if why == "signal":
+                click.echo(f"ended by {signals.received}")
+            if failure is not None:
+                raise failure
 
 
 def _hot_connect_spec(text: str) -> tuple[str, int, int]:

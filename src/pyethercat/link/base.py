@@ -65,6 +65,11 @@ class Link(abc.ABC):
         """A file descriptor that polls readable when a frame may be ready, or ``None``."""
         return None
 
+    def carrier(self) -> bool | None:
+        """Whether the medium is connected: True or False where the OS tells (a network
+        interface that is up with a link partner), None where the link cannot know."""
+        return None
+
     def close(self) -> None:
         """Release the link; further use raises :class:`LinkClosedError`. Idempotent."""
         self._closed = True

@@ -75,6 +75,9 @@ class CaptureLink(Link):
     def fileno(self) -> int | None:
         return self.inner.fileno()
 
+    def carrier(self) -> bool | None:
+        return self.inner.carrier()
+
     def send(self, frame: bytes) -> None:
         self._check_open()
         self._record(bytes(frame), PacketDirection.OUTBOUND)

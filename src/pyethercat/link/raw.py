@@ -27,21 +27,32 @@ A deleted interface is reported as :class:`~pyethercat.errors.LinkError`
 ``ENETDOWN``, and not at all when the interface was already down) and then
 leaves the socket bound to nothing, so a ``recv`` that finds nothing checks,
 at most once every ``_PRESENCE_PERIOD`` seconds, that the interface index it
-bound to still exists. Going down is not final: the link works again once
-the interface is up.
+bound to still exists.
+
+Going down is not final: the socket works again once the interface is up.
+A ``send`` while our interface is down raises
+:class:`~pyethercat.errors.LinkDownError`; so does one the kernel refuses
+for a full transmit queue (``ENOBUFS``) while the interface has no carrier
+(a pulled cable: the queue fills because nothing drains it); with carrier a
+full queue only loses the frame, as on a busy wire. A ``recv`` waiting when
+the interface goes down gets the kernel's one-off ``ENETDOWN`` notice, also
+as :class:`~pyethercat.errors.LinkDownError`; later calls wait as usual.
+:meth:`RawLink.carrier` asks the kernel whether the interface is up with a
+link partner (``SIOCGIFFLAGS``: ``IFF_UP`` and ``IFF_RUNNING``).
 """
 
 from __future__ import annotations
 
 import contextlib
 import errno
+import fcntl
 import os
 import socket
 import struct
 import sys
 import time
 
-from pyethercat.errors import LinkError, PermissionError
+from pyethercat.errors import LinkDownError, LinkError, PermissionError
 from pyethercat.link.base import MAX_FRAME, SocketLink
 from pyethercat.wire.frame import ETHERTYPE_ETHERCAT
 
@@ -60,6 +71,11 @@ _TICK_MARGIN = 0.011
 _MAX_BLOCK = 1.0
 # How often an idle recv checks that the interface still exists (one ioctl).
 _PRESENCE_PERIOD = 1.0
+# Linux <linux/sockios.h>, <net/if.h>: interface flags of a struct ifreq.
+_SIOCGIFFLAGS = 0x8913
+_IFF_UP = 0x1
+_IFF_RUNNING = 0x40
+_IFREQ = struct.Struct("16sH14x")
 
 
 def _permission_message(iface: str) -> str:
@@ -124,6 +140,10 @@ class RawLink(SocketLink):
         self._rcvtimeo_ms = 0
         #: Frames of ours the kernel looped back and recv dropped.
         self.dropped_outgoing = 0
+        #: Frames lost to a full transmit queue (ENOBUFS) while the carrier was there.
+        self.dropped_nobufs = 0
+        #: ENETDOWN notices the kernel gave recv (the interface went down).
+        self.down_notices = 0
 
     def _check_present(self, now: float | None = None) -> None:
         """Raise LinkError if the bound interface was deleted.
@@ -147,25 +167,48 @@ class RawLink(SocketLink):
                 return
         raise LinkError(self._gone)
 
+    def carrier(self) -> bool | None:
+        """Whether the interface is up and has a link partner (False once it has gone)."""
+        if self._closed or self._gone is not None:
+            return False
+        try:
+            got = fcntl.ioctl(self._sock.fileno(), _SIOCGIFFLAGS,
+                              _IFREQ.pack(self.iface.encode(), 0))
+        except OSError:
+            return False
+        flags = _IFREQ.unpack(got)[1]
+        return bool(flags & _IFF_UP) and bool(flags & _IFF_RUNNING)
+
     def send(self, frame: bytes) -> None:
         self._check_open()
         if self._gone is not None:
             self._check_present()
-        try:
-            self._sock.send(frame, socket.MSG_DONTWAIT)
-        except BlockingIOError:
-            pass  # transmit queue full: the frame is lost, as on a busy wire
-        except OSError as exc:
-            if exc.errno == errno.ENETDOWN:
-                raise LinkError(f"network interface {self.iface} is down") from exc
-            if exc.errno == errno.EMSGSIZE:
-                raise LinkError(
-                    f"frame of {len(frame)} bytes is too large for {self.iface}"
-                ) from exc
-            if exc.errno == errno.ENXIO or exc.errno == errno.ENODEV:
-                self._gone = f"network interface {self.iface} has gone"
-                raise LinkError(self._gone) from exc
-            raise LinkError(f"send on {self.iface} failed: {exc}") from exc
+        for attempt in (1, 2):
+            try:
+                self._sock.send(frame, socket.MSG_DONTWAIT)
+                return
+            except BlockingIOError:
+                return  # transmit queue full: the frame is lost, as on a busy wire
+            except OSError as exc:
+                if exc.errno == errno.ENOBUFS:
+                    if self.carrier() is False:
+                        self._check_present()
+                        raise LinkDownError(f"no carrier on {self.iface}") from exc
+                    self.dropped_nobufs += 1
+                    return
+                if exc.errno == errno.ENETDOWN:
+                    self._check_present()
+                    if attempt == 1 and self.carrier():
+                        continue  # the notice of a spell that is over: send again
+                    raise LinkDownError(f"network interface {self.iface} is down") from exc
+                if exc.errno == errno.EMSGSIZE:
+                    raise LinkError(
+                        f"frame of {len(frame)} bytes is too large for {self.iface}"
+                    ) from exc
+                if exc.errno == errno.ENXIO or exc.errno == errno.ENODEV:
+                    self._gone = f"network interface {self.iface} has gone"
+                    raise LinkError(self._gone) from exc
+                raise LinkError(f"send on {self.iface} failed: {exc}") from exc
 
     def recv(self, timeout: float | None = None) -> bytes | None:
         self._check_open()
@@ -206,9 +249,13 @@ class RawLink(SocketLink):
                 self._gone = f"network interface {self.iface} has gone"
                 raise LinkError(self._gone) from exc
             if exc.errno == errno.ENETDOWN:
-                # The kernel says ENETDOWN for a deleted interface too.
+                # A one-off notice that the interface went down (the kernel says the
+                # same for a deleted one): the socket works again once it is up.
                 self._check_present()
-                raise LinkError(f"network interface {self.iface} is down") from exc
+                self.down_notices += 1
+                if not self.carrier():
+                    raise LinkDownError(f"network interface {self.iface} is down") from exc
+                return None  # the notice of a spell that is already over
             raise LinkError(f"receive on {self.iface} failed: {exc}") from exc
         if addr[2] == _PACKET_OUTGOING:
             self.dropped_outgoing += 1

@@ -1,4 +1,4 @@
-"""Cyclic process-data exchange: the loop, its statistics, supervision and recovery.
+"""Cyclic process-data exchange: the loop, link spells, stale inputs, orderly stop.
 
 ``CyclicRunner`` runs the process-data groups of a configured master at
 absolute deadlines (``start + k * period``): it sleeps until shortly before
@@ -6,38 +6,54 @@ the deadline and busy-waits the last slice, so wake-up jitter is the spin
 granularity, not the scheduler's timer slack. Each cycle it copies every due
 group's buffer into its datagrams (one LRW, or LWR + LRD, per 1486-byte
 chunk), sends them through the master's scheduler (queued acyclic datagrams
-ride in the spare room of the frame), copies the replies' input bytes back
-and compares one working counter per datagram. No per-slave work happens on
-that path.
+ride in the spare room of the frame), checks one working counter per
+datagram and copies the replies' input bytes back. No per-slave work
+happens on that path.
+
+Inputs come only from an exchange that came back whole: a group's input
+bytes are copied when every one of its datagrams returned with the expected
+working counter. Otherwise the group keeps its last good inputs and they
+age: ``ProcessImage.input_age`` (and ``slave.inputs.age``) counts the
+group's exchanges since they were refreshed. SOEM
+(``ecx_receive_processdata_group`` in ``ec_main.c``) and IgH
+(``ec_master_receive_datagrams`` in ``master/master.c``) copy the data of
+every datagram that came back, whatever its working counter, and leave it to
+the application to compare the counter (SOEM's return value, IgH's
+``ecrt_domain_state`` ``wc_state``); a lost frame leaves the old data in
+both.
+
+A cyclic frame has until 90% of the period after its deadline to come back,
+but at least 2 ms (``frame_timeout`` overrides); a later one counts as lost,
+so at periods from 2.2 ms up a lost frame costs no deadline. While the link
+is down each cycle's frames are probes that wait 100 µs at most (a reply
+that comes later ends the spell one cycle later), so the loop keeps its
+deadlines through the whole spell. When no frame of a cycle comes
+back for ``link_timeout`` seconds, or the link says it has no carrier or
+refuses to send, the link is *down*: the loop keeps its deadlines, counts
+the lost cycles (``CycleStats.down_cycles``), stops the supervision's checks
+and marks every slave's state unknown. The first frame that comes back ends
+the spell; supervision then reads every slave and the recovery thread
+brings those that fell out of OP (process-data watchdog) back.
 
 Several groups may run at different cycle times (as IgH's domains and
 TwinCAT's tasks do):
 the loop ticks at the shortest period and sends a group every
 ``period / tick`` ticks.
 
-Supervision, between cycles and cheap: every ``check_interval`` seconds a
-BRD of AL status (2 bytes) rides in a cyclic frame. Its working counter is
-the number of slaves that answered and its data the OR of their states; when
-either is off, or a group's working counter was wrong, the next frames carry
-one FPRD of AL status per slave (the "multiple read"), which names the slaves
-that dropped out of the requested state or vanished. A recovery thread (never
-the cycle thread) brings them back: a slave that answers again at position p
-with station address 0 was power-cycled, so it gets its address, its sync
-managers and FMMUs again, and is walked up to the requested state; a slave
-that only left OP is acknowledged and requested again. The master is never
-restarted.
+Supervision and recovery: see :mod:`pyethercat.master.supervision`.
+Statistics: :class:`~pyethercat.master.cyclestats.CycleStats`.
 
-Statistics (``CycleStats``): cycles, period and wake-up latency percentiles,
-a period-jitter histogram, late cycles, overruns (and how many of them the
-user callback caused), skipped deadlines, working-counter errors, lost
-frames, round-trip times.
+Stopping (:meth:`CyclicRunner.stop`) is orderly: for ``safe_cycles``
+cycles the outputs sent are the safe ones (``ProcessImage.safe``: zero
+unless the application set values there), then, with a ``leave`` callback
+(the master gives one), the slaves are requested to SAFEOP while the loop
+still runs, the loop ends, and the slaves are taken to ``final_state``
+(PREOP by default), so no slave is left to run into its watchdog.
+:meth:`CyclicRunner.halt` ends the loop at once.
 """
 
 from __future__ import annotations
 
-import bisect
-import math
-import struct
 import threading
 import time
 from collections import deque
@@ -45,18 +61,23 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
-import numpy.typing as npt
-
 from pyethercat.clock import Clock, PerfClock
-from pyethercat.errors import ConfigError, EtherCATError
-from pyethercat.master.config import CyclicDatagram, GroupConfig, ProcessDataConfig, wkc_share
+from pyethercat.errors import ConfigError
+from pyethercat.master.config import ProcessDataConfig
+from pyethercat.master.cycleplan import (
+    FramePlan,
+    GroupRuntime,
+    group_runtimes,
+)
+from pyethercat.master.cyclestats import JITTER_BINS_US, CycleStats
 from pyethercat.master.dc_loop import DcCycle, SyncEvent
+from pyethercat.master.exchange import CycleExchange, DcRider
 from pyethercat.master.image import ProcessImage
-from pyethercat.master.scheduler import CyclicFrame, CyclicTemplate, Request, Scheduler
-from pyethercat.wire import registers as reg
-from pyethercat.wire.al import AlState, state_name
-from pyethercat.wire.datagram import MAX_PAYLOAD, OVERHEAD, Command, Datagram
+from pyethercat.master.linkwatch import LinkWatch
+from pyethercat.master.scheduler import CyclicFrame, Scheduler
+from pyethercat.master.stopping import LeaveFn, OrderlyStop
+from pyethercat.master.supervision import SlaveHealth, Supervisor
+from pyethercat.wire.al import AlState
 
 __all__ = [
     "CycleStats",
@@ -64,184 +85,11 @@ __all__ = [
     "GroupRuntime",
     "GroupStatus",
     "CyclicRunner",
+    "LeaveFn",
+    "check_final_state",
     "SlaveHealth",
     "JITTER_BINS_US",
 ]
-
-#: Upper edges (µs) of the period-jitter histogram bins; the last bin is open.
-JITTER_BINS_US = (1, 2, 5, 10, 20, 50, 100, 200, 500, 1000)
-# AL status bits a supervised slave must show exactly: the state and no error flag.
-_STATE_AND_ERROR = reg.AL_STATE_MASK | reg.AL_ERROR_FLAG
-
-
-# --- statistics ------------------------------------------------------------------------
-
-
-class CycleStats:
-    """Counters and timing samples of a cyclic loop.
-
-    Samples (period, wake-up latency, round trip; nanoseconds) are kept in
-    fixed numpy ring buffers of ``capacity`` entries, so memory does not grow
-    with run time; percentiles cover the last ``capacity`` cycles.
-    """
-
-    def __init__(self, period_ns: int, capacity: int = 1 << 18) -> None:
-        self.period_ns = period_ns
-        self.capacity = capacity
-        self.cycles = 0
-        self.late = 0
-        self.overruns = 0
-        self.callback_overruns = 0
-        self.skipped = 0
-        self.wkc_errors = 0
-        #: Cycles whose working counter was short of even the slaves present
-        #: (the ones known to be gone, ``CyclicRunner.set_absent``, not counted).
-        self.incomplete = 0
-        self.lost_frames = 0
-        self.frames = 0
-        self._periods = np.zeros(capacity, dtype=np.int64)
-        self._latency = np.zeros(capacity, dtype=np.int64)
-        self._rtt = np.zeros(capacity, dtype=np.int64)
-        self._n_period = 0
-        self._n_rtt = 0
-        self._last_start: int | None = None
-        self.histogram = [0] * (len(JITTER_BINS_US) + 1)
-        self._edges_ns = [b * 1000 for b in JITTER_BINS_US]
-        self.started_ns: int | None = None
-        self.last_ns: int | None = None
-
-    def record_start(self, deadline_ns: int, start_ns: int, late_threshold_ns: int) -> None:
-        """One cycle began at ``start_ns`` for ``deadline_ns``."""
-        self.cycles += 1
-        if self.started_ns is None:
-            self.started_ns = start_ns
-        self.last_ns = start_ns
-        latency = start_ns - deadline_ns
-        i = (self.cycles - 1) % self.capacity
-        self._latency[i] = latency
-        if latency > late_threshold_ns:
-            self.late += 1
-        if self._last_start is not None:
-            period = start_ns - self._last_start
-            j = self._n_period % self.capacity
-            self._periods[j] = period
-            self._n_period += 1
-            # Bin k: the first edge the deviation stays below.
-            self.histogram[bisect.bisect_right(self._edges_ns, abs(period - self.period_ns))] += 1
-        self._last_start = start_ns
-
-    def record_round_trip(self, ns: int) -> None:
-        self._rtt[self._n_rtt % self.capacity] = ns
-        self._n_rtt += 1
-
-    def restart_period(self) -> None:
-        """Forget the previous start (after skipped deadlines the period is not a sample)."""
-        self._last_start = None
-
-    # -- views --------------------------------------------------------------------
-
-    def periods(self) -> npt.NDArray[np.int64]:
-        return self._periods[:min(self._n_period, self.capacity)].copy()
-
-    def latencies(self) -> npt.NDArray[np.int64]:
-        return self._latency[:min(self.cycles, self.capacity)].copy()
-
-    def round_trips(self) -> npt.NDArray[np.int64]:
-        return self._rtt[:min(self._n_rtt, self.capacity)].copy()
-
-    @staticmethod
-    def _pct(samples: npt.NDArray[np.int64], qs: Sequence[float]) -> dict[str, float]:
-        if samples.size == 0:
-            return {f"p{q:g}": math.nan for q in qs}
-        values = np.percentile(samples, qs)
-        return {f"p{q:g}": float(v) / 1000.0 for q, v in zip(qs, values, strict=True)}
-
-    def jitter_us(self, qs: Sequence[float] = (50, 90, 99, 99.9, 100)) -> dict[str, float]:
-        """Percentiles of |period - nominal| in µs."""
-        return self._pct(np.abs(self.periods() - self.period_ns), qs)
-
-    def latency_us(self, qs: Sequence[float] = (50, 90, 99, 99.9, 100)) -> dict[str, float]:
-        """Percentiles of wake-up latency (start - deadline) in µs."""
-        return self._pct(self.latencies(), qs)
-
-    def round_trip_us(self, qs: Sequence[float] = (50, 90, 99, 100)) -> dict[str, float]:
-        """Percentiles of the process-data round trip in µs."""
-        return self._pct(self.round_trips(), qs)
-
-    def period_us(self) -> dict[str, float]:
-        p = self.periods()
-        if p.size == 0:
-            return {"mean": math.nan, "min": math.nan, "max": math.nan}
-        return {"mean": float(p.mean()) / 1000, "min": float(p.min()) / 1000,
-                "max": float(p.max()) / 1000}
-
-    def summary(self) -> dict[str, object]:
-        """Everything as plain numbers (for printing and JSON)."""
-        return {
-            "cycles": self.cycles, "period_us": self.period_ns / 1000,
-            "late": self.late, "overruns": self.overruns,
-            "callback_overruns": self.callback_overruns, "skipped": self.skipped,
-            "wkc_errors": self.wkc_errors, "incomplete": self.incomplete,
-            "lost_frames": self.lost_frames,
-            "frames": self.frames,
-            "period": self.period_us(), "jitter_us": self.jitter_us(),
-            "latency_us": self.latency_us(), "round_trip_us": self.round_trip_us(),
-            "histogram": dict(zip([f"<{b}us" for b in JITTER_BINS_US] + [f">={JITTER_BINS_US[-1]}us"],
-                                  self.histogram, strict=True)),
-        }
-
-
-# --- groups ----------------------------------------------------------------------------
-
-
-class GroupRuntime:
-    """A group's image plus its precomputed datagram plan and counters."""
-
-    def __init__(self, config: GroupConfig, image: ProcessImage, every: int = 1) -> None:
-        self.config = config
-        self.image = image
-        self.name = config.name
-        #: The group is sent every ``every`` loop ticks.
-        self.every = every
-        self.plan: list[CyclicDatagram] = list(config.datagrams)
-        self.expected_wkc = config.expected_wkc
-        #: Working counters of the last exchange, per datagram.
-        self.last_wkc: list[int] = [0] * len(self.plan)
-        self.wkc_ok = False
-        #: The last exchange was complete for every slave not known to be gone.
-        self.present_ok = False
-        self.wkc_errors = 0
-        self.incomplete = 0
-        self.lost = 0
-        self.exchanges = 0
-
-    @property
-    def total_wkc(self) -> int:
-        return sum(self.last_wkc)
-
-
-class _FramePlan:
-    """One prepared frame of a cycle: where each group's bytes go and come back from.
-
-    ``fills``: (source view of a group buffer, frame offset) for the bytes sent;
-    ``takes``: per datagram (group, datagram number, WKC offset, expected WKC,
-    reply offset of the input bytes, buffer start, buffer end, the share of
-    absent slaves that may count on top of the expected WKC).
-    """
-
-    __slots__ = ("template", "fills", "takes", "groups", "dc_fill", "dc_read")
-
-    def __init__(self, template: CyclicTemplate, fills: list[tuple[memoryview, int]],
-                 takes: list[tuple[GroupRuntime, int, int, int, int, int, int, int]],
-                 groups: list[GroupRuntime]) -> None:
-        self.template = template
-        self.fills = fills
-        self.takes = takes
-        self.groups = groups
-        #: Frame offsets of the DC datagrams' data (master time written, FRMW read); -1: none.
-        self.dc_fill = -1
-        self.dc_read = -1
-
 
 @dataclass
 class Cycle:
@@ -254,22 +102,8 @@ class Cycle:
     wkc_ok: bool = True
     lost: bool = False
     groups: tuple[str, ...] = ()
-
-
-@dataclass
-class SlaveHealth:
-    """Supervision state of one slave."""
-
-    position: int
-    station_address: int
-    state: int = 0
-    error: bool = False
-    code: int = 0
-    present: bool = True
-    #: "ok", "dropped" (answers, not in the requested state), "vanished", "recovering"
-    status: str = "ok"
-    recoveries: int = 0
-    lost_since_ns: int | None = None
+    #: False while the link is down (no frame comes back).
+    link_up: bool = True
 
 
 @dataclass
@@ -287,22 +121,33 @@ class GroupStatus:
 
     ``image`` is a read-only view of the group's process image (it changes
     with every exchange; copy what must stay). ``wkc_ok`` tells whether the
-    last exchange came back with the expected working counters.
+    last exchange came back with the expected working counters;
+    ``input_age`` how many of the group's exchanges ago its inputs were
+    refreshed (0: by the last one), ``inputs_valid`` whether they ever were.
     """
 
     name: str
     exchanges: int
     wkc_ok: bool
     image: memoryview
+    input_age: int = 0
+    inputs_valid: bool = True
+
+    @property
+    def inputs_stale(self) -> bool:
+        return self.input_age > 0 or not self.inputs_valid
 
 
 class CyclicRunner:
     """The cyclic loop over one or more groups (see the module text).
 
     ``slaves`` are the master's slave objects (``position``,
-    ``station_address``, ``al_state``); ``reconfigure(slave)`` is called from
-    the recovery thread to rewrite a slave's configuration and bring it back
-    to ``target`` (the master passes its own; tests may pass a fake).
+    ``station_address``); ``recover(positions)`` is called from the recovery
+    thread to bring slaves back to ``target``, ``leave(state, positions,
+    timeout)`` by :meth:`stop` to take them down (the master passes its own;
+    tests may pass fakes). ``link_timeout``: seconds without any frame back
+    before the link counts as down (default: 3 periods, at least 20 ms).
+    ``state_timeout``: see :meth:`slave_state`.
     """
 
     def __init__(self, scheduler: Scheduler, config: ProcessDataConfig,
@@ -312,9 +157,18 @@ class CyclicRunner:
                  check_interval: float = 0.1, target: AlState = AlState.OP,
                  recover: Callable[[list[int]], None] | None = None,
                  groups: Sequence[str] | None = None, late_fraction: float = 0.25,
-                 frame_timeout: float | None = None, dc: DcCycle | None = None) -> None:
+                 frame_timeout: float | None = None, link_timeout: float | None = None,
+                 state_timeout: float | None = None, leave: LeaveFn | None = None,
+                 final_state: AlState | str = AlState.PREOP, safe_cycles: int = 3,
+                 dc: DcCycle | None = None) -> None:
         if cycle <= 0:
             raise ConfigError(f"cycle time must be positive, got {cycle}")
+        for what, value in (("frame_timeout", frame_timeout), ("link_timeout", link_timeout),
+                            ("state_timeout", state_timeout)):
+            if value is not None and value <= 0:
+                raise ConfigError(f"{what} must be positive, got {value}")
+        if safe_cycles < 0:
+            raise ConfigError(f"safe_cycles must be >= 0, got {safe_cycles}")
         self.scheduler = scheduler
         self.config = config
         self.images = images
@@ -322,80 +176,82 @@ class CyclicRunner:
         self.clock: Clock = clock or PerfClock()
         self.callback = callback
         self.target = target
-        self.recover_fn = recover
-        self.check_interval = check_interval
         self.frame_timeout = frame_timeout
-        names = list(groups) if groups is not None else [g.name for g in config.groups]
-        tick = min([cycle] + [config.group(n).cycle or cycle for n in names])
+        tick, self.groups = group_runtimes(config, images, groups, cycle)
         self.period_ns = int(round(tick * 1e9))
-        self.groups: list[GroupRuntime] = []
-        for n in names:
-            g = config.group(n)
-            g_cycle = g.cycle or cycle
-            every = max(1, int(round(g_cycle / tick)))
-            if abs(every * tick - g_cycle) > 1e-9 + 1e-6 * g_cycle:
-                raise ConfigError(f"group {n!r}: cycle {g_cycle} s is not a multiple of the "
-                                  f"loop tick {tick} s")
-            self.groups.append(GroupRuntime(g, images[n], every))
         self.stats = CycleStats(self.period_ns)
         self.late_threshold_ns = int(self.period_ns * late_fraction)
-        self.health: dict[int, SlaveHealth] = {
-            int(getattr(s, "position")): SlaveHealth(int(getattr(s, "position")),  # noqa: B009
-                                                     int(getattr(s, "station_address")))  # noqa: B009
-            for s in self.slaves}
         self.events: deque[_Event] = deque(maxlen=200)
+        self.supervisor = Supervisor(scheduler, self.slaves, target=target, recover=recover,
+                                     check_interval=check_interval, tick_ns=self.period_ns,
+                                     now_ns=self.clock.now_ns, log=self.log,
+                                     state_timeout=state_timeout)
         self.cycle = Cycle()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._cond = threading.Condition()
-        self._check_every = max(1, int(round(check_interval / tick))) if check_interval > 0 else 0
-        self._brd: Request | None = None
-        self._detail: list[Request] | None = None
-        self._want_detail = False
-        self._recover_thread: threading.Thread | None = None
-        self._recover_lock = threading.Lock()
-        self._check_ns = int(check_interval * 1e9)
-        self._last_detail_ns = 0
-        self._next_recovery_ns = 0
-        self._backoff_ns = 0
-        self._last_failure = ""
         self.error: BaseException | None = None
         self.consumer_missed = 0
-        #: Prepared frames per set of due groups (built on first use).
-        self._plans: dict[tuple[int, ...], tuple[list[_FramePlan], tuple[str, ...],
-                                                 tuple[GroupRuntime, ...]]] = {}
         self._every = tuple(g.every for g in self.groups)
         self._all_due = tuple(range(len(self.groups)))
-        #: False while the master is still walking the slaves up (no supervision yet).
-        self.supervising = True
-        #: Distributed clocks: the FRMW (and in reference mode the time write) in every
-        #: cycle's first frame, the phase lock moving the deadlines, the sync monitor.
-        self.dc = dc
-        self.dc_events: deque[SyncEvent] = deque(maxlen=200)
+        self.watch = LinkWatch(scheduler.link, self.stats, self.supervisor, self.log,
+                               self.period_ns, link_timeout, heard=self._heard)
         #: Objects riding along every cycle (``before_cycle(runner)``,
         #: ``after_cycle(runner, tickets, ok)``): the ring watch.
         self.riders: list[Any] = []
-        #: The cyclic frames of the last cycle (their replies, copies, IRQ fields).
-        self.last_tickets: list[CyclicFrame] = []
-        #: Their prepared-frame plans (``takes``: what each datagram carries).
-        self.last_plans: list[_FramePlan] = []
-        #: Slaves known to be gone (set_absent): not expected in working counters.
-        self.absent: frozenset[int] = frozenset()
-        self._dc_shift = 0
-        self._dc_brd: Request | None = None
+        #: Distributed clocks: the FRMW (and in reference mode the time write) in every
+        #: cycle's first frame, the phase lock moving the deadlines, the sync monitor.
+        self.dc = dc
+        self._dc = DcRider(dc, scheduler, self.log) if dc is not None else None
+        #: The frames of each cycle (prepared frames, the hot path).
+        self.xchg = CycleExchange(scheduler, config, self.groups, self.clock, self.stats,
+                                  self.watch, dc, self._dc, frame_timeout)
         #: Where the next run() continues the cycle grid (with DC).
         self._resume_ns: int | None = None
         if dc is not None and dc.cycle_ns != self.period_ns:
             raise ConfigError(f"DC cycle {dc.cycle_ns} ns differs from the loop period "
                               f"{self.period_ns} ns")
+        self.leave = leave
+        self.final_state = check_final_state(final_state)
+        self.safe_cycles = safe_cycles
+        self._stopper = OrderlyStop(self.supervisor, self.stats, leave, self.log,
+                                    send_safe=self.send_safe_outputs,
+                                    wait_cycles=self.wait_cycles, end_loop=self.halt,
+                                    safe_cycles=safe_cycles,
+                                    cycles_per_round=max(self._every, default=1),
+                                    period_s=self.period_ns / 1e9)
+        self._stopping = False
+        self._abandoned = False
+        #: What the last orderly stop did (one line), for summaries.
+        self.stop_report = ""
 
     # -- control ------------------------------------------------------------------------
+
+    @property
+    def health(self) -> dict[int, SlaveHealth]:
+        """Supervision state per slave position."""
+        return self.supervisor.health
+
+    @property
+    def supervising(self) -> bool:
+        """False while the master is still walking the slaves up (no checks yet)."""
+        return self.supervisor.enabled
+
+    @supervising.setter
+    def supervising(self, value: bool) -> None:
+        # The master turns supervision on right after it saw every slave reach the
+        # target state: that counts as the first confirmation.
+        if value and not self.supervisor.enabled:
+            self.supervisor.confirm_all()
+        self.supervisor.enabled = value
 
     def start(self) -> CyclicRunner:
         """Run the loop in a background thread."""
         if self._thread is not None and self._thread.is_alive():
             raise ConfigError("the cyclic loop is already running")
         self._stop.clear()
+        self.xchg.safe = False
+        self._abandoned = False
         self._thread = threading.Thread(target=self._thread_main, name="ecat-cyclic", daemon=True)
         self._thread.start()
         return self
@@ -412,18 +268,43 @@ class CyclicRunner:
             with self._cond:
                 self._cond.notify_all()
 
-    def stop(self) -> None:
-        """Ask the loop to stop and wait for it."""
+    def stop(self, final_state: AlState | str | None = None, *, timeout: float = 2.0) -> None:
+        """Stop in order (see the module text) and wait for the loop to end.
+
+        ``final_state`` overrides the runner's (SAFEOP, PREOP, INIT or BOOT);
+        ``timeout`` bounds each state step. Failures to reach a state are
+        logged as events and in :attr:`stop_report`, never raised: stopping
+        always stops. Called from the loop thread (a callback), it only ends
+        the loop.
+        """
+        final = self.final_state if final_state is None else check_final_state(final_state)
+        if threading.current_thread() is self._thread:
+            self._stop.set()
+            return
+        if self.running and not self._stopping and not self._abandoned:
+            self._stopping = True
+            try:
+                self.stop_report = self._stopper.run(final, timeout)
+            finally:
+                self._stopping = False
+        self.halt()
+
+    def halt(self) -> None:
+        """End the loop now (no safe outputs, no state changes) and wait for it."""
         self._stop.set()
         self.join()
+
+    def abandon(self) -> None:
+        """Give the loop up at once, without waiting (safe in a signal handler): a
+        :meth:`stop` already running is cut short, a later one only waits."""
+        self._abandoned = True
+        self._stop.set()
 
     def join(self, timeout: float | None = None) -> None:
         t = self._thread
         if t is not None and t is not threading.current_thread():
             t.join(timeout)
-        r = self._recover_thread
-        if r is not None and r is not threading.current_thread():
-            r.join(timeout)
+        self.supervisor.join(timeout)
         if self.error is not None and not isinstance(self.error, KeyboardInterrupt):
             err, self.error = self.error, None
             raise err
@@ -440,10 +321,27 @@ class CyclicRunner:
                           f"(groups: {', '.join(g.name for g in self.groups)})")
 
     def group_status(self, name: str) -> GroupStatus:
-        """Exchanges so far, last working-counter verdict and a read-only image view."""
+        """Exchanges so far, last working-counter verdict, input age and a read-only image view."""
         g = self._group(name)
-        return GroupStatus(g.name, g.exchanges, g.wkc_ok,
-                           memoryview(g.image.buffer).toreadonly())
+        img = g.image
+        return GroupStatus(g.name, g.exchanges, g.wkc_ok, memoryview(img.buffer).toreadonly(),
+                           img.input_age, img.inputs_valid)
+
+    def slave_input_age(self, position: int) -> int:
+        """Exchanges since the inputs of a slave's group were last refreshed."""
+        for g in self.groups:
+            if position in g.image.positions:
+                return g.image.input_age
+        raise ConfigError(f"slave {position} is in none of the runner's groups")
+
+    def slave_state(self, position: int) -> int | None:
+        """AL status (state, error flag) supervision confirmed lately; None when unknown.
+
+        Unknown while the link is down, when the slave does not answer, and
+        when no check confirmed it within ``state_timeout`` seconds: a stale
+        state is never shown as current.
+        """
+        return self.supervisor.state(position, self.stats.link_up)
 
     def wait_exchanges(self, name: str, count: int, timeout: float) -> bool:
         """Wait until group ``name`` completed ``count`` more exchanges than now.
@@ -455,18 +353,31 @@ class CyclicRunner:
         g = self._group(name)
         if count <= 0:
             return True
-        if not self.running or threading.current_thread() is self._thread:
+        if threading.current_thread() is self._thread:
             return False
         want = g.exchanges + count
+        return self._wait(lambda: g.exchanges >= want, timeout)
+
+    def wait_cycles(self, count: int, timeout: float) -> bool:
+        """Wait until the loop ran ``count`` more cycles (False: not in time, or it ended)."""
+        want = self.stats.cycles + count
+        return self._wait(lambda: self.stats.cycles >= want, timeout)
+
+    def _wait(self, done: Callable[[], bool], timeout: float) -> bool:
         limit = time.monotonic() + timeout
         # The loop notifies this condition after every cycle.
         with self._cond:
-            while g.exchanges < want:
+            while not done():
                 left = limit - time.monotonic()
                 if left <= 0 or not self.running:
                     return False
                 self._cond.wait(min(left, 0.05))
         return True
+
+    def send_safe_outputs(self) -> None:
+        """From the next cycle on, send the safe outputs (``ProcessImage.safe``) instead of
+        the application's (until :meth:`start`); the cycle callback is not called."""
+        self.xchg.safe = True
 
     def __enter__(self) -> CyclicRunner:
         return self if self._thread is not None else self.start()
@@ -494,10 +405,10 @@ class CyclicRunner:
         stats = self.stats
         cyc = self.cycle
         while not self._stop.is_set():
-            if self._dc_shift:
+            if self._dc is not None and self._dc.shift:
                 # The DC phase lock moved the cycle: every later deadline moves with it.
-                start += self._dc_shift
-                self._dc_shift = 0
+                start += self._dc.shift
+                self._dc.shift = 0
             deadline = start + k * period
             if end is not None and deadline >= end:
                 break
@@ -507,13 +418,15 @@ class CyclicRunner:
             t0 = clock.now_ns()
             stats.record_start(deadline, t0, self.late_threshold_ns)
             due = self._due(k)
-            ok, lost, rtt, names = self._exchange(due, k)
-            stats.record_round_trip(rtt)
+            ok, lost, rtt, names = self._exchange(due, k, deadline, t0)
+            if not lost:
+                stats.record_round_trip(rtt)
             cyc.index, cyc.deadline_ns, cyc.start_ns = k, deadline, t0
             cyc.round_trip_ns, cyc.wkc_ok, cyc.lost = rtt, ok, lost
             cyc.groups = names
+            cyc.link_up = stats.link_up
             t1 = clock.now_ns()
-            if self.callback is not None:
+            if self.callback is not None and not self.xchg.safe:
                 self.callback(cyc)
             t2 = clock.now_ns()
             nxt = deadline + period
@@ -534,17 +447,11 @@ class CyclicRunner:
             done += 1
             with self._cond:
                 self._cond.notify_all()
-        self._resume_ns = start + self._dc_shift + k * period
-        self._dc_shift = 0
+        shift = 0
+        if self._dc is not None:
+            shift, self._dc.shift = self._dc.shift, 0
+        self._resume_ns = start + shift + k * period
         return stats
-
-    def set_absent(self, positions: Iterable[int]) -> None:
-        """Slaves known to be gone (a failed node, a cut branch, one being brought back):
-        their share of each working counter is not expected until they are back."""
-        absent = frozenset(positions)
-        if absent != self.absent:
-            self.absent = absent
-            self._plans.clear()  # the loop plans its frames again with these expectations
 
     def _due(self, k: int) -> tuple[int, ...]:
         """Numbers of the groups due at tick ``k``."""
@@ -558,312 +465,77 @@ class CyclicRunner:
 
         For measurements and single-stepping: copies outputs, sends, waits,
         copies inputs back, checks working counters, as one loop cycle does
-        (without timing statistics and supervision). Not while the loop runs.
+        (without timing statistics, link tracking and supervision). Not while
+        the loop runs.
         """
         if self.running:
             raise ConfigError("the cyclic loop is running: exchange_once() would race it")
-        ok, lost, _rtt, _names = self._exchange_frames(self._all_due)
+        ok, lost, _back, _rtt, _names = self.xchg.exchange(self._all_due, None)
         return ok and not lost
 
-    def _exchange(self, due: tuple[int, ...], k: int) -> tuple[bool, bool, int, tuple[str, ...]]:
-        """One cycle's frames and the supervision riding in them."""
-        self._supervise_before(k)
-        if self.dc is not None:
-            self._dc_monitor()
+    def _exchange(self, due: tuple[int, ...], k: int, deadline: int, t0: int
+                  ) -> tuple[bool, bool, int, tuple[str, ...]]:
+        """One cycle's frames, the link's state and the supervision riding in them."""
+        sup = self.supervisor
+        up = self.stats.link_up
+        if up:
+            sup.before(k)
         for rider in self.riders:
             rider.before_cycle(self)
-        ok, lost, rtt, names = self._exchange_frames(due)
-        self._supervise_after(ok and not lost)
-        for rider in self.riders:
-            rider.after_cycle(self, self.last_tickets, ok and not lost)
+        xchg = self.xchg
+        probes = xchg.tickets
+        ok, lost, back, rtt, names = xchg.exchange(due, deadline)
+        self.watch.cycle_done(back, t0, probes)
+        if back:
+            # (Nothing back is a matter for the link, not an incident of the slaves.)
+            sup.after(ok and not lost)
+            if self._dc is not None:
+                self._dc.monitor(self.clock.now_ns())
+        if len(xchg.last_tickets) == len(xchg.tickets):  # (none refused by the link)
+            for rider in self.riders:
+                rider.after_cycle(self, xchg.last_tickets, ok and not lost)
         self.scheduler.step()
         return ok and not lost, lost, rtt, names
 
-    def _dc_monitor(self) -> None:
-        """The sync monitor's BRD of 0x092C rides in a cyclic frame now and then."""
-        dc = self.dc
-        assert dc is not None
-        brd = self._dc_brd
-        now = self.clock.now_ns()
-        if brd is not None and brd.done():
-            self._dc_brd = None
-            if brd.reply is not None:
-                ev = dc.monitor.on_reading(now, bytes(brd.reply.data), brd.reply.wkc)
-                if ev is not None:
-                    self.dc_events.append(ev)
-                    self.log(ev.text)
-        if self._dc_brd is None and dc.monitor.due(now):
-            self._dc_brd = self.scheduler.submit([dc.monitor.datagram()], flush=False)[0]
+    @property
+    def last_tickets(self) -> list[CyclicFrame]:
+        """The cyclic frames of the last cycle (their replies, copies, IRQ fields)."""
+        return self.xchg.last_tickets
 
-    def _exchange_frames(self, due: tuple[int, ...]
-                         ) -> tuple[bool, bool, int, tuple[str, ...]]:
-        """Send, wait, copy back, check WKC: prepared frames, no per-slave work."""
-        planned = self._plans.get(due)
-        if planned is None:
-            planned = self._plans[due] = self._plan([self.groups[i] for i in due])
-        plans, names, groups = planned
-        sched = self.scheduler
-        now_ns = self.clock.now_ns
-        timeout = self.frame_timeout
-        t0 = now_ns()
-        tickets: list[CyclicFrame] = []
-        dc = self.dc
-        for p in plans:
-            frame = p.template.frame
-            for view, to in p.fills:
-                frame[to:to + len(view)] = view
-            if p.dc_fill >= 0:
-                assert dc is not None
-                value = dc.fill(now_ns())
-                if value is not None:
-                    frame[p.dc_fill:p.dc_fill + len(value)] = value
-            tickets.append(sched.send_prepared(p.template, timeout=timeout))
-        self.last_tickets = tickets
-        self.last_plans = plans
-        stats = self.stats
-        lost = False
-        bad: set[GroupRuntime] | None = None
-        short: set[GroupRuntime] | None = None
-        missing: set[GroupRuntime] | None = None
-        for p, ticket in zip(plans, tickets, strict=True):
-            stats.frames += 1
-            raw = ticket.raw if ticket.raw is not None else ticket.wait_raw()
-            if p.dc_read >= 0:
-                assert dc is not None
-                at = p.dc_read
-                self._dc_shift += dc.on_reply(None if raw is None else bytes(raw[at:at + dc.size]),
-                                              t0)
-            if raw is None:
-                lost = True
-                stats.lost_frames += 1
-                for g in p.groups:
-                    g.lost += 1
-                    g.wkc_ok = g.present_ok = False
-                missing = set(p.groups) if missing is None else missing | set(p.groups)
-                continue
-            for g, n, w, expected, at, lo, hi, share in p.takes:
-                wkc = raw[w] | (raw[w + 1] << 8)
-                g.last_wkc[n] = wkc
-                if wkc != expected:
-                    bad = {g} if bad is None else bad | {g}
-                    if wkc < expected - share or wkc > expected:
-                        short = {g} if short is None else short | {g}
-                if hi > lo:
-                    g.image.buffer[lo:hi] = raw[at:at + hi - lo]
-        if bad is None and missing is None:
-            for g in groups:
-                g.exchanges += 1
-                g.wkc_ok = g.present_ok = True
-            return True, False, now_ns() - t0, names
-        ok = True
-        incomplete = missing is not None
-        for g in groups:
-            if missing is not None and g in missing:
-                continue
-            good = bad is None or g not in bad
-            whole = short is None or g not in short
-            self._account(g, good, whole)
-            ok = ok and good
-            incomplete = incomplete or not whole
-        if incomplete:
-            stats.incomplete += 1
-        return ok and not lost, lost, now_ns() - t0, names
+    @property
+    def last_plans(self) -> list[FramePlan]:
+        """Their prepared-frame plans (``takes``: what each datagram carries)."""
+        return self.xchg.last_plans
 
-    def _plan(self, due: list[GroupRuntime]
-              ) -> tuple[list[_FramePlan], tuple[str, ...], tuple[GroupRuntime, ...]]:
-        """Pack the due groups' datagrams into prepared frames (once per set of groups)."""
-        frames: list[list[tuple[GroupRuntime, int]]] = []
-        cur: list[tuple[GroupRuntime, int]] = []
-        used = 0
-        for g in due:
-            items = [(g, n) for n in range(len(g.plan))]
-            size = sum(d.length + OVERHEAD for d in g.plan)
-            if cur and used + size > MAX_PAYLOAD:
-                frames.append(cur)
-                cur, used = [], 0
-            if size > MAX_PAYLOAD:
-                # A split group: one frame per datagram (each fits by construction).
-                frames += [[item] for item in items]
-                continue
-            cur += items
-            used += size
-        if cur:
-            frames.append(cur)
-        # The DC datagrams lead the first frame (they belong to no group); a frame of
-        # their own when the first one is full.
-        dc_dgs = self.dc.datagrams() if self.dc is not None else []
-        if dc_dgs and (not frames or sum(d.size for d in dc_dgs) + sum(
-                g.plan[n].length + OVERHEAD for g, n in frames[0]) > MAX_PAYLOAD):
-            frames.insert(0, [])
-        plans: list[_FramePlan] = []
-        for fi, items in enumerate(frames):
-            lead = dc_dgs if fi == 0 else []
-            dgs = list(lead)
-            for g, n in items:
-                d = g.plan[n]
-                dgs.append(Datagram(d.command, 0, d.logical_address, bytes(d.length)))
-            template = self.scheduler.prepare_cyclic(dgs)
-            if any(g.config.cross for g, _ in items):
-                template.ordered = True  # cross traffic: the slaves in bus order (a ring)
-            fills: list[tuple[memoryview, int]] = []
-            takes: list[tuple[GroupRuntime, int, int, int, int, int, int, int]] = []
-            groups: list[GroupRuntime] = []
-            for i, (g, n) in enumerate(items):
-                d = g.plan[n]
-                at = template.data_offsets[i + len(lead)]
-                fills.append((memoryview(g.image.buffer)[d.offset:d.offset + d.length], at))
-                # The share of slaves known to be gone: short by that much is "incomplete
-                # only for them" (wkc_ok false, present_ok true).
-                share = wkc_share(d, [self.config.slaves[p] for p in d.positions
-                                      if p in self.absent]) if self.absent else 0
-                takes.append((g, n, template.wkc_offsets[i + len(lead)], d.expected_wkc,
-                              at + d.copy_start - d.offset, d.copy_start, d.copy_end, share))
-                if g not in groups:
-                    groups.append(g)
-            plan = _FramePlan(template, fills, takes, groups)
-            if lead:
-                plan.dc_read = template.data_offsets[len(lead) - 1]
-                plan.dc_fill = template.data_offsets[0] if len(lead) > 1 else -1
-            plans.append(plan)
-        return plans, tuple(g.name for g in due), tuple(due)
+    @property
+    def absent(self) -> frozenset[int]:
+        """Slaves known to be gone (:meth:`set_absent`)."""
+        return self.xchg.absent
 
-    def _account(self, g: GroupRuntime, good: bool, whole: bool = True) -> None:
-        g.exchanges += 1
-        g.wkc_ok = good
-        g.present_ok = whole
-        if not good:
-            g.wkc_errors += 1
-            self.stats.wkc_errors += 1
-        if not whole:
-            g.incomplete += 1
-
-    # -- supervision ----------------------------------------------------------------------
-
-    def _supervise_before(self, k: int) -> None:
-        """Queue the cheap check (or the per-slave read) so it rides in this cycle's frame."""
-        if not self._check_every or not self.slaves or not self.supervising:
-            return
-        sched = self.scheduler
-        now = self.clock.now_ns()
-        # A fresh incident is looked at at once; a known one once per check interval.
-        if (self._want_detail and self._detail is None
-                and (not self._any_unhealthy() or now - self._last_detail_ns >= self._check_ns)):
-            self._want_detail = False
-            self._last_detail_ns = now
-            self._detail = sched.submit(
-                [Datagram.device(Command.FPRD, h.station_address, reg.AL_STATUS, 6)
-                 for h in self.health.values()], flush=False)
-        elif self._brd is None and k % self._check_every == 0:
-            self._brd = sched.submit([Datagram.device(Command.BRD, 0, reg.AL_STATUS, 2)],
-                                     flush=False)[0]
-
-    def _supervise_after(self, wkc_good: bool) -> None:
-        # While the master still walks the slaves up, a low WKC is no incident yet.
-        if not self._check_every or not self.slaves or not self.supervising:
-            return
-        if not wkc_good and self._detail is None:
-            self._want_detail = True
-        brd = self._brd
-        if brd is not None and brd.done():
-            self._brd = None
-            if brd.reply is not None:
-                state = brd.reply.data[0] if brd.reply.data else 0
-                count = brd.reply.wkc
-                want = int(self.target)
-                if count != len(self.slaves) or (state & _STATE_AND_ERROR) != want or self._any_unhealthy():
-                    self._want_detail = True
-        detail = self._detail
-        if detail is not None and all(r.done() for r in detail):
-            self._detail = None
-            self._evaluate(detail)
-
-    def _any_unhealthy(self) -> bool:
-        return any(h.status != "ok" for h in self.health.values())
-
-    def _evaluate(self, detail: list[Request]) -> None:
-        now = self.clock.now_ns()
-        bad: list[int] = []
-        for h, r in zip(self.health.values(), detail, strict=True):
-            rep = r.reply
-            if rep is None or rep.wkc != 1:
-                if h.present:
-                    h.present = False
-                    h.lost_since_ns = now
-                    self.log(f"slave {h.position} (0x{h.station_address:04X}) vanished")
-                if h.status != "recovering":
-                    h.status = "vanished"
-                bad.append(h.position)
-                continue
-            status, _res, code = struct.unpack("<HHH", rep.data)
-            h.state, h.error, h.code = status & reg.AL_STATE_MASK, bool(status & reg.AL_ERROR_FLAG), code
-            h.present = True
-            if h.state == int(self.target) and not h.error:
-                if h.status != "ok":
-                    took = "" if h.lost_since_ns is None else \
-                        f" after {(now - h.lost_since_ns) / 1e9:.2f} s"
-                    self.log(f"slave {h.position} back in {state_name(h.state)}{took}")
-                    h.recoveries += 1 if h.status == "recovering" else 0
-                h.status = "ok"
-                h.lost_since_ns = None
-                continue
-            if h.status == "ok":
-                h.lost_since_ns = now
-                self.log(f"slave {h.position} left {state_name(int(self.target))}: now "
-                         f"{state_name(status & _STATE_AND_ERROR)}" + (f" (AL code 0x{code:04X})" if h.error else ""))
-            if h.status != "recovering":
-                h.status = "dropped"
-            bad.append(h.position)
-        if bad:
-            self._start_recovery(bad)
+    def set_absent(self, positions: Iterable[int]) -> None:
+        """Slaves known to be gone (a failed node, a cut branch, one being brought back):
+        their share of each working counter is not expected until they are back."""
+        self.xchg.set_absent(positions)
 
     def request_recovery(self, positions: list[int]) -> None:
         """Bring these slaves back now (found present without their address: power-cycled,
         hot-swapped), in step with the loop; ignored while a recovery runs."""
-        if self.supervising:
-            self._next_recovery_ns = 0  # news: no back-off
-            self._start_recovery([p for p in positions if p in self.health])
+        self.supervisor.request_recovery(positions)
 
     @property
     def recovering(self) -> frozenset[int]:
         """Slaves a recovery is bringing back now."""
         return frozenset(p for p, h in self.health.items() if h.status == "recovering")
 
-    def _start_recovery(self, positions: list[int]) -> None:
-        if self.recover_fn is None or not positions:
-            return
-        r = self._recover_thread
-        if r is not None and r.is_alive():
-            return
-        if self.clock.now_ns() < self._next_recovery_ns:
-            return
-        for p in positions:
-            self.health[p].status = "recovering"
+    # -- the link ---------------------------------------------------------------------------
 
-        def work() -> None:
-            failure = ""
-            with self._recover_lock:
-                try:
-                    assert self.recover_fn is not None
-                    self.recover_fn(positions)
-                except EtherCATError as exc:
-                    failure = f"recovery of slaves {positions} not done yet: {exc}"
-                except Exception as exc:  # noqa: BLE001 - a bug must not kill the loop
-                    failure = f"recovery of slaves {positions} failed: {exc!r}"
-                finally:
-                    if failure:
-                        # Back off (0.1 s doubling to 2 s) and say it once, not every try.
-                        self._backoff_ns = min(2_000_000_000, max(100_000_000, 2 * self._backoff_ns))
-                        if failure != self._last_failure:
-                            self.log(failure)
-                    else:
-                        self._backoff_ns = 0
-                    self._last_failure = failure
-                    self._next_recovery_ns = self.clock.now_ns() + self._backoff_ns
-                    # Look again soon; the check decides whether it worked.
-                    self._want_detail = True
+    def _heard(self) -> int:
+        st = self.scheduler.stats
+        return st.frames_received + st.stale + st.duplicates + st.malformed
 
-        # In step with the loop: its requests ride in cyclic frames (master.stepping).
-        self._recover_thread = self.scheduler.stepper.run(work, name="ecat-recover")
+    def down_for(self) -> float:
+        """Seconds the link has been down (0.0 while it is up)."""
+        return self.stats.down_for_ns(self.clock.now_ns()) / 1e9
 
     # -- consuming cycles ---------------------------------------------------------------------
 
@@ -873,39 +545,76 @@ class CyclicRunner:
         A slow consumer does not slow the loop: cycles it could not see are
         counted in ``consumer_missed``. Ends when the loop stops.
         """
-        last = -1
-        while True:
-            with self._cond:
-                while self.cycle.index == last or self.stats.cycles == 0:
-                    if not self.running:
-                        return
-                    if not self._cond.wait(timeout) and not self.running:
-                        return
-                snap = Cycle(self.cycle.index, self.cycle.deadline_ns, self.cycle.start_ns,
-                             self.cycle.round_trip_ns, self.cycle.wkc_ok, self.cycle.lost,
-                             self.cycle.groups)
-            if last >= 0 and snap.index > last + 1:
-                self.consumer_missed += snap.index - last - 1
-            last = snap.index
-            yield snap
+        return _snapshots(self, timeout)
 
     def status_lines(self) -> list[str]:
         """Short text for live views and logs."""
-        lines = []
-        for g in self.groups:
-            lines.append(f"group {g.name}: WKC {g.total_wkc}/{g.expected_wkc} "
-                         f"{'ok' if g.wkc_ok else 'BAD'}; errors {g.wkc_errors}, lost {g.lost}")
-        dc = self.dc
-        if dc is not None:
-            mon = dc.monitor
-            text = f"DC {dc.mode.value}: "
-            if dc.lock is not None:
-                text += f"phase error {dc.lock.error_ns} ns{' (locked)' if dc.lock.locked else ''}, "
-            elif dc.master_difference_ns is not None:
-                text += f"reference - master {dc.master_difference_ns} ns, "
-            last = "-" if mon.last_ns is None else f"{mon.last_ns}"
-            text += (f"|0x092C| <= {last} ns (worst {mon.worst_ns}), "
-                     f"{'SYNC UNSTABLE' if mon.unstable else 'in sync'}")
-            lines.append(text)
-        return lines
+        return _status_lines(self)
 
+    @property
+    def dc_events(self) -> deque[SyncEvent]:
+        """The DC sync monitor's events (empty without DC)."""
+        return self._dc.events if self._dc is not None else deque()
+
+    def dc_status_line(self) -> str | None:
+        """The distributed clocks' state in one line (None without DC)."""
+        return None if self.dc is None else _dc_line(self.dc)
+
+
+def _status_lines(runner: CyclicRunner) -> list[str]:
+    lines = []
+    if not runner.stats.link_up:
+        lines.append(f"link DOWN for {runner.down_for():.1f} s ({runner.stats.down_cycles} "
+                     "cycles lost so far)")
+    for g in runner.groups:
+        age = g.image.input_age
+        lines.append(f"group {g.name}: WKC {g.total_wkc}/{g.expected_wkc} "
+                     f"{'ok' if g.wkc_ok else 'BAD'}; errors {g.wkc_errors}, lost {g.lost}"
+                     + (f"; inputs {age} cycles old" if age else ""))
+    dc = runner.dc_status_line()
+    if dc is not None:
+        lines.append(dc)
+    return lines
+
+
+def _snapshots(runner: CyclicRunner, timeout: float) -> Iterator[Cycle]:
+    last = -1
+    cond = runner._cond
+    while True:
+        with cond:
+            while runner.cycle.index == last or runner.stats.cycles == 0:
+                if not runner.running:
+                    return
+                if not cond.wait(timeout) and not runner.running:
+                    return
+            c = runner.cycle
+            snap = Cycle(c.index, c.deadline_ns, c.start_ns, c.round_trip_ns, c.wkc_ok,
+                         c.lost, c.groups, c.link_up)
+        if last >= 0 and snap.index > last + 1:
+            runner.consumer_missed += snap.index - last - 1
+        last = snap.index
+        yield snap
+
+
+def _dc_line(dc: DcCycle) -> str:
+    mon = dc.monitor
+    text = f"DC {dc.mode.value}: "
+    if dc.lock is not None:
+        text += f"phase error {dc.lock.error_ns} ns{' (locked)' if dc.lock.locked else ''}, "
+    elif dc.master_difference_ns is not None:
+        text += f"reference - master {dc.master_difference_ns} ns, "
+    last = "-" if mon.last_ns is None else f"{mon.last_ns}"
+    return text + (f"|0x092C| <= {last} ns (worst {mon.worst_ns}), "
+                   f"{'SYNC UNSTABLE' if mon.unstable else 'in sync'}")
+
+
+def check_final_state(state: AlState | str) -> AlState:
+    """``state`` as the final state of an orderly stop (ConfigError for OP or an unknown name)."""
+    try:
+        final = AlState.parse(state) if isinstance(state, str) else AlState(int(state))
+    except ValueError as exc:
+        raise ConfigError(f"final state: {exc}") from None
+    if final == AlState.OP:
+        raise ConfigError("the final state of a stop must be below OP (SAFEOP, PREOP, INIT "
+                          "or BOOT)")
+    return final

@@ -15,6 +15,13 @@ slaves. Applications reach values three ways:
   sharing the buffer), ``image.buffer`` itself;
 - as a compiled accessor for hot loops: ``var = image.variable(3, "Input 1")``
   then ``var.get()`` / ``var.set(v)`` skip the name lookup.
+
+Inputs are refreshed only by an exchange that came back whole (every working
+counter of the group as expected); otherwise they keep their last good
+values and age: ``image.input_age`` (``slave.inputs.age``) counts the
+group's exchanges since the last refresh, ``slave.inputs.stale`` says
+whether they are old. ``image.safe`` holds the outputs an orderly stop
+sends (zero unless set, e.g. ``master.safe_outputs(3)["Output 1"] = 1``).
 """
 
 from __future__ import annotations
@@ -189,10 +196,12 @@ class SlaveIO(MutableMapping[str, PdoValue]):
     Writing inputs is refused.
     """
 
-    def __init__(self, position: int, direction: PdoDirection, variables: list[Variable]) -> None:
+    def __init__(self, position: int, direction: PdoDirection, variables: list[Variable],
+                 image: ProcessImage | None = None) -> None:
         self.position = position
         self.direction = direction
         self._vars = variables
+        self._image = image
         self._by_name: dict[str, Variable] = {}
         self._by_object: dict[tuple[int, int], Variable] = {}
         counts: dict[str, int] = {}
@@ -246,6 +255,17 @@ class SlaveIO(MutableMapping[str, PdoValue]):
             return key in self._by_object
         return key in self._by_name
 
+    @property
+    def age(self) -> int:
+        """Exchanges of the slave's group since its inputs were last refreshed (0: fresh)."""
+        return self._image.input_age if self._image is not None else 0
+
+    @property
+    def stale(self) -> bool:
+        """Whether the group's inputs are older than the last exchange (or never came)."""
+        img = self._image
+        return img is not None and (img.input_age > 0 or not img.inputs_valid)
+
     def values_dict(self) -> dict[str, PdoValue]:
         """Snapshot of every entry's value."""
         return {name: v.get() for name, v in zip(self._primary, self._vars, strict=True)}
@@ -264,12 +284,20 @@ class ProcessImage:
         self.buffer = bytearray(group.size)
         self.outputs = memoryview(self.buffer)[:group.output_bytes]
         self.inputs = memoryview(self.buffer)[group.output_bytes:group.status_offset]
+        #: Outputs sent while an orderly stop runs (same layout as ``buffer``;
+        #: only the output bytes matter). Zero unless the application sets values.
+        self.safe = bytearray(group.size)
+        #: The group's exchanges since the inputs were last refreshed by a whole one.
+        self.input_age = 0
+        #: Whether any exchange refreshed the inputs yet.
+        self.inputs_valid = False
         self._slave_io: dict[int, tuple[SlaveIO, SlaveIO]] = {}
+        self._safe_io: dict[int, SlaveIO] = {}
         for sc in group.slaves:
             outs = [Variable(v, self.buffer) for v in sc.variables if v.direction is PdoDirection.OUTPUTS]
             ins = [Variable(v, self.buffer) for v in sc.variables if v.direction is PdoDirection.INPUTS]
-            self._slave_io[sc.position] = (SlaveIO(sc.position, PdoDirection.INPUTS, ins),
-                                           SlaveIO(sc.position, PdoDirection.OUTPUTS, outs))
+            self._slave_io[sc.position] = (SlaveIO(sc.position, PdoDirection.INPUTS, ins, self),
+                                           SlaveIO(sc.position, PdoDirection.OUTPUTS, outs, self))
 
     @property
     def positions(self) -> list[int]:
@@ -280,6 +308,26 @@ class ProcessImage:
 
     def slave_outputs(self, position: int) -> SlaveIO:
         return self._io(position)[1]
+
+    def slave_safe_outputs(self, position: int) -> SlaveIO:
+        """A slave's outputs in :attr:`safe`: the values an orderly stop sends."""
+        io = self._safe_io.get(position)
+        if io is None:
+            sc = next(s for s in self.group.slaves if s.position == self._known(position))
+            io = SlaveIO(position, PdoDirection.OUTPUTS,
+                         [Variable(v, self.safe) for v in sc.variables
+                          if v.direction is PdoDirection.OUTPUTS], self)
+            self._safe_io[position] = io
+        return io
+
+    def _known(self, position: int) -> int:
+        self._io(position)
+        return position
+
+    @property
+    def inputs_stale(self) -> bool:
+        """Whether the inputs are older than the last exchange (or never came)."""
+        return self.input_age > 0 or not self.inputs_valid
 
     def _io(self, position: int) -> tuple[SlaveIO, SlaveIO]:
         try:

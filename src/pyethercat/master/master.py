@@ -26,7 +26,12 @@ from types import TracebackType
 from typing import TYPE_CHECKING, Any, Self, TypeVar
 
 from pyethercat.clock import Clock
-from pyethercat.errors import ConfigError, StateTimeoutError, WorkingCounterError
+from pyethercat.errors import (
+    ConfigError,
+    EtherCATError,
+    StateTimeoutError,
+    WorkingCounterError,
+)
 from pyethercat.link.base import Link
 from pyethercat.master import diag, states
 from pyethercat.master import scan as scanning
@@ -193,7 +198,14 @@ class Master:
         return master
 
     def close(self) -> None:
-        """Stop the scheduler and (if owned) close the link. Idempotent."""
+        """Stop cyclic exchange in order (if it runs), the scheduler and (if owned) the link.
+
+        Idempotent.
+        """
+        runner = self.runner
+        if runner is not None and runner.running and not self._closed:
+            with contextlib.suppress(EtherCATError):
+                runner.stop()
         with self._lock:
             if self._closed:
                 return
@@ -547,15 +559,21 @@ class Master:
               check_interval: float = 0.1, recover: bool = True, timeout: float = 5.0,
               groups: Sequence[str] | None = None, frame_timeout: float | None = None,
               dc: DcMode | str | None = None, dc_lead: float | None = None,
-              dc_monitor: float = 0.1, dc_limit: float = 1e-6) -> CyclicRunner:
+              dc_monitor: float = 0.1, dc_limit: float = 1e-6,
+              link_timeout: float | None = None, final_state: AlState | str = AlState.PREOP,
+              safe_cycles: int = 3) -> CyclicRunner:
         """Configure (if needed), bring every slave to SAFE-OP, start cycles, go to ``target``.
 
-        See :meth:`ProcessData.start` for the options.
+        See :meth:`ProcessData.start` for the options. Ending the exchange
+        (``stop()``, the runner's ``with`` block, :meth:`close`) is an orderly
+        stop: safe outputs for ``safe_cycles`` cycles, SAFEOP, ``final_state``.
         """
         return self.pd.start(cycle, target=target, callback=callback, clock=clock,
                              check_interval=check_interval, recover=recover, timeout=timeout,
                              groups=groups, frame_timeout=frame_timeout, dc=dc, dc_lead=dc_lead,
-                             dc_monitor=dc_monitor, dc_limit=dc_limit)
+                             dc_monitor=dc_monitor, dc_limit=dc_limit,
+                             link_timeout=link_timeout, final_state=final_state,
+                             safe_cycles=safe_cycles)
 
     def run(self, cycle: float = 0.001, seconds: float | None = None, *,
             callback: Callable[[Cycle], None] | None = None, background: bool = False,
@@ -567,9 +585,14 @@ class Master:
         """Start cyclic exchange and yield each cycle; closing the iterator stops it."""
         return self.pd.cycles(cycle, **options)
 
-    def stop(self) -> None:
-        """Stop the cyclic exchange, if it runs."""
-        self.pd.stop()
+    def stop(self, final_state: AlState | str | None = None) -> None:
+        """Stop the cyclic exchange in order, if it runs (safe outputs, SAFEOP, then
+        ``final_state``, by default the one given to :meth:`start`)."""
+        self.pd.stop(final_state)
+
+    def safe_outputs(self, slave: SlaveRef) -> SlaveIO:
+        """A slave's safe outputs: what an orderly stop sends (zero unless set here)."""
+        return self.pd.safe_outputs(self.slave(slave) if isinstance(slave, Slave) else slave)
 
     # -- SII (the SII service) -------------------------------------------------------------
 

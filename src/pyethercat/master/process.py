@@ -18,6 +18,11 @@ The process-data sync managers and FMMUs are written before PREOP -> SAFEOP
 by the service itself, as a :class:`~pyethercat.master.transitions.TransitionHook`
 that the bring-up (and ``master.set_state(..., configure=True)``) adds to the
 state walk, followed by the hooks given as ``safeop_hooks`` (distributed clocks).
+
+Every way of ending the exchange (``stop()``, leaving the ``with`` block,
+the end of ``run``, closing the master) is an orderly stop: safe outputs
+(``m.safe_outputs(pos)``, zero by default) for a few cycles, SAFEOP while
+the cycles still run, then ``final_state`` (PREOP by default).
 """
 
 from __future__ import annotations
@@ -41,7 +46,7 @@ from pyethercat.master.config import (
     configure,
 )
 from pyethercat.master.cross import apply_cross_traffic
-from pyethercat.master.cyclic import Cycle, CycleStats, CyclicRunner
+from pyethercat.master.cyclic import Cycle, CycleStats, CyclicRunner, check_final_state
 from pyethercat.master.dc_loop import DcMode
 from pyethercat.master.image import ProcessImage, SlaveIO, build_images
 from pyethercat.master.scheduler import Scheduler
@@ -217,11 +222,15 @@ class ProcessData:
               groups: Sequence[str] | None = None,
               frame_timeout: float | None = None, dc: DcMode | str | None = None,
               dc_lead: float | None = None, dc_monitor: float = 0.1,
-              dc_limit: float = 1e-6) -> CyclicRunner:
+              dc_limit: float = 1e-6, link_timeout: float | None = None,
+              final_state: AlState | str = AlState.PREOP,
+              safe_cycles: int = 3) -> CyclicRunner:
         """Configure (if needed), bring every slave to SAFE-OP, start cycles, then go to ``target``.
 
         Returns the running :class:`CyclicRunner` (a context manager; ``stop()``
-        ends it). OP is requested only once outputs flow, as slaves demand.
+        ends it in order: safe outputs for ``safe_cycles`` cycles, SAFEOP,
+        then ``final_state``). OP is requested only once outputs flow, as
+        slaves demand. ``link_timeout``: see :class:`CyclicRunner`.
         ``dc`` ("master" or "reference", see :class:`DcMode`) adds distributed
         clocks: the set-up if it has not run, the reference's time in every
         frame, the phase lock or the reference write, the sync monitor;
@@ -231,6 +240,7 @@ class ProcessData:
         above ``dc_limit`` seconds.
         """
         want = AlState.parse(target) if isinstance(target, str) else AlState(int(target))
+        check_final_state(final_state)  # before anything is touched
         with self._lock:
             if self.runner is not None and self.runner.running:
                 raise ConfigError("cyclic exchange is already running")
@@ -250,7 +260,9 @@ class ProcessData:
                                   clock=clock, callback=callback, check_interval=check_interval,
                                   target=want,
                                   recover=(self.recovery or self.recover) if recover else None,
-                                  groups=groups, frame_timeout=frame_timeout, dc=plan)
+                                  groups=groups, frame_timeout=frame_timeout, dc=plan,
+                                  link_timeout=link_timeout, leave=self._leave,
+                                  final_state=final_state, safe_cycles=safe_cycles)
             runner.riders.extend(make(runner) for make in self.rider_factories)
             self.runner = runner
             # Supervision starts once the slaves are where they were asked to be: the
@@ -261,7 +273,7 @@ class ProcessData:
                 if want == AlState.OP:
                     self.transitions.set_state(slaves, AlState.OP, timeout)
             except BaseException:
-                runner.stop()
+                runner.stop(timeout=min(timeout, 2.0))
                 raise
             runner.supervising = True
             return runner
@@ -288,11 +300,26 @@ class ProcessData:
         finally:
             runner.stop()
 
-    def stop(self) -> None:
-        """Stop the cyclic exchange, if it runs."""
+    def stop(self, final_state: AlState | str | None = None) -> None:
+        """Stop the cyclic exchange in order, if it runs (see :meth:`CyclicRunner.stop`)."""
         r = self.runner
         if r is not None:
-            r.stop()
+            r.stop(final_state)
+
+    def safe_outputs(self, slave: Slave | int) -> SlaveIO:
+        """A slave's safe outputs: what an orderly stop sends (zero unless set here)."""
+        pos = slave.position if isinstance(slave, Slave) else int(slave)
+        cfg = self.need_config()
+        sc = cfg.slaves.get(pos)
+        if sc is None or sc.group not in self.images:
+            raise ConfigError(f"slave {pos} has no process data")
+        return self.images[sc.group].slave_safe_outputs(pos)
+
+    def _leave(self, state: AlState, positions: list[int], timeout: float) -> None:
+        """Take slaves down to ``state`` (an orderly stop's steps; hooks as on the way up)."""
+        slaves = self._slaves()
+        chosen = [slaves[p] for p in positions if 0 <= p < len(slaves)]
+        self.transitions.set_state(chosen, state, timeout)
 
     # -- recovery (called from the runner's recovery thread) -----------------------------------
 

@@ -17,7 +17,7 @@ socket; each line a client writes is one JSON object, answered by one JSON
 line (``{"ok": true, ...}`` or ``{"ok": false, "error": "..."}``)::
 
     {"cmd": "ping"}
-    {"cmd": "slaves"}                                 -> {"slaves": [{"index", "name", ...}]}
+    {"cmd": "slaves"}                      -> {"slaves": [{"index", "name", "al_status"}]}
     {"cmd": "break_link", "slave": "di8", "port": 1}  (slave by name or index)
     {"cmd": "restore_link", "slave": "di8", "port": 1}
     {"cmd": "power_off", "slave": "do8"}      {"cmd": "power_on", "slave": "do8"}
@@ -67,10 +67,11 @@ from pathlib import Path
 from types import FrameType, TracebackType
 from typing import Any, Self
 
-from pyethercat.errors import ConfigError, EtherCATError, LinkClosedError, LinkError
+from pyethercat.errors import ConfigError, EtherCATError, LinkClosedError, LinkDownError, LinkError
 from pyethercat.link.base import Link
 from pyethercat.sim.eoe import eoe_server
 from pyethercat.wire.frame import is_ethercat
+from pyethercat.wire.registers import AL_STATUS
 
 __all__ = ["ServerStats", "SimProcess", "SimServer", "open_link", "set_realtime", "start_sim_process"]
 
@@ -237,10 +238,10 @@ class SimServer:
                     for port, (fd, link) in enumerate(zip(fds, links, strict=True)):
                         if fd in ready:
                             # Drain every frame that is waiting before anything else.
-                            frame = link.recv(0)
+                            frame = self._recv_now(link)
                             while frame is not None:
                                 self._serve_frames(frame, port)
-                                frame = link.recv(0)
+                                frame = self._recv_now(link)
                     if self._wake_r in ready:
                         with contextlib.suppress(OSError):
                             os.read(self._wake_r, 4096)
@@ -261,6 +262,17 @@ class SimServer:
         if not self._eoe:
             return {}
         return {fd: cb for server in self._eoe for fd, cb in server.readers()}
+
+    def _recv_now(self, link: Link) -> bytes | None:
+        """A waiting frame, if any. The interface going down is no reason to stop
+        serving: a segment's cable is plugged in again (the socket works once it is up)."""
+        try:
+            return link.recv(0)
+        except LinkDownError as exc:
+            self.stats.errors += 1
+            self.stats.last_error = str(exc)
+            self._log(f"{exc}; serving on when it is back")
+            return None
 
     def _serve_frames(self, frame: bytes | None, port: int = 0) -> None:
         if frame is None:
@@ -373,7 +385,8 @@ class SimServer:
         if cmd == "ping":
             return {}
         if cmd == "slaves":
-            return {"slaves": [{"index": s.index, "name": s.name} for s in seg.slaves]}
+            return {"slaves": [{"index": s.index, "name": s.name,
+                                "al_status": s.u16(AL_STATUS)} for s in seg.slaves]}
         if cmd == "stats":
             return self.stats.as_dict()
         if cmd == "eoe":
