@@ -23,7 +23,7 @@ import threading
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from types import TracebackType
-from typing import TYPE_CHECKING, Any, Self, TypeVar
+from typing import TYPE_CHECKING, Self, TypeVar, Unpack
 
 from pyethercat.clock import Clock
 from pyethercat.errors import (
@@ -40,13 +40,12 @@ from pyethercat.master.coe import CoeClient, DTypeLike, EmergencyEvent, PdoSpec,
 from pyethercat.master.coe_setup import CoeSetup
 from pyethercat.master.config import CrossLink, GroupSpec, Layout, MappedPdo, ProcessDataConfig
 from pyethercat.master.cyclic import Cycle, CycleStats, CyclicRunner
-from pyethercat.master.dc_loop import DcMode
 from pyethercat.master.eeprom import SiiService, SiiTarget
 from pyethercat.master.hotswap import GroupPresence, HotConnectGroup, HotSwap
 from pyethercat.master.image import ProcessImage, SlaveIO
 from pyethercat.master.mailbox import DEFAULT_MAILBOX_TIMEOUT, DropOldestQueue, Mailbox
 from pyethercat.master.mailboxes import MailboxService
-from pyethercat.master.process import ProcessData
+from pyethercat.master.process import ProcessData, StartOptions
 from pyethercat.master.ring import Diagnosis, RingService
 from pyethercat.master.ringwatch import RingWatch
 from pyethercat.master.scheduler import (
@@ -198,14 +197,10 @@ class Master:
         return master
 
     def close(self) -> None:
-        """Stop cyclic exchange in order (if it runs), the scheduler and (if owned) the link.
-
-        Idempotent.
-        """
-        runner = self.runner
-        if runner is not None and runner.running and not self._closed:
+        """Stop cyclic exchange in order (if it runs), the scheduler, the owned link; idempotent."""
+        if not self._closed:
             with contextlib.suppress(EtherCATError):
-                runner.stop()
+                self.pd.stop()
         with self._lock:
             if self._closed:
                 return
@@ -554,45 +549,29 @@ class Master:
         """Write process-data SMs and FMMUs (needed before SAFE-OP), all slaves batched."""
         self.pd.write_process_data_config(None if slaves is None else self._select(slaves))
 
-    def start(self, cycle: float = 0.001, *, target: AlState | str = AlState.OP,
-              callback: Callable[[Cycle], None] | None = None, clock: Clock | None = None,
-              check_interval: float = 0.1, recover: bool = True, timeout: float = 5.0,
-              groups: Sequence[str] | None = None, frame_timeout: float | None = None,
-              dc: DcMode | str | None = None, dc_lead: float | None = None,
-              dc_monitor: float = 0.1, dc_limit: float = 1e-6,
-              link_timeout: float | None = None, final_state: AlState | str = AlState.PREOP,
-              safe_cycles: int = 3) -> CyclicRunner:
+    def start(self, cycle: float = 0.001, **options: Unpack[StartOptions]) -> CyclicRunner:
         """Configure (if needed), bring every slave to SAFE-OP, start cycles, go to ``target``.
 
-        See :meth:`ProcessData.start` for the options. Ending the exchange
-        (``stop()``, the runner's ``with`` block, :meth:`close`) is an orderly
-        stop: safe outputs for ``safe_cycles`` cycles, SAFEOP, ``final_state``.
+        Options and the orderly stop that ends the exchange: :meth:`ProcessData.start`.
         """
-        return self.pd.start(cycle, target=target, callback=callback, clock=clock,
-                             check_interval=check_interval, recover=recover, timeout=timeout,
-                             groups=groups, frame_timeout=frame_timeout, dc=dc, dc_lead=dc_lead,
-                             dc_monitor=dc_monitor, dc_limit=dc_limit,
-                             link_timeout=link_timeout, final_state=final_state,
-                             safe_cycles=safe_cycles)
+        return self.pd.start(cycle, **options)
 
     def run(self, cycle: float = 0.001, seconds: float | None = None, *,
-            callback: Callable[[Cycle], None] | None = None, background: bool = False,
-            **options: Any) -> CycleStats | CyclicRunner:
+            background: bool = False, **options: Unpack[StartOptions]) -> CycleStats | CyclicRunner:
         """Bring up and run cycles for ``seconds`` (see :meth:`ProcessData.run`)."""
-        return self.pd.run(cycle, seconds, callback=callback, background=background, **options)
+        return self.pd.run(cycle, seconds, background=background, **options)
 
-    def cycles(self, cycle: float = 0.001, **options: Any) -> Iterator[Cycle]:
+    def cycles(self, cycle: float = 0.001, **options: Unpack[StartOptions]) -> Iterator[Cycle]:
         """Start cyclic exchange and yield each cycle; closing the iterator stops it."""
         return self.pd.cycles(cycle, **options)
 
     def stop(self, final_state: AlState | str | None = None) -> None:
-        """Stop the cyclic exchange in order, if it runs (safe outputs, SAFEOP, then
-        ``final_state``, by default the one given to :meth:`start`)."""
+        """Stop the cyclic exchange in order (safe outputs, SAFEOP, ``final_state``)."""
         self.pd.stop(final_state)
 
     def safe_outputs(self, slave: SlaveRef) -> SlaveIO:
         """A slave's safe outputs: what an orderly stop sends (zero unless set here)."""
-        return self.pd.safe_outputs(self.slave(slave) if isinstance(slave, Slave) else slave)
+        return self.pd.safe_outputs(slave)
 
     # -- SII (the SII service) -------------------------------------------------------------
 
@@ -614,14 +593,10 @@ class Master:
                   progress: scanning.Progress | None = None) -> SiiWriteReport:
         """Write an SII image into a slave's EEPROM, safely (see :mod:`pyethercat.master.sii_write`).
 
-        The header checksum is computed here; the old content is read first
-        (and saved to ``backup`` when given, before anything changes); an
-        image of another identity (vendor, product, revision) is refused
-        unless ``force``; every word is read back. With ``only_changed``
-        equal words are skipped (EEPROM writes take milliseconds each).
-        ``reload`` makes the ESC load its configuration words (alias...)
-        afterwards. Raises :class:`~pyethercat.master.sii_write.SiiWriteError`
-        naming the failed word.
+        Checksum computed, old content saved to ``backup`` first, another identity
+        refused unless ``force``, every word read back; ``only_changed`` skips equal
+        words, ``reload`` reloads the configuration words. Raises
+        :class:`~pyethercat.master.sii_write.SiiWriteError` naming the failed word.
         """
         return self.sii.write(self._sii_target(slave), image, reload=reload,
                               only_changed=only_changed, force=force, backup=backup,

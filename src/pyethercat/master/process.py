@@ -30,7 +30,7 @@ from __future__ import annotations
 import struct
 import threading
 from collections.abc import Callable, Iterator, Sequence
-from typing import Any
+from typing import Any, TypedDict, Unpack
 
 from pyethercat.clock import Clock, PerfClock
 from pyethercat.errors import ConfigError, EtherCATError, WorkingCounterError
@@ -58,7 +58,27 @@ from pyethercat.wire.al import AlState
 from pyethercat.wire.datagram import Command, Datagram
 from pyethercat.wire.sii.model import WORD_VENDOR_ID
 
-__all__ = ["ProcessData", "slave_description"]
+__all__ = ["ProcessData", "StartOptions", "slave_description"]
+
+
+class StartOptions(TypedDict, total=False):
+    """The keyword options of :meth:`ProcessData.start` (and of ``Master.start/run/cycles``)."""
+
+    target: AlState | str
+    callback: Callable[[Cycle], None] | None
+    clock: Clock | None
+    check_interval: float
+    recover: bool
+    timeout: float
+    groups: Sequence[str] | None
+    frame_timeout: float | None
+    dc: DcMode | str | None
+    dc_lead: float | None
+    dc_monitor: float
+    dc_limit: float
+    link_timeout: float | None
+    final_state: AlState | str
+    safe_cycles: int
 
 
 def slave_description(slave: SlaveInfo) -> SlaveDescription:
@@ -279,11 +299,10 @@ class ProcessData:
             return runner
 
     def run(self, cycle: float = 0.001, seconds: float | None = None, *,
-            callback: Callable[[Cycle], None] | None = None, background: bool = False,
-            **options: Any) -> CycleStats | CyclicRunner:
+            background: bool = False, **options: Unpack[StartOptions]) -> CycleStats | CyclicRunner:
         """Bring up and run cycles: for ``seconds`` (then stop and return the statistics),
         or with ``background=True`` return the running :class:`CyclicRunner` at once."""
-        runner = self.start(cycle, callback=callback, **options)
+        runner = self.start(cycle, **options)
         if background:
             return runner
         try:
@@ -292,7 +311,7 @@ class ProcessData:
             runner.stop()
         return runner.stats
 
-    def cycles(self, cycle: float = 0.001, **options: Any) -> Iterator[Cycle]:
+    def cycles(self, cycle: float = 0.001, **options: Unpack[StartOptions]) -> Iterator[Cycle]:
         """Start cyclic exchange and yield each cycle; closing the iterator stops it."""
         runner = self.start(cycle, **options)
         try:
