@@ -158,3 +158,20 @@ def test_closed_scheduler_refuses_work() -> None:
 def test_empty_segment_scan() -> None:
     m = Master(PairLink.responder_link(FakeSegment([]).process), clock=VirtualClock())
     assert m.scan() == [] and m.error_counters().slaves == ()
+
+
+def test_a_reply_waiting_at_the_link_is_not_lost_after_its_deadline() -> None:
+    """A responder that answers inside ``send`` after the frame's deadline (a long send,
+    a loaded host): the reply is queued before anyone reads, so the frame is not lost,
+    however many frames were in flight and whichever of them is read first."""
+    seg = _segment(1)
+
+    def slow(frame: bytes) -> list[bytes] | bytes | None:
+        time.sleep(0.005)  # longer than the frames' 1 ms timeout
+        return seg.process(frame)
+
+    s = Scheduler(PairLink.responder_link(slow))
+    template = s.prepare_cyclic([_brd()])
+    tickets = [s.send_prepared(template, timeout=0.001) for _ in range(3)]
+    assert all(t.wait_raw() is not None for t in tickets)
+    assert s.stats.frames_lost == 0

@@ -87,6 +87,8 @@ _BYTE_NS = 80
 #: Preamble and start delimiter (8), FCS (4), inter-frame gap (12): bytes on the wire
 #: besides the frame itself (IEEE 802.3 clause 4).
 _WIRE_EXTRA = 24
+# At most this many frames are taken at once before deadlines are judged.
+_DRAIN_MAX = 64
 
 
 class Scheduler:
@@ -498,10 +500,27 @@ class Scheduler:
             core.on_frame(got[0], now, got[1])
             self._forward_locked()
         if now >= first:
+            self._drain_locked(now)
             core.expire(now)
         if core.queued:
             self._send_queued_locked(now)
         self._notify()
+
+    def _drain_locked(self, now: float) -> None:
+        """Take the frames already waiting at the link, before deadlines are judged.
+
+        A reply that is there is not lost, even when nobody read it in time: a
+        responder that answers inside ``send`` (the in-process pair link), or a
+        send that blocked, queues it after its deadline passed. Bounded, so that
+        a flood of foreign frames cannot hold the lock.
+        """
+        core = self.core
+        for _ in range(_DRAIN_MAX):
+            got = self._recv_locked(0.0)
+            if got is None:
+                return
+            core.on_frame(got[0], now, got[1])
+            self._forward_locked()
 
     def _receive_virtual_locked(self, now: float) -> None:
         """Virtual time: take what the responder queued, else jump to the next deadline."""
