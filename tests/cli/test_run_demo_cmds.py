@@ -67,8 +67,8 @@ def test_demo_runs_checks_loop_back_and_writes_a_capture(tmp_path: Path) -> None
     pcap = tmp_path / "demo.pcapng"
     # (1 s: a loaded host may stall the simulator past the do8s' 100 ms watchdog, and
     # checks are left out while they recover)
-    code, out, _ = run("demo", "--seconds", "1", "--pcap", str(pcap))
-    assert code == 0, out
+    code, out, err = run("demo", "--seconds", "1", "--pcap", str(pcap))
+    assert code == 0, out + err
     assert "6 slaves" in out and COUPLER in out
     assert "port 3 -> 1: PEC-DO8" in out  # the branch in the topology tree
     m = re.search(r"loop-back checks: (\d+), mismatches: (\d+) \((\d+) wires\)", out)

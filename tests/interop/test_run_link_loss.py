@@ -8,6 +8,9 @@ the other end, as a user would start it. While it runs:
   survives both, counts the lost cycles, and the slaves whose process-data
   watchdog ran out are back in OP afterwards; at the end the slaves are
   taken to PREOP (orderly stop) and the exit status is 0;
+- the master's own interface goes down for 1 s and comes back up: the run
+  goes on (sends are refused meanwhile, the frames counted lost) and the
+  slaves are back in OP;
 - the simulator is killed and started again: the restarted segment (every
   station address 0, INIT) is found and brought back to OP;
 - the simulator is killed for good: ``run`` gives up after ``--give-up``
@@ -112,6 +115,32 @@ def test_run_survives_a_200ms_and_a_10s_drop_of_the_far_end(
         assert rows and all(re.search(r"│ OP\s+│ ok", r) for r in rows[-6:]), out
         # the orderly stop took the slaves to PREOP
         assert re.search(r"^stopped: safe outputs for 3 cycles, slaves in PREOP", out, re.M)
+        assert all_in(sim, AlState.PREOP), states(sim)
+
+
+def test_run_survives_its_own_interface_going_down(veth_pair: tuple[str, str]) -> None:
+    master_end, sim_end = veth_pair
+    with start_sim_process(DEMO, link=f"iface:{sim_end}", realtime=10) as sim:
+        run = start_run(master_end)
+        try:
+            assert wait_for(lambda: all_in(sim, AlState.OP)), "never in OP"
+            set_link(master_end, "down")
+            time.sleep(1.0)
+            set_link(master_end, "up")
+            back = wait_for(lambda: all_in(sim, AlState.OP), 30)
+            run.send_signal(signal.SIGTERM)
+            out, err = run.communicate(timeout=60)
+            assert back, f"{states(sim)}\n{out}\n{err}"
+        finally:
+            if run.poll() is None:
+                run.kill()
+                run.wait()
+        assert run.returncode == 0, err + out
+        assert err == ""
+        m = summary_value(out, r"^link: up at the end; down (\d+) times, ([\d.]+) s, "
+                               r"(\d+) cycles lost$")
+        assert int(m.group(1)) >= 1 and float(m.group(2)) >= 0.5 and int(m.group(3)) > 0
+        assert re.search(r"^stopped: safe outputs for 3 cycles, slaves in PREOP", out, re.M), out
         assert all_in(sim, AlState.PREOP), states(sim)
 
 

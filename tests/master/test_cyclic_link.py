@@ -12,13 +12,16 @@
 
 from __future__ import annotations
 
+import re
 import time
 
 import pytest
 from fake_esc_segment import FakeSlave
 from fake_logical import LogicalSegment
 from master_sii_helpers import coupler, di, do
+from rich.console import Console
 
+from pyethercat.cli.run_cmds import live_view
 from pyethercat.clock import VirtualClock
 from pyethercat.errors import ConfigError
 from pyethercat.link.pair import PairLink
@@ -133,6 +136,13 @@ def test_link_loss_keeps_the_loop_going_and_recovers_to_op() -> None:
         assert r.stats.lost_frames >= r.stats.down_cycles
         assert r.down_for() > 0.02
         assert "link DOWN" in r.status_lines()[0]
+        # the live view says so, and shows the last known states as such
+        console = Console(record=True, width=160)
+        console.print(live_view(m, r))
+        view = console.export_text()
+        assert re.search(r"link\s+│ DOWN for [\d.]+ s \(\d+ cycles lost\)", view), view
+        assert len(re.findall(r"│ unknown\s+│ lost", view)) == 7, view
+        assert re.search(r"group main WKC\s+│ 0/9 BAD inputs \d+ cycles old", view), view
         # meanwhile the slaves' process-data watchdogs ran out
         for i in range(1, 7):
             seg.drop_to(i, AlState.SAFEOP)

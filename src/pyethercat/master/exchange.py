@@ -125,6 +125,8 @@ class CycleExchange:
                 for g in p.groups:
                     g.lost += 1
                     g.wkc_ok = g.present_ok = False
+                for g, n, _w, _e, _s in p.checks:
+                    g.last_wkc[n] = 0  # nothing came back: no stale count shown as current
                 missing = set(p.groups) if missing is None else missing | set(p.groups)
                 continue
             back += 1
