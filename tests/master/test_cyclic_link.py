@@ -13,6 +13,7 @@
 from __future__ import annotations
 
 import re
+import threading
 import time
 
 import pytest
@@ -21,9 +22,10 @@ from fake_logical import LogicalSegment
 from master_sii_helpers import coupler, di, do
 from rich.console import Console
 
+from pyethercat.cli._lifecycle import segment_lost_error
 from pyethercat.cli.run_cmds import live_view
 from pyethercat.clock import VirtualClock
-from pyethercat.errors import ConfigError
+from pyethercat.errors import ConfigError, LinkDownError
 from pyethercat.link.pair import PairLink
 from pyethercat.master.cyclic import CyclicRunner
 from pyethercat.master.master import Master
@@ -202,3 +204,18 @@ def test_stop_while_the_link_is_down_leaves_states_alone() -> None:
     assert not r.running
     assert "slaves not taken to PREOP: the link is down" in r.stop_report
     assert all(seg.slaves[i].al_status == AlState.OP for i in range(7))
+
+
+def test_a_run_ending_during_a_spell_is_judged_once_it_is_over() -> None:
+    """``run`` exits non-zero when the segment did not come back; a spell that is
+    still on when the time is up gets its chance to end first."""
+    _seg, switch, m = make()
+    with m.start(cycle=0.001, check_interval=0.01, link_timeout=0.02) as r:
+        assert wait_for(lambda: r.stats.cycles > 30 and r.slave_state(6) == AlState.OP)
+        switch.off = True
+        assert wait_for(lambda: not r.stats.link_up)
+        err = segment_lost_error(r, m)
+        assert isinstance(err, LinkDownError) and "did not come back" in str(err)
+        threading.Timer(0.2, lambda: setattr(switch, "off", False)).start()
+        assert segment_lost_error(r, m, settle=60.0) is None
+        assert r.stats.link_up

@@ -28,7 +28,10 @@ from pyethercat.master.master import Master
 from pyethercat.master.supervision import positions_text
 from pyethercat.wire.al import state_name
 
-__all__ = ["StopSignals", "cycle_until", "FINAL_STATES", "segment_lost_error"]
+__all__ = ["StopSignals", "cycle_until", "FINAL_STATES", "segment_lost_error", "SETTLE"]
+
+#: Seconds a spell or a recovery under way at the end of a run gets to end.
+SETTLE = 2.0
 
 #: States a run may leave the slaves in (``--final-state``).
 FINAL_STATES = ("SAFEOP", "PREOP", "INIT", "BOOT")
@@ -104,12 +107,22 @@ def cycle_until(runner: CyclicRunner, signals: StopSignals, seconds: float | Non
             return "gave up"
 
 
-def segment_lost_error(runner: CyclicRunner, master: Master) -> EtherCATError | None:
+def _settled(runner: CyclicRunner) -> bool:
+    return runner.stats.link_up and all(h.status == "ok" for h in runner.health.values())
+
+
+def segment_lost_error(runner: CyclicRunner, master: Master,
+                       settle: float = 0.0) -> EtherCATError | None:
     """The error a run ends with when the segment did not come back (whole), else None.
 
-    Called while the loop still runs: slaves that supervision has not seen back
-    yet (a recovery that just finished) are read once more before they count.
+    Called while the loop still runs. A spell or a recovery under way when the
+    time is up is given up to ``settle`` seconds to end (a stall of a few cycles
+    at the last moment is no lost segment); slaves that supervision has not
+    seen back yet (a recovery that just finished) are then read once more.
     """
+    end = time.monotonic() + settle
+    while runner.running and not _settled(runner) and time.monotonic() < end:
+        time.sleep(0.01)
     where = master.link.name
     if not runner.stats.link_up:
         return LinkDownError(

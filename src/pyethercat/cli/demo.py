@@ -131,6 +131,12 @@ def _set_bit(buf: bytearray, bit: int, value: int) -> None:
         buf[bit >> 3] &= ~(1 << (bit & 7)) & 0xFF
 
 
+#: Whole exchanges a pattern needs at least to come back: the first takes the outputs
+#: out (a wire copies them to the input buffer as the frame leaves the output slave),
+#: the next reads the inputs.
+_ROUND_TRIP = 2
+
+
 class _Toggler:
     """Cycle callback: a new output pattern every ``hold`` cycles, checked on the inputs."""
 
@@ -147,6 +153,8 @@ class _Toggler:
         # Whether the wired slaves were supervised "ok" at the last check (a slave that
         # fell out of OP, e.g. into its watchdog, ignores its outputs meanwhile).
         self._settled = True
+        #: Whole exchanges (every working counter right, inputs copied) since the pattern.
+        self._whole = 0
         cfg = master.process_data
         assert cfg is not None
         self.out_slaves = sorted(p for p, sc in cfg.slaves.items() if sc.output_bits)
@@ -166,6 +174,8 @@ class _Toggler:
         return 1 << ((step // 2) % width)
 
     def __call__(self, cycle: Cycle) -> None:
+        if cycle.wkc_ok and not cycle.lost:
+            self._whole += 1
         if cycle.index % self.hold:
             return
         runner = self.master.runner
@@ -173,8 +183,9 @@ class _Toggler:
             runner.health[p].status == "ok" for lp in self.loops for p in (lp.src, lp.dst)
             if p in runner.health)
         settled, self._settled = self._settled and healthy, healthy
-        if self.step and not settled:
-            # The pattern had no `hold` healthy cycles to come back: check it next time.
+        if self.step and (not settled or self._whole < _ROUND_TRIP):
+            # The pattern had no `hold` healthy cycles, or too few whole exchanges (inputs
+            # come only from those), to come back: check it next time.
             self.skipped += 1
             return
         # Check the previous pattern (it had `hold` cycles to come back), then set a new one.
@@ -187,6 +198,7 @@ class _Toggler:
                     self.mismatches += 1
                     self.last = f"mismatch on {lp.label}: wrote {want}, read {got}"
         self.step += 1
+        self._whole = 0
         for lp, buf, out_bit, _ in self._places:
             value = self.pattern(self.step, lp.bits)
             for i in range(lp.bits):

@@ -28,7 +28,13 @@ from rich.table import Table
 from rich.text import Text
 
 from pyethercat.cli._connect import connect
-from pyethercat.cli._lifecycle import FINAL_STATES, StopSignals, cycle_until, segment_lost_error
+from pyethercat.cli._lifecycle import (
+    FINAL_STATES,
+    SETTLE,
+    StopSignals,
+    cycle_until,
+    segment_lost_error,
+)
 from pyethercat.cli._select import selection_options
 from pyethercat.cli._session import open_session, serving
 from pyethercat.cli._util import parse_int
@@ -329,7 +335,7 @@ def register(cli: click.Group) -> None:
                     why = cycle_until(runner, signals, seconds, give_up,
                                       lambda: live.update(live_view(m, runner, extra)))
                 # Judged while the slaves are still cycling (the stop takes them down).
-                failure = segment_lost_error(runner, m)
+                failure = segment_lost_error(runner, m, 0.0 if why == "gave up" else SETTLE)
             finally:
                 if eoe_run is not None:
                     eoe_run.close()
