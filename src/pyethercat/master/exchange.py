@@ -26,6 +26,9 @@ from pyethercat.master.scheduler import CyclicFrame, Request, Scheduler
 
 __all__ = ["CycleExchange", "DcRider"]
 
+#: Frame indices the loop's frames may hold at once (of 256; the rest for others).
+_INDEX_BUDGET = 128
+
 
 class CycleExchange:
     """The frames of the loop's cycles (see the module text)."""
@@ -74,8 +77,10 @@ class CycleExchange:
         now_ns = self.clock.now_ns
         t0 = now_ns()
         timeout = self.frame_timeout
+        life = timeout
         if timeout is None and deadline is not None:
             timeout = self.watch.reply_timeout(deadline, t0)
+            life = self._lifetime(timeout, len(plans))
         tickets: list[CyclicFrame | None] = []
         self.tickets = tickets
         stats = self.stats
@@ -90,7 +95,7 @@ class CycleExchange:
                 if value is not None:
                     frame[p.dc_fill:p.dc_fill + len(value)] = value
             try:
-                tickets.append(sched.send_prepared(p.template, timeout=timeout))
+                tickets.append(sched.send_prepared(p.template, timeout=life))
             except LinkError as exc:
                 # The interface is down or gone: the frame is lost, the loop goes on.
                 stats.send_errors += 1
@@ -98,6 +103,7 @@ class CycleExchange:
                 tickets.append(None)
         self.last_tickets = [t for t in tickets if t is not None]
         self.last_plans = plans
+        until = None if timeout is None else sched.now() + timeout
         lost = False
         back = 0
         bad: set[GroupRuntime] | None = None
@@ -111,7 +117,8 @@ class CycleExchange:
                 raw = ticket.raw
                 if raw is None:
                     try:
-                        raw = ticket.wait_raw()
+                        raw = ticket.wait_raw(None if until is None
+                                              else max(0.0, until - sched.now()))
                     except LinkError as exc:
                         self.watch.recv_error = exc
             if p.dc_read >= 0:
@@ -181,6 +188,22 @@ class CycleExchange:
         if incomplete:
             stats.incomplete += 1
         return ok and not lost, lost, back, now_ns() - t0, names
+
+    def _lifetime(self, wait: float, frames: int) -> float:
+        """How long a cycle's frame stays in flight: the cycle waits ``wait`` for it, but
+        a later reply still completes the requests that rode in it (a mailbox read
+        the slave has answered cannot be sent again: its reply would be lost).
+
+        Up to the scheduler's timeout, within a share of the frame indices (the
+        frames of every cycle until then are in flight at once while nothing comes
+        back). In virtual time a reply is there at once or never; on a ring the
+        frame's deadline is when the copies that came are merged, so it stays ``wait``.
+        """
+        sched = self.scheduler
+        if sched.virtual or not self.stats.link_up or sched.core.redundancy is not None:
+            return wait
+        budget = _INDEX_BUDGET // max(1, frames) * self.stats.period_ns / 1e9
+        return max(wait, min(sched.timeout, budget))
 
     # -- slaves known to be gone ----------------------------------------------------------
 

@@ -439,7 +439,11 @@ class Scheduler:
         with self._lock:
             while ticket.raw is None and not ticket.lost and ticket.replies is None:
                 now = now_fn()
-                if core.closed or (limit is not None and now >= limit):
+                if core.closed:
+                    return
+                if limit is not None and now >= limit:
+                    if not self._receiving:
+                        self._drain_locked(now)  # what is there came in time
                     return
                 if core.queued:
                     self._send_queued_locked(now)
