@@ -149,7 +149,7 @@ class Master:
         self.ring = RingService(self.scheduler, lambda: self.slaves,
                                 now_ns=lambda: int(self.scheduler.now() * 1e9))
         # Every cyclic loop carries the ring watch: events through the IRQ field, faults.
-        self.pd.rider_factories.append(self._ring_watch)
+        self.pd.rider_factories.append(lambda runner: _ring_watch(self, runner))
         #: Slaves that come back (power-cycled, hot-swapped) are identified and configured.
         self.hotswap = HotSwap(self.scheduler, self.pd, self.dc, lambda: self.slaves,
                                now_ns=lambda: int(self.scheduler.now() * 1e9))
@@ -430,11 +430,6 @@ class Master:
             diag.decode_error_counters(s.position, s.station_address, r.data, r.ok)
             for s, r in zip(chosen, results, strict=True)))
 
-    def _ring_watch(self, runner: CyclicRunner) -> RingWatch:
-        self.hotswap.log = runner.log
-        return RingWatch(self.ring, log=runner.log,
-                         on_reading=lambda _d, absent: self.hotswap.update_groups(absent))
-
     def hot_connect(self, name: str, alias: int, size: int = 1) -> GroupPresence:
         """Declare a hot connect group: the slave carrying ``alias`` and the ``size - 1``
         behind it may go and come back while cycling (see :mod:`pyethercat.master.hotswap`)."""
@@ -575,17 +570,9 @@ class Master:
 
     # -- SII (the SII service) -------------------------------------------------------------
 
-    def _sii_target(self, slave: SlaveRef) -> SiiTarget:
-        """The scanned slave, or the position of an unscanned one."""
-        if isinstance(slave, Slave) or 0 <= slave < len(self.slaves):
-            return self.slave(slave)
-        if not 0 <= slave <= 0xFFFF:
-            raise ConfigError(f"slave position {slave} out of range")
-        return slave
-
     def sii_read(self, slave: SlaveRef, *, max_bytes: int = SII_DEFAULT_MAX_BYTES) -> bytes:
         """Read one slave's SII again, from word 0 to the category end marker."""
-        return self.sii.read(self._sii_target(slave), max_bytes=max_bytes)
+        return self.sii.read(_sii_target(self, slave), max_bytes=max_bytes)
 
     def sii_write(self, slave: SlaveRef, image: bytes, *, reload: bool = True,
                   only_changed: bool = True, force: bool = False,
@@ -598,18 +585,31 @@ class Master:
         words, ``reload`` reloads the configuration words. Raises
         :class:`~pyethercat.master.sii_write.SiiWriteError` naming the failed word.
         """
-        return self.sii.write(self._sii_target(slave), image, reload=reload,
+        return self.sii.write(_sii_target(self, slave), image, reload=reload,
                               only_changed=only_changed, force=force, backup=backup,
                               progress=progress)
 
     def set_alias(self, slave: SlaveRef, alias: int, *,
                   backup: Path | Callable[[bytes], Path] | None = None,
                   force: bool = False) -> SiiWriteReport:
-        """Write the station alias (SII word 4, with a new checksum) and reload it.
+        """Write the station alias (SII word 4, checksum word 7; nothing else) and reload it."""
+        return self.sii.set_alias(_sii_target(self, slave), alias, backup=backup, force=force)
 
-        The rest of the EEPROM stays as it is (only words 4 and 7 change).
-        """
-        return self.sii.set_alias(self._sii_target(slave), alias, backup=backup, force=force)
+
+def _ring_watch(master: Master, runner: CyclicRunner) -> RingWatch:
+    """The ring watch a loop carries; slaves it finds gone update the hot connect groups."""
+    master.hotswap.log = runner.log
+    return RingWatch(master.ring, log=runner.log,
+                     on_reading=lambda _d, absent: master.hotswap.update_groups(absent))
+
+
+def _sii_target(master: Master, slave: SlaveRef) -> SiiTarget:
+    """The scanned slave, or the position of an unscanned one."""
+    if isinstance(slave, Slave) or 0 <= slave < len(master.slaves):
+        return master.slave(slave)
+    if not 0 <= slave <= 0xFFFF:
+        raise ConfigError(f"slave position {slave} out of range")
+    return slave
 
 
 def _state(state: AlState | int | str) -> AlState:
