@@ -12,12 +12,39 @@ import shutil
 import subprocess
 import time
 import uuid
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
 
 REPO = Path(__file__).resolve().parent.parent
+
+#: Frame timeout (seconds) of the masters the tests open against a simulator in
+#: another thread or process (UDP, veth, socketpair). The master's default of
+#: 50 ms suits a real segment; a simulator here is Python sharing two loaded
+#: CPUs with the whole suite, which can keep it off the CPU for longer than
+#: the default's four attempts (200 ms). No test that uses it is about the
+#: frame timeout: a frame that is really lost still ends as one.
+SIM_FRAME_TIMEOUT = 1.0
+#: SCHED_FIFO priority of simulator processes a peer with fixed timeouts talks to
+#: (SOEM waits 2 ms for most replies, pysoem cannot change that): such a peer
+#: would time out whenever the loaded machine kept the simulator off the CPU.
+SIM_REALTIME = 10
+#: How long :func:`wait_for` waits by default: what a test waits for happens in
+#: milliseconds on an idle machine; the limit is only there so that a broken
+#: feature fails the test instead of hanging it, and a loaded CI machine must
+#: not hit it.
+WAIT_LIMIT = 60.0
+
+
+def wait_for(cond: Callable[[], bool], seconds: float = WAIT_LIMIT) -> bool:
+    """Poll ``cond`` until it holds (True) or ``seconds`` have passed (False)."""
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        if cond():
+            return True
+        time.sleep(0.005)
+    return cond()
 SHARED = REPO.parent / "shared"
 IN_CI = os.environ.get("CI", "").lower() in ("1", "true", "yes")
 
@@ -96,7 +123,8 @@ def veth_pair(root: None) -> Iterator[tuple[str, str]]:
 
 @pytest.fixture(scope="session", autouse=True)
 def private_runtime_dir(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
-    """Control sockets and SII backups of this test run in its own directories.
+    """Control sockets and SII backups of this test run in its own directories;
+    the command line's frame timeout is :data:`SIM_FRAME_TIMEOUT`.
 
     Masters opened on an interface serve a control socket named after it; a
     suite running beside another (or beside a user's master) must not meet
@@ -104,9 +132,12 @@ def private_runtime_dir(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Pa
     """
     base = tmp_path_factory.mktemp("runtime")
     base.chmod(0o700)
-    saved = {k: os.environ.get(k) for k in ("PYETHERCAT_RUNTIME_DIR", "XDG_STATE_HOME")}
+    saved = {k: os.environ.get(k) for k in ("PYETHERCAT_RUNTIME_DIR", "XDG_STATE_HOME",
+                                             "PYETHERCAT_FRAME_TIMEOUT")}
     os.environ["PYETHERCAT_RUNTIME_DIR"] = str(base / "run")
     os.environ["XDG_STATE_HOME"] = str(base / "state")
+    # Every master the command line opens (in process or in a child) waits as long.
+    os.environ["PYETHERCAT_FRAME_TIMEOUT"] = str(SIM_FRAME_TIMEOUT)
     yield base
     for key, value in saved.items():
         if value is None:

@@ -19,6 +19,7 @@ from typing import Any
 
 import pytest
 from click.testing import CliRunner
+from conftest import SIM_FRAME_TIMEOUT
 
 from pyethercat.cli.main import cli
 from pyethercat.clock import VirtualClock, WallClock
@@ -157,7 +158,7 @@ def test_master_open_serves_and_refuses_a_second_master_on_the_link() -> None:
     host, port = link.address
     addr = f"{host}:{port}"
     try:
-        with Master.open(udp=addr) as m:
+        with Master.open(udp=addr, timeout=SIM_FRAME_TIMEOUT) as m:
             m.scan()
             code, out, _ = run("--udp", addr, "master")
             assert f"running master, pid {os.getpid()}" in out and "Slaves: 2" in out

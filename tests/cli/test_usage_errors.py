@@ -123,6 +123,8 @@ CASES = [
     (["--sim", DEMO, "states", "PREOP", "--wait", "--timeout", "0"], "--timeout must be positive"),
     (["--sim", DEMO, "states", "PREOP", "--wait", "--timeout", "-1"],
      "--timeout must be positive"),
+    (["--sim", DEMO, "--frame-timeout", "0", "slaves"], "PYETHERCAT_FRAME_TIMEOUT'): 0.0 is not in the range x>0"),
+    (["--sim", DEMO, "slaves", "--retries", "-1"], "PYETHERCAT_RETRIES'): -1 is not in the range x>=0"),
     # broken topology files: rejected at load, saying what is wrong
     (["--sim", "{trunc}", "slaves"], "100 bytes end inside the fixed area"),
     (["--sim", "{badcrc}", "slaves"], "header checksum (word 0x07) is 0xB9"),
@@ -178,6 +180,23 @@ def test_bad_invocation_is_one_line_and_exit_1(args: list[str], fragment: str,
     assert len(lines) == 1, err
     assert lines[0].startswith("pyethercat: error: "), lines[0]
     assert fragment in lines[0], lines[0]
+
+
+def test_frame_timeout_and_retries_reach_the_commands_master(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A peer that never answers: the error names the attempts and the timeout asked for."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as silent:
+        silent.bind(("127.0.0.1", 0))
+        addr = "{}:{}".format(*silent.getsockname())
+        result = CliRunner().invoke(cli, ["--udp", addr, "--frame-timeout", "0.02", "--retries",
+                                          "1", "slaves"])
+        assert result.exit_code == 1
+        assert "no reply to BRD" in result.stderr and "after 2 attempts (0.02 s each)" in \
+            result.stderr
+        monkeypatch.setenv("PYETHERCAT_FRAME_TIMEOUT", "0.03")
+        monkeypatch.setenv("PYETHERCAT_RETRIES", "0")
+        result = CliRunner().invoke(cli, ["--udp", addr, "slaves"])
+        assert "after 1 attempt (0.03 s each)" in result.stderr
 
 
 def run(*args: str) -> subprocess.CompletedProcess[str]:

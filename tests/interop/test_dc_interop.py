@@ -15,6 +15,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from conftest import SIM_FRAME_TIMEOUT, SIM_REALTIME
 
 from pyethercat.master.dc import DcSettings
 from pyethercat.master.master import Master
@@ -29,7 +30,7 @@ TREE = Path(__file__).resolve().parents[2] / "examples" / "dc-tree-20.toml"
 @pytest.fixture
 def served(veth_pair: tuple[str, str]) -> Iterator[tuple[SimProcess, str]]:
     sim_end, master_end = veth_pair
-    handle = start_sim_process(TREE, link=f"iface:{sim_end}", realtime=10)
+    handle = start_sim_process(TREE, link=f"iface:{sim_end}", realtime=SIM_REALTIME)
     try:
         yield handle, master_end
     finally:
@@ -57,7 +58,7 @@ def test_soem_and_our_master_write_the_same_delays(served: tuple[SimProcess, str
                 for s in master.slaves]
     finally:
         master.close()
-    with Master.open(iface) as m:
+    with Master.open(iface, timeout=SIM_FRAME_TIMEOUT) as m:
         m.scan()
         report = m.dc.setup(DcSettings(static_sync=1000))
         ours = [struct.unpack("<I", r.data)[0] for r in m.read_many(R.DC_SYSTEM_TIME_DELAY, 4)]

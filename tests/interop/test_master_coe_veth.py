@@ -18,6 +18,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from conftest import SIM_FRAME_TIMEOUT, wait_for
 
 from pyethercat.errors import SdoAbort
 from pyethercat.link.capture import CaptureLink
@@ -70,21 +71,12 @@ def _status_polls(capture: iolib.BytesIO, start: int) -> int:
     return count
 
 
-def _wait_echo(check: object, seconds: float = 3.0) -> bool:
-    limit = time.monotonic() + seconds
-    while time.monotonic() < limit:
-        if check():  # type: ignore[operator]
-            return True
-        time.sleep(0.005)
-    return False
-
-
 @pytest.mark.root
 def test_our_master_coe_against_the_simulator(served: tuple[SimProcess, str]) -> None:
     handle, iface = served
     capture = iolib.BytesIO()
     link = CaptureLink(RawLink(iface), capture, flush=True)
-    with Master(link, timeout=0.2) as m:
+    with Master(link, timeout=SIM_FRAME_TIMEOUT) as m:
         slaves = m.scan()
         assert len(slaves) == 2
         io, drive = slaves
@@ -158,11 +150,11 @@ def test_our_master_coe_against_the_simulator(served: tuple[SimProcess, str]) ->
             io.outputs["Value 32"] = 0x01020304
             drive.outputs[(0x6040, 0)] = 0x0006
             drive.outputs[(0x6060, 0)] = 3
-            assert _wait_echo(lambda: io.inputs["Value 32"] == 0x01020304)
+            assert wait_for(lambda: io.inputs["Value 32"] == 0x01020304)
             assert (io.inputs["Digital inputs"], io.inputs["Value 16"]) == (0x5A, 0xBEEF)
-            assert _wait_echo(lambda: drive.inputs[(0x6061, 0)] == 3)
+            assert wait_for(lambda: drive.inputs[(0x6061, 0)] == 3)
             # shutdown (0x06) in OP: the drive goes to Ready to switch on (CiA 402)
-            assert _wait_echo(lambda: drive.inputs[(0x6041, 0)] & 0x6F == 0x21)
+            assert wait_for(lambda: drive.inputs[(0x6041, 0)] & 0x6F == 0x21)
 
             # SDOs while cyclic exchange runs: the status comes from the cyclic frame
             start = time.time_ns()
@@ -175,7 +167,7 @@ def test_our_master_coe_against_the_simulator(served: tuple[SimProcess, str]) ->
             # an emergency: posted by the slave, its status bit shows in the image
             assert handle.control("emergency", slave="io", code=0x8210, register=0x10,
                                   data="0102030405")["sent"]
-            assert _wait_echo(lambda: m.poll_mailboxes() > 0 or not m.emergencies.empty())
+            assert wait_for(lambda: m.poll_mailboxes() > 0 or not m.emergencies.empty())
             event = m.emergencies.get(timeout=1)
             assert (event.position, event.error_code, event.error_register) == (0, 0x8210, 0x10)
             assert io.mbx is not None and io.mbx.stats.cyclic_status > 0
@@ -195,9 +187,9 @@ def test_our_master_coe_against_the_simulator(served: tuple[SimProcess, str]) ->
             assert (sc.output_bytes, sc.input_bytes) == (4, 8)
             assert list(io.outputs) == ["Value 32"]
             io.outputs["Value 32"] = 0xCAFEF00D
-            assert _wait_echo(lambda: io.inputs["Value 32"] == 0xCAFEF00D)
+            assert wait_for(lambda: io.inputs["Value 32"] == 0xCAFEF00D)
             first = io.inputs["Cycle counter"]
-            assert _wait_echo(lambda: io.inputs["Cycle counter"] != first)
+            assert wait_for(lambda: io.inputs["Cycle counter"] != first)
         finally:
             runner.stop()
         m.set_state("INIT")

@@ -13,6 +13,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from conftest import SIM_FRAME_TIMEOUT
 
 from pyethercat.errors import FoeNotFound
 from pyethercat.link.raw import RawLink
@@ -57,7 +58,7 @@ def served(veth_pair: tuple[str, str], tmp_path: Path) -> Iterator[tuple[SimProc
 def test_our_master_foe_soe_and_bootstrap_over_veth(served: tuple[SimProcess, str]) -> None:
     _handle, iface = served
     info = parse_sii(ORBITA.read_bytes())
-    with Master(RawLink(iface), timeout=0.2) as m:
+    with Master(RawLink(iface), timeout=SIM_FRAME_TIMEOUT) as m:
         akd, orbita = m.scan()
         m.set_state("PREOP")
         assert akd.mbx is not None

@@ -11,6 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from conftest import SIM_FRAME_TIMEOUT, SIM_REALTIME
 
 from pyethercat.master import Master
 
@@ -43,7 +44,7 @@ def test_same_slave_list_as_soem(veth_pair: tuple[str, str], tmp_path: Path) -> 
     a, b = veth_pair
     topo = tmp_path / "seg.toml"
     topo.write_text(TOPOLOGY)
-    with start_sim_process(topo, link=f"iface:{b}"):
+    with start_sim_process(topo, link=f"iface:{b}", realtime=SIM_REALTIME):
         soem = pysoem.Master()
         soem.open(a)
         try:
@@ -53,7 +54,7 @@ def test_same_slave_list_as_soem(veth_pair: tuple[str, str], tmp_path: Path) -> 
             their_sizes = [(len(s.input), len(s.output)) for s in soem.slaves]
         finally:
             soem.close()
-        with Master.open(iface=a, timeout=0.2) as m:
+        with Master.open(iface=a, timeout=SIM_FRAME_TIMEOUT) as m:
             slaves = m.scan()
             ours = [(s.identity.vendor_id, s.identity.product_code, s.identity.revision,
                      s.sii.string(1) if s.sii is not None else None) for s in slaves]

@@ -26,6 +26,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from conftest import SIM_REALTIME
 
 from pyethercat.esi import load_esi
 from pyethercat.esi.bundled import bundled_esi
@@ -83,7 +84,7 @@ def served(
     topo = tmp_path / "esi.toml"
     topo.write_text("\n".join(text))
     sim_end, master_end = veth_pair
-    handle = start_sim_process(topo, link=f"iface:{sim_end}")
+    handle = start_sim_process(topo, link=f"iface:{sim_end}", realtime=SIM_REALTIME)
     try:
         yield handle, master_end
     finally:

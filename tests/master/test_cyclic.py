@@ -8,9 +8,8 @@ without restarting the master.
 
 from __future__ import annotations
 
-import time
-
 import pytest
+from conftest import wait_for
 from fake_esc_segment import FakeSlave
 from fake_logical import LogicalSegment
 from master_sii_helpers import coupler, di, do
@@ -109,15 +108,6 @@ def test_wkc_error_and_lost_frame_are_counted():
     r.run(cycles=2)
     assert r.stats.lost_frames == 1 and r.groups[0].lost == 1
     assert r.groups[0].wkc_ok
-
-
-def wait_for(cond, seconds=10.0):
-    end = time.monotonic() + seconds
-    while time.monotonic() < end:
-        if cond():
-            return True
-        time.sleep(0.01)
-    return False
 
 
 def test_dropped_broken_and_power_cycled_slaves_recover():

@@ -10,10 +10,9 @@ service riding in the cyclic frame with the status byte from the FMMU.
 from __future__ import annotations
 
 import ipaddress
-import time
-from collections.abc import Callable
 
 import pytest
+from conftest import wait_for
 from eoe_helpers import TOPOLOGY, arp_request, ping
 
 from pyethercat.link.pair import PairLink
@@ -38,15 +37,6 @@ def eoe() -> tuple[Master, dict[int, EoeClient], object, list[bytes]]:
     for c in clients.values():
         c.on_frame = got.append
     return m, clients, seg, got
-
-
-def wait_for(cond: Callable[[], bool], timeout: float = 5.0) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if cond():
-            return True
-        time.sleep(0.005)
-    return cond()
 
 
 def test_set_and_get_ip_parameters(eoe: tuple[Master, dict[int, EoeClient], object, list[bytes]]

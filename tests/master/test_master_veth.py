@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from conftest import SIM_FRAME_TIMEOUT
 
 from pyethercat.master import Master
 from pyethercat.wire.al import AlState
@@ -34,7 +35,7 @@ def test_scan_states_and_counters_over_veth(veth_pair: tuple[str, str], tmp_path
     a, b = veth_pair
     topo = tmp_path / "seg.toml"
     topo.write_text(TOPOLOGY)
-    with start_sim_process(topo, link=f"iface:{b}"), Master.open(iface=a, timeout=0.2) as m:
+    with start_sim_process(topo, link=f"iface:{b}"), Master.open(iface=a, timeout=SIM_FRAME_TIMEOUT) as m:
         slaves = m.scan()
         assert [s.name.split()[0] for s in slaves] == ["PEC-CU4", "PEC-DO8", "PEC-DI8",
                                                        "PEC-AI2"]

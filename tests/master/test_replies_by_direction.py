@@ -14,6 +14,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from conftest import SIM_FRAME_TIMEOUT
 
 from pyethercat.clock import VirtualClock
 from pyethercat.errors import TimeoutError
@@ -70,7 +71,7 @@ def unmarked_segment(veth_pair: tuple[str, str]) -> Iterator[str]:
 
 def test_replies_carrying_our_own_source_mac_are_taken_over_a_raw_link(
         unmarked_segment: str) -> None:
-    with Master.open(iface=unmarked_segment, timeout=0.2, control=False) as m:
+    with Master.open(iface=unmarked_segment, timeout=SIM_FRAME_TIMEOUT, control=False) as m:
         slaves = m.scan()
         assert len(slaves) == len(load_topology(DEMO).build().slaves)
         m.set_state("PREOP")

@@ -16,12 +16,29 @@ from pyethercat.master.scheduler import DEFAULT_REPLY_SPIN, Scheduler
 from pyethercat.wire.datagram import Command, Datagram
 from pyethercat.wire.frame import LOCALLY_ADMINISTERED_BIT
 
+#: What one poll (a receive with timeout 0) costs on the link's clock.
+POLL_NS = 100_000
+
+
+class LinkClock:
+    """A clock that moves only when the scripted link says time has passed."""
+
+    def __init__(self) -> None:
+        self.t = 1_000_000_000
+
+    def now_ns(self) -> int:
+        return self.t
+
+    def sleep_until(self, deadline_ns: int) -> None:
+        self.t = max(self.t, deadline_ns)
+
 
 class ScriptedLink(Link):
     """Answers a sent frame (LA bit set, WKC 1) at the ``answer_after``-th receive call."""
 
     def __init__(self, answer_after: int | None) -> None:
         super().__init__("scripted")
+        self.clock = LinkClock()
         self.answer_after = answer_after
         self.timeouts: list[float | None] = []
         self._pending: deque[bytes] = deque()
@@ -40,7 +57,10 @@ class ScriptedLink(Link):
         self.timeouts.append(timeout)
         self._calls += 1
         if self.answer_after is not None and self._pending and self._calls >= self.answer_after:
+            self.clock.t += POLL_NS
             return self._pending.popleft()
+        # Nothing comes: a poll costs its turn, a blocking receive waits out its timeout.
+        self.clock.t += POLL_NS if not timeout else round(timeout * 1e9)
         return None
 
 
@@ -50,7 +70,7 @@ def template(s: Scheduler):  # noqa: ANN201 - CyclicTemplate
 
 def test_reply_is_polled_for_before_blocking() -> None:
     link = ScriptedLink(answer_after=5)
-    s = Scheduler(link, timeout=0.5)
+    s = Scheduler(link, timeout=0.5, clock=link.clock)
     assert s.reply_spin in (DEFAULT_REPLY_SPIN, 0.0)
     s.reply_spin = 0.5
     tpl = template(s)
@@ -62,7 +82,7 @@ def test_reply_is_polled_for_before_blocking() -> None:
 
 def test_without_spin_the_first_receive_blocks() -> None:
     link = ScriptedLink(answer_after=1)
-    s = Scheduler(link, timeout=0.5)
+    s = Scheduler(link, timeout=0.5, clock=link.clock)
     s.reply_spin = 0.0
     tpl = template(s)
     assert s.exchange_prepared(tpl) is not None
@@ -73,7 +93,7 @@ def test_without_spin_the_first_receive_blocks() -> None:
 
 def test_a_missing_reply_is_a_lost_frame_after_the_timeout_even_while_polling() -> None:
     link = ScriptedLink(answer_after=None)
-    s = Scheduler(link, timeout=0.02)
+    s = Scheduler(link, timeout=0.02, clock=link.clock)
     s.reply_spin = 0.005
     tpl = template(s)
     assert s.exchange_prepared(tpl) is None

@@ -39,7 +39,8 @@ def connect(obj: dict[str, Any] | None, *, child: bool = False, pcap: str | None
             **options: Any) -> Iterator[Connection]:
     """Open the master the global options ask for; close everything afterwards.
 
-    ``options`` go to :class:`~pyethercat.master.master.Master`. ``pcap``
+    ``options`` go to :class:`~pyethercat.master.master.Master` (with the
+    frame timeout and retries of the global options). ``pcap``
     records every frame the master sends and receives.
     """
     obj = obj or {}
@@ -51,6 +52,10 @@ def connect(obj: dict[str, Any] | None, *, child: bool = False, pcap: str | None
     if (second_iface or second_udp) and sim is not None:
         raise ConfigError("--sim makes its ring from the topology ([segment] ring = true): "
                           "no --redundant-iface/--redundant-udp with it")
+    # --frame-timeout/--retries (or their environment variables); a command's own wins.
+    for option, key in (("timeout", "frame_timeout"), ("retries", "retries")):
+        if obj.get(key) is not None:
+            options.setdefault(option, obj[key])
     conn: Connection
     if sim is not None and not child:
         from pyethercat.clock import VirtualClock

@@ -20,6 +20,7 @@ import click
 
 from pyethercat.cli._util import parse_int
 from pyethercat.errors import EtherCATError
+from pyethercat.master.pdu import DEFAULT_RETRIES, DEFAULT_TIMEOUT
 
 __all__ = ["cli", "main", "parse_int", "normalize_argv", "EXIT_FAILURE"]
 
@@ -27,7 +28,8 @@ __all__ = ["cli", "main", "parse_int", "normalize_argv", "EXIT_FAILURE"]
 EXIT_FAILURE = 1
 
 #: Global options that take a value, and flags; accepted anywhere on the line.
-_GLOBAL_VALUE = frozenset({"--iface", "--udp", "--sim", "--redundant-iface", "--redundant-udp"})
+_GLOBAL_VALUE = frozenset({"--iface", "--udp", "--sim", "--redundant-iface", "--redundant-udp",
+                           "--frame-timeout", "--retries"})
 _GLOBAL_FLAG = frozenset({"--direct"})
 #: Verbs with options of their own by those names (``sim --iface`` serves there).
 _OWN_GLOBALS = frozenset({"sim"})
@@ -186,9 +188,17 @@ def _one_line(text: str) -> str:
 @click.option("--redundant-udp", metavar="HOST:PORT", help="Second port of a ring over UDP.")
 @click.option("--direct", is_flag=True,
               help="Open the segment directly even when a master runs on it (warns).")
+@click.option("--frame-timeout", type=click.FloatRange(0, min_open=True), metavar="SECONDS",
+              envvar="PYETHERCAT_FRAME_TIMEOUT", show_envvar=True,
+              help=f"How long a frame has to come back before it is sent again "
+                   f"[default: {DEFAULT_TIMEOUT:g}]. Raise it for a simulator on a busy machine.")
+@click.option("--retries", type=click.IntRange(0), metavar="N", envvar="PYETHERCAT_RETRIES",
+              show_envvar=True,
+              help=f"How often a lost frame is sent again [default: {DEFAULT_RETRIES}].")
 @click.pass_context
 def cli(ctx: click.Context, iface: str | None, udp: str | None, sim: str | None,
-        redundant_iface: str | None, redundant_udp: str | None, direct: bool) -> None:
+        redundant_iface: str | None, redundant_udp: str | None, direct: bool,
+        frame_timeout: float | None, retries: int | None) -> None:
     """EtherCAT master, simulator and tools.
 
     Commands can be abbreviated; options may come before or after the
@@ -202,6 +212,8 @@ def cli(ctx: click.Context, iface: str | None, udp: str | None, sim: str | None,
     ctx.obj["redundant_iface"] = redundant_iface
     ctx.obj["redundant_udp"] = redundant_udp
     ctx.obj["direct"] = direct
+    ctx.obj["frame_timeout"] = frame_timeout
+    ctx.obj["retries"] = retries
 
 
 _MODULES = ("decode", "sim", "slave_cmds", "reg_cmds", "sii_cmds", "info_cmds", "run_cmds",
