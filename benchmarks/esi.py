@@ -30,7 +30,7 @@ from pyethercat.clock import VirtualClock
 from pyethercat.esi import parse_esi
 from pyethercat.esi.bundled import bundled_esi
 from pyethercat.esi.eni import build_eni, parse_eni
-from pyethercat.esi.parse import _make_parser
+from pyethercat.esi.xmlread import _make_parser
 from pyethercat.link.pair import PairLink
 from pyethercat.master.esi_config import eni_from_master, start_from_eni
 from pyethercat.master.master import Master

@@ -42,7 +42,6 @@ from typing import Literal
 
 from lxml import etree
 
-from pyethercat.errors import EsiError
 from pyethercat.esi.model import (
     EsiCoe,
     EsiDc,
@@ -56,15 +55,14 @@ from pyethercat.esi.model import (
     EsiSm,
     Text,
 )
-from pyethercat.esi.parse import (
+from pyethercat.esi.xmlread import (
     DEFAULT_MAX_BYTES,
+    XmlReader,
     _kids,
-    _line,
     _local,
     _read_bounded,
     _safe_xml_root,
     _text,
-    parse_bool,
     parse_hex_bytes,
     parse_int,
 )
@@ -626,26 +624,8 @@ def build_eni(cfg: EniConfig) -> bytes:
 # --- reading -------------------------------------------------------------------------------
 
 
-class _Reader:
-    def __init__(self, source: str) -> None:
-        self.source = source
-
-    def err(self, el: etree._Element, what: str) -> EsiError:
-        return EsiError(what, self.source, _line(el))
-
-    def int_(self, el: etree._Element, what: str) -> int:
-        try:
-            return parse_int(_text(el))
-        except ValueError as exc:
-            raise self.err(el, f"{what}: {exc}") from None
-
-    def bool_(self, raw: str | None, el: etree._Element, what: str, default: bool) -> bool:
-        if raw is None:
-            return default
-        try:
-            return parse_bool(raw)
-        except ValueError as exc:
-            raise self.err(el, f"{what}: {exc}") from None
+class _Reader(XmlReader):
+    """One ENI parse (the typed reads of :class:`XmlReader`)."""
 
     def kids(self, el: etree._Element) -> dict[str, list[etree._Element]]:
         out: dict[str, list[etree._Element]] = {}
@@ -653,39 +633,26 @@ class _Reader:
             out.setdefault(name, []).append(c)
         return out
 
-    def one(self, el: etree._Element, name: str, what: str) -> etree._Element:
-        for n, c in _kids(el):
-            if n == name:
-                return c
-        raise self.err(el, f"{what}: missing <{name}>")
-
-    def opt(self, el: etree._Element, name: str) -> etree._Element | None:
-        return next((c for n, c in _kids(el) if n == name), None)
-
-    def opt_int(self, el: etree._Element, name: str, what: str) -> int | None:
-        c = self.opt(el, name)
-        return None if c is None else self.int_(c, f"{what}/{name}")
-
     def pdo(self, el: etree._Element, direction: Literal["rx", "tx"]) -> EniPdo:
         what = "RxPdo" if direction == "rx" else "TxPdo"
         sm_raw = el.get("Sm")
         try:
             sm = parse_int(sm_raw) if sm_raw is not None else None
         except ValueError as exc:
-            raise self.err(el, f"{what}@Sm: {exc}") from None
+            raise self.error(el, f"{what}@Sm: {exc}") from None
         entries = []
         for n, e in _kids(el):
             if n != "Entry":
                 continue
-            sub = self.opt_int(e, "SubIndex", f"{what}/Entry")
-            dt = self.opt(e, "DataType")
-            nm = self.opt(e, "Name")
+            sub = self.opt_child_int(e, "SubIndex", f"{what}/Entry")
+            dt = self.child(e, "DataType")
+            nm = self.child(e, "Name")
             entries.append(
                 EniPdoEntry(
-                    index=self.int_(self.one(e, "Index", f"{what}/Entry"), f"{what}/Entry/Index"),
+                    index=self.int_text(self.need(e, "Index", f"{what}/Entry"), f"{what}/Entry/Index"),
                     subindex=sub or 0,
-                    bit_len=self.int_(
-                        self.one(e, "BitLen", f"{what}/Entry"), f"{what}/Entry/BitLen"
+                    bit_len=self.int_text(
+                        self.need(e, "BitLen", f"{what}/Entry"), f"{what}/Entry/BitLen"
                     ),
                     name=_text(nm),
                     data_type=_text(dt) or None,
@@ -693,24 +660,24 @@ class _Reader:
             )
         return EniPdo(
             direction=direction,
-            index=self.int_(self.one(el, "Index", what), f"{what}/Index"),
-            name=_text(self.opt(el, "Name")),
+            index=self.int_text(self.need(el, "Index", what), f"{what}/Index"),
+            name=_text(self.child(el, "Name")),
             sm=sm,
-            fixed=self.bool_(el.get("Fixed"), el, f"{what}@Fixed", False),
-            mandatory=self.bool_(el.get("Mandatory"), el, f"{what}@Mandatory", False),
+            fixed=self.bool_attr(el, "Fixed"),
+            mandatory=self.bool_attr(el, "Mandatory"),
             entries=tuple(entries),
         )
 
     def slave(self, el: etree._Element) -> EniSlave:
-        info = self.one(el, "Info", "Slave")
+        info = self.need(el, "Info", "Slave")
         k = self.kids(info)
 
         def num(name: str, required: bool = True) -> int | None:
             if name not in k:
                 if required:
-                    raise self.err(info, f"Slave/Info: missing <{name}>")
+                    raise self.error(info, f"Slave/Info: missing <{name}>")
                 return None
-            return self.int_(k[name][0], f"Slave/Info/{name}")
+            return self.int_text(k[name][0], f"Slave/Info/{name}")
 
         auto = num("AutoIncAddr", False) or 0
         phys = num("PhysAddr")
@@ -722,24 +689,24 @@ class _Reader:
         tx: list[EniPdo] = []
         fmmus: list[str] = []
         send = recv = None
-        pd = self.opt(el, "ProcessData")
+        pd = self.child(el, "ProcessData")
         if pd is not None:
             for n, c in _kids(pd):
                 if n.startswith("Sm") and n[2:].isdigit():
                     sk = self.kids(c)
                     kind = _text(sk["Type"][0]) if "Type" in sk else "Unused"
                     if kind not in ("MBoxOut", "MBoxIn", "Outputs", "Inputs", "Unused"):
-                        raise self.err(c, f"ProcessData/{n}/Type: unknown type {kind!r}")
+                        raise self.error(c, f"ProcessData/{n}/Type: unknown type {kind!r}")
                     en = sk.get("Enable")
                     sms.append(
                         EniSm(
                             index=int(n[2:]),
                             kind=kind,  # type: ignore[arg-type]
-                            start=self.opt_int(c, "StartAddress", n) or 0,
-                            size=self.opt_int(c, "DefaultSize", n) or 0,
-                            control=self.opt_int(c, "ControlByte", n) or 0,
-                            enable=self.bool_(_text(en[0]) if en else None, c, n, True),
-                            pdos=tuple(self.int_(p, f"{n}/Pdo") for p in sk.get("Pdo", [])),
+                            start=self.opt_child_int(c, "StartAddress", n) or 0,
+                            size=self.opt_child_int(c, "DefaultSize", n) or 0,
+                            control=self.opt_child_int(c, "ControlByte", n) or 0,
+                            enable=self.bool_text(en[0], f"{n}/Enable") if en else True,
+                            pdos=tuple(self.int_text(p, f"{n}/Pdo") for p in sk.get("Pdo", [])),
                         )
                     )
                 elif n == "RxPdo":
@@ -749,17 +716,17 @@ class _Reader:
                 elif n == "Fmmu":
                     fmmus.append(_text(c))
                 elif n == "Send":
-                    send = (self.opt_int(c, "BitStart", n), self.opt_int(c, "BitLength", n))
+                    send = (self.opt_child_int(c, "BitStart", n), self.opt_child_int(c, "BitLength", n))
                 elif n == "Recv":
-                    recv = (self.opt_int(c, "BitStart", n), self.opt_int(c, "BitLength", n))
+                    recv = (self.opt_child_int(c, "BitStart", n), self.opt_child_int(c, "BitLength", n))
         mbx = None
-        mb = self.opt(el, "Mailbox")
+        mb = self.child(el, "Mailbox")
         if mb is not None:
-            s_el = self.one(mb, "Send", "Mailbox")
-            r_el = self.one(mb, "Recv", "Mailbox")
+            s_el = self.need(mb, "Send", "Mailbox")
+            r_el = self.need(mb, "Recv", "Mailbox")
             cmds: list[EniInitCmd] = []
-            coe = self.opt(mb, "CoE")
-            ic = self.opt(coe, "InitCmds") if coe is not None else None
+            coe = self.child(mb, "CoE")
+            ic = self.child(coe, "InitCmds") if coe is not None else None
             for n, c in _kids(ic) if ic is not None else ():
                 if n != "InitCmd":
                     continue
@@ -767,39 +734,37 @@ class _Reader:
                 try:
                     data = parse_hex_bytes(_text(ck["Data"][0])) if "Data" in ck else b""
                 except ValueError as exc:
-                    raise self.err(c, f"InitCmd/Data: {exc}") from None
+                    raise self.error(c, f"InitCmd/Data: {exc}") from None
                 cmds.append(
                     EniInitCmd(
                         transitions=tuple(_text(t) for t in ck.get("Transition", [])),
-                        index=self.int_(self.one(c, "Index", "InitCmd"), "InitCmd/Index"),
-                        subindex=self.opt_int(c, "SubIndex", "InitCmd") or 0,
+                        index=self.int_text(self.need(c, "Index", "InitCmd"), "InitCmd/Index"),
+                        subindex=self.opt_child_int(c, "SubIndex", "InitCmd") or 0,
                         data=data,
                         comment=_text(ck["Comment"][0]) if "Comment" in ck else "",
-                        complete_access=self.bool_(
-                            c.get("CompleteAccess"), c, "InitCmd@CompleteAccess", False
-                        ),
+                        complete_access=self.bool_attr(c, "CompleteAccess"),
                     )
                 )
             mbx = EniMailbox(
-                out_start=self.opt_int(s_el, "Start", "Mailbox/Send") or 0,
-                out_size=self.opt_int(s_el, "Length", "Mailbox/Send") or 0,
-                in_start=self.opt_int(r_el, "Start", "Mailbox/Recv") or 0,
-                in_size=self.opt_int(r_el, "Length", "Mailbox/Recv") or 0,
-                poll_time_ms=self.opt_int(r_el, "PollTime", "Mailbox/Recv"),
+                out_start=self.opt_child_int(s_el, "Start", "Mailbox/Send") or 0,
+                out_size=self.opt_child_int(s_el, "Length", "Mailbox/Send") or 0,
+                in_start=self.opt_child_int(r_el, "Start", "Mailbox/Recv") or 0,
+                in_size=self.opt_child_int(r_el, "Length", "Mailbox/Recv") or 0,
+                poll_time_ms=self.opt_child_int(r_el, "PollTime", "Mailbox/Recv"),
                 protocols=tuple(_text(c) for n, c in _kids(mb) if n == "Protocol"),
-                data_link_layer=self.bool_(mb.get("DataLinkLayer"), mb, "Mailbox", False),
+                data_link_layer=self.bool_attr(mb, "DataLinkLayer"),
                 init_cmds=tuple(cmds),
             )
         dc = None
-        de = self.opt(el, "DC")
+        de = self.child(el, "DC")
         if de is not None:
             dc = EniDc(
-                op_mode=_text(self.opt(de, "OpMode")),
-                assign_activate=self.opt_int(de, "AssignActivate", "DC") or 0,
-                cycle_time0=self.opt_int(de, "CycleTime0", "DC") or 0,
-                shift_time0=self.opt_int(de, "ShiftTime0", "DC") or 0,
-                cycle_time1=self.opt_int(de, "CycleTime1", "DC") or 0,
-                shift_time1=self.opt_int(de, "ShiftTime1", "DC") or 0,
+                op_mode=_text(self.child(de, "OpMode")),
+                assign_activate=self.opt_child_int(de, "AssignActivate", "DC") or 0,
+                cycle_time0=self.opt_child_int(de, "CycleTime0", "DC") or 0,
+                shift_time0=self.opt_child_int(de, "ShiftTime0", "DC") or 0,
+                cycle_time1=self.opt_child_int(de, "CycleTime1", "DC") or 0,
+                shift_time1=self.opt_child_int(de, "ShiftTime1", "DC") or 0,
             )
         physics = _text(k["Physics"][0]) if "Physics" in k else None
         return EniSlave(
@@ -826,25 +791,25 @@ class _Reader:
 
     def config(self, root: etree._Element) -> EniConfig:
         if _local(root.tag) != "EtherCATConfig":
-            raise self.err(root, f"root element is <{_local(root.tag)}>, not <EtherCATConfig>")
-        config = self.one(root, "Config", "EtherCATConfig")
-        master = self.opt(config, "Master")
+            raise self.error(root, f"root element is <{_local(root.tag)}>, not <EtherCATConfig>")
+        config = self.need(root, "Config", "EtherCATConfig")
+        master = self.child(config, "Master")
         name, dest, src = "", b"\xff" * 6, b"\x00" * 6
-        if master is not None and (info := self.opt(master, "Info")) is not None:
-            name = _text(self.opt(info, "Name"))
+        if master is not None and (info := self.child(master, "Info")) is not None:
+            name = _text(self.child(info, "Name"))
             try:
-                d = self.opt(info, "Destination")
-                s = self.opt(info, "Source")
+                d = self.child(info, "Destination")
+                s = self.child(info, "Source")
                 dest = parse_hex_bytes(_text(d)) if d is not None else dest
                 src = parse_hex_bytes(_text(s)) if s is not None else src
             except ValueError as exc:
-                raise self.err(info, f"Master/Info: {exc}") from None
+                raise self.error(info, f"Master/Info: {exc}") from None
         slaves = [self.slave(c) for n, c in _kids(config) if n == "Slave"]
         cycle = None
         frames: list[EniFrame] = []
-        cyc = self.opt(config, "Cyclic")
+        cyc = self.child(config, "Cyclic")
         if cyc is not None:
-            cycle = self.opt_int(cyc, "CycleTime", "Cyclic")
+            cycle = self.opt_child_int(cyc, "CycleTime", "Cyclic")
             for n, fr in _kids(cyc):
                 if n != "Frame":
                     continue
@@ -856,35 +821,35 @@ class _Reader:
                     cmds.append(
                         EniCmd(
                             states=tuple(_text(x) for x in ck.get("State", [])),
-                            cmd=self.int_(self.one(c, "Cmd", "Frame/Cmd"), "Cmd/Cmd"),
-                            addr=self.opt_int(c, "Addr", "Cmd") or 0,
-                            data_length=self.opt_int(c, "DataLength", "Cmd") or 0,
-                            cnt=self.opt_int(c, "Cnt", "Cmd") or 0,
-                            input_offs=self.opt_int(c, "InputOffs", "Cmd"),
-                            output_offs=self.opt_int(c, "OutputOffs", "Cmd"),
+                            cmd=self.int_text(self.need(c, "Cmd", "Frame/Cmd"), "Cmd/Cmd"),
+                            addr=self.opt_child_int(c, "Addr", "Cmd") or 0,
+                            data_length=self.opt_child_int(c, "DataLength", "Cmd") or 0,
+                            cnt=self.opt_child_int(c, "Cnt", "Cmd") or 0,
+                            input_offs=self.opt_child_int(c, "InputOffs", "Cmd"),
+                            output_offs=self.opt_child_int(c, "OutputOffs", "Cmd"),
                             comment=_text(ck["Comment"][0]) if "Comment" in ck else "",
                         )
                     )
                 frames.append(EniFrame(cmds=tuple(cmds)))
         sizes = {"Inputs": 0, "Outputs": 0}
         variables: dict[str, list[EniVariable]] = {"Inputs": [], "Outputs": []}
-        pi = self.opt(config, "ProcessImage")
+        pi = self.child(config, "ProcessImage")
         if pi is not None:
             for part in ("Inputs", "Outputs"):
-                pe = self.opt(pi, part)
+                pe = self.child(pi, part)
                 if pe is None:
                     continue
-                sizes[part] = self.opt_int(pe, "ByteSize", part) or 0
+                sizes[part] = self.opt_child_int(pe, "ByteSize", part) or 0
                 for n, v in _kids(pe):
                     if n != "Variable":
                         continue
-                    dt = self.opt(v, "DataType")
+                    dt = self.child(v, "DataType")
                     variables[part].append(
                         EniVariable(
-                            name=_text(self.opt(v, "Name")),
+                            name=_text(self.child(v, "Name")),
                             data_type=_text(dt) or None,
-                            bit_size=self.opt_int(v, "BitSize", "Variable") or 0,
-                            bit_offs=self.opt_int(v, "BitOffs", "Variable") or 0,
+                            bit_size=self.opt_child_int(v, "BitSize", "Variable") or 0,
+                            bit_offs=self.opt_child_int(v, "BitOffs", "Variable") or 0,
                         )
                     )
         return EniConfig(

@@ -20,40 +20,41 @@ optional XML namespace on the elements.
 from __future__ import annotations
 
 import os
-import re
-from collections.abc import Callable, Iterator
-from typing import Any
 
-from lxml import etree
-
-from pyethercat.errors import ConfigError, EsiError
+from pyethercat.errors import ConfigError
 from pyethercat.esi.model import (
     EsiCoe,
-    EsiDataType,
     EsiDc,
     EsiDcOpMode,
     EsiDevice,
     EsiDeviceInfo,
-    EsiDictionary,
     EsiEeprom,
     EsiEoe,
     EsiFile,
-    EsiFlags,
     EsiFmmu,
     EsiGroup,
     EsiInitCmd,
     EsiMailbox,
-    EsiObject,
-    EsiObjectSubItem,
     EsiPdo,
     EsiPdoEntry,
     EsiProfile,
     EsiSm,
-    EsiSubItemType,
-    EsiValueInfo,
     EsiVendor,
     PdoDirection,
-    Text,
+)
+from pyethercat.esi.parse_od import DictionaryReader
+from pyethercat.esi.xmlread import (
+    DEFAULT_MAX_BYTES,
+    _Element,
+    _kids,
+    _line,
+    _local,
+    _read_bounded,
+    _safe_xml_root,
+    _text,
+    parse_bool,
+    parse_hex_bytes,
+    parse_int,
 )
 from pyethercat.wire.al import TRANSITIONS, parse_transition
 
@@ -66,19 +67,7 @@ __all__ = [
     "parse_int",
 ]
 
-#: Largest input accepted unless the caller says otherwise. Real catalogues are
-#: a few MB; this leaves room and still bounds memory (lxml needs ~10x input).
-DEFAULT_MAX_BYTES = 64 * 1024 * 1024
 
-_Element = etree._Element
-
-# "#x0x6041" is in the wild (poulpe Orbita ESI): a "#x" and a "0x" prefix stacked.
-_INT_RE = re.compile(r"^\s*(-?)\s*(?:(?:#[xX](?:0[xX])?|0[xX])([0-9A-Fa-f]+)|([0-9]+))\s*$")
-#: No ESI number needs more digits (a 64-bit value has 20 decimal digits); longer
-#: ones are refused before int() spends time on them.
-_MAX_DIGITS = 40
-_DOCTYPE = re.compile(rb"<!DOCTYPE", re.IGNORECASE)
-_SPACE = re.compile(r"\s+")
 _DC_TIMES = {
     "CycleTimeSync0": "cycle_time_sync0",
     "ShiftTimeSync0": "shift_time_sync0",
@@ -87,241 +76,8 @@ _DC_TIMES = {
 }
 
 
-# --- value helpers (public: the ENI / SII code reads the same spellings) -------
-
-
-def parse_int(text: str | None) -> int:
-    """Parse an ESI number: ``#x1600``, ``0x1600``, ``5632``, ``-1`` (and ``#x0x1600``).
-
-    Raises ``ValueError`` for anything else (callers add file and line).
-    """
-    if text is None:
-        raise ValueError("missing number")
-    m = _INT_RE.match(text)
-    if m is None:
-        raise ValueError(f"{_show(text)} is not a number")
-    digits = m.group(2) if m.group(2) is not None else m.group(3)
-    if len(digits) > _MAX_DIGITS:
-        raise ValueError(f"{_show(text)} has {len(digits)} digits, too many for a number")
-    value = int(digits, 16) if m.group(2) is not None else int(digits, 10)
-    return -value if m.group(1) else value
-
-
-def _show(text: str, limit: int = 40) -> str:
-    """``text`` quoted for an error message, cut when it is long."""
-    t = text.strip()
-    return repr(t) if len(t) <= limit else f"{t[:limit]!r}... ({len(t)} characters)"
-
-
-def parse_bool(text: str | None) -> bool:
-    """Parse an xs:boolean: ``true``/``false``/``1``/``0`` (any case, spaces ok)."""
-    t = (text or "").strip().lower()
-    if t in ("true", "1"):
-        return True
-    if t in ("false", "0"):
-        return False
-    raise ValueError(f"{_show(text or '')} is not a boolean")
-
-
-def parse_hex_bytes(text: str | None) -> bytes:
-    """Parse hexBinary (whitespace allowed): ``"0500030000"`` -> ``b"\\x05\\x00..."``."""
-    t = _SPACE.sub("", text or "")
-    if t[:2] in ("0x", "0X", "#x", "#X"):
-        t = t[2:]
-    if len(t) % 2:
-        raise ValueError(f"hex data has an odd number of digits ({len(t)})")
-    try:
-        return bytes.fromhex(t)
-    except ValueError:
-        raise ValueError("hex data has a non-hex character") from None
-
-
-# --- safety --------------------------------------------------------------------
-
-
-def _check_prolog(data: bytes, source: str) -> None:
-    """Refuse DTDs before libxml2 parses them (entity bombs, XXE)."""
-    head = data
-    # UTF-32 BOMs first: the UTF-32-LE BOM starts with the UTF-16-LE one.
-    for bom, codec in (
-        (b"\x00\x00\xfe\xff", "utf-32-be"),
-        (b"\xff\xfe\x00\x00", "utf-32-le"),
-        (b"\xfe\xff", "utf-16-be"),
-        (b"\xff\xfe", "utf-16-le"),
-    ):
-        if data.startswith(bom):
-            # Look at the prolog as text; a cut character at the end is harmless.
-            head = data[len(bom) : 1 << 20].decode(codec, errors="ignore").encode("utf-8")
-            break
-    # Walk the prolog item by item: comments and processing instructions may hold
-    # "<x" or "<!DOCTYPE" text of their own, which is neither a root nor a DTD.
-    pos = 0
-    while True:
-        lt = head.find(b"<", pos)
-        if lt < 0:
-            return
-        if head.startswith(b"<?", lt):
-            end = head.find(b"?>", lt + 2)
-            pos = end + 2
-        elif head.startswith(b"<!--", lt):
-            end = head.find(b"-->", lt + 4)
-            pos = end + 3
-        else:
-            break
-        if end < 0:
-            return  # unterminated: libxml2 reports the malformed document
-    m = _DOCTYPE.match(head, lt)
-    if m is None:
-        return  # the root element: no DTD
-    decl_end = head.find(b">", m.end())
-    decl = head[m.end() : decl_end if decl_end >= 0 else len(head)]
-    if b"[" in decl or b"SYSTEM" in decl.upper() or b"PUBLIC" in decl.upper():
-        line = head.count(b"\n", 0, m.start()) + 1
-        raise EsiError(
-            "document type declaration with a DTD (entities or an external reference) "
-            "is not allowed in an ESI file",
-            source,
-            line,
-        )
-
-
-def _make_parser() -> etree.XMLParser:
-    return etree.XMLParser(
-        resolve_entities=False,
-        no_network=True,
-        load_dtd=False,
-        dtd_validation=False,
-        huge_tree=False,
-        remove_blank_text=False,
-        collect_ids=False,
-    )
-
-
-# --- the parser ----------------------------------------------------------------
-
-
-def _local(tag: object) -> str | None:
-    """Element name without namespace; None for comments / PIs / entities."""
-    if not isinstance(tag, str):
-        return None
-    return tag.rpartition("}")[2] if tag[:1] == "{" else tag
-
-
-def _kids(el: _Element) -> Iterator[tuple[str, _Element]]:
-    # iterchildren(Element) skips comments, PIs and entity nodes in C.
-    for c in el.iterchildren(etree.Element):
-        tag = c.tag
-        assert isinstance(tag, str)
-        yield (tag.rpartition("}")[2] if tag[0] == "{" else tag), c
-
-
-def _line(el: _Element) -> int | None:
-    line: object = el.sourceline  # lxml-stubs types this loosely
-    return line if isinstance(line, int) else None
-
-
-def _text(el: _Element | None) -> str:
-    if el is None or el.text is None:
-        return ""
-    return el.text.strip()
-
-
-class _Parser:
-    """One parse: holds the source name for error messages."""
-
-    def __init__(self, source: str) -> None:
-        self.source = source
-
-    # -- errors and typed reads
-
-    def error(self, el: _Element | None, message: str) -> EsiError:
-        line = _line(el) if el is not None else None
-        return EsiError(message, self.source, line)
-
-    def _convert(
-        self, el: _Element, what: str, raw: str | None, fn: Callable[[str | None], object]
-    ) -> object:
-        try:
-            return fn(raw)
-        except ValueError as exc:
-            raise self.error(el, f"{what}: {exc}") from None
-
-    def _ranged(self, el: _Element, what: str, value: int, bits: int | None) -> int:
-        """``value`` checked to be an unsigned number of ``bits`` bits (if given)."""
-        if bits is not None and not 0 <= value < (1 << bits):
-            raise self.error(el, f"{what}: {value} is out of range (0 to 0x{(1 << bits) - 1:X})")
-        return value
-
-    def int_text(self, el: _Element, what: str, bits: int | None = None) -> int:
-        """The element's text as a number (unsigned, ``bits`` wide, when ``bits`` is given)."""
-        value = self._convert(el, what, el.text, parse_int)
-        assert isinstance(value, int)
-        return self._ranged(el, what, value, bits)
-
-    def int_attr(
-        self, el: _Element, name: str, default: int | None = None, bits: int | None = None
-    ) -> int | None:
-        """Attribute ``name`` as a number, ``default`` when absent (range as :meth:`int_text`)."""
-        raw = el.get(name)
-        if raw is None:
-            return default
-        what = f"{_local(el.tag)}@{name}"
-        value = self._convert(el, what, raw, parse_int)
-        assert isinstance(value, int)
-        return self._ranged(el, what, value, bits)
-
-    def bool_attr(self, el: _Element, name: str, default: bool = False) -> bool:
-        raw = el.get(name)
-        if raw is None:
-            return default
-        value = self._convert(el, f"{_local(el.tag)}@{name}", raw, parse_bool)
-        assert isinstance(value, bool)
-        return value
-
-    def bool_text(self, el: _Element, what: str) -> bool:
-        if not _text(el):
-            return False
-        value = self._convert(el, what, el.text, parse_bool)
-        assert isinstance(value, bool)
-        return value
-
-    def hex_text(self, el: _Element, what: str) -> bytes:
-        value = self._convert(el, what, el.text, parse_hex_bytes)
-        assert isinstance(value, bytes)
-        return value
-
-    def child_int(self, el: _Element, name: str, what: str, bits: int | None = None) -> int:
-        """A required numeric child element."""
-        c = self.child(el, name)
-        if c is None:
-            raise self.error(el, f"{what}: missing <{name}>")
-        return self.int_text(c, f"{what}/{name}", bits)
-
-    def opt_child_int(self, el: _Element, name: str, what: str) -> int | None:
-        c = self.child(el, name)
-        if c is None or not _text(c):
-            return None
-        return self.int_text(c, f"{what}/{name}")
-
-    @staticmethod
-    def child(el: _Element, name: str) -> _Element | None:
-        for n, c in _kids(el):
-            if n == name:
-                return c
-        return None
-
-    @staticmethod
-    def texts(elements: list[_Element]) -> Text:
-        items: list[tuple[int | None, str]] = []
-        for e in elements:
-            raw = e.get("LcId")
-            lcid: int | None
-            try:
-                lcid = parse_int(raw) if raw is not None else None
-            except ValueError:
-                lcid = None  # a bad LcId should not lose the name
-            items.append((lcid, _text(e)))
-        return Text(tuple(items))
+class _Parser(DictionaryReader):
+    """One ESI parse: the file, its devices and their parts."""
 
     # -- top level
 
@@ -740,161 +496,6 @@ class _Parser:
                 cats.append((no, data))
         return EsiEeprom(categories=tuple(cats), **kw)  # type: ignore[arg-type]
 
-    # -- profile and dictionary
-
-    def profile(self, el: _Element) -> EsiProfile:
-        nos: list[int] = []
-        add_info = None
-        channels = None
-        dictionary = None
-        for name, c in _kids(el):
-            if name == "ProfileNo":
-                nos.append(self.int_text(c, "Profile/ProfileNo"))
-            elif name == "AddInfo" and _text(c):
-                add_info = self.int_text(c, "Profile/AddInfo")
-            elif name == "ChannelCount" and _text(c):
-                channels = self.int_text(c, "Profile/ChannelCount")
-            elif name == "Dictionary":
-                dictionary = self.dictionary(c)
-        return EsiProfile(
-            profile_no=tuple(nos), add_info=add_info, channel_count=channels, dictionary=dictionary
-        )
-
-    def dictionary(self, el: _Element) -> EsiDictionary:
-        types: dict[str, EsiDataType] = {}
-        objects: list[EsiObject] = []
-        for name, c in _kids(el):
-            if name == "DataTypes":
-                for n, t in _kids(c):
-                    if n == "DataType":
-                        dt = self.data_type(t)
-                        types[dt.name] = dt
-            elif name == "Objects":
-                objects.extend(self.obj(o) for n, o in _kids(c) if n == "Object")
-        return EsiDictionary(data_types=types, objects=tuple(objects))
-
-    def flags(self, el: _Element | None) -> EsiFlags:
-        if el is None:
-            return EsiFlags()
-        kw: dict[str, object] = {}
-        for name, c in _kids(el):
-            if name == "Access":
-                kw["access"] = _text(c) or None
-                kw["write_restrictions"] = c.get("WriteRestrictions")
-            elif name == "PdoMapping":
-                kw["pdo_mapping"] = _text(c) or None
-            elif name == "Category":
-                kw["category"] = _text(c) or None
-            elif name == "Backup":
-                kw["backup"] = self.bool_text(c, "Flags/Backup")
-            elif name == "Setting":
-                kw["setting"] = self.bool_text(c, "Flags/Setting")
-        return EsiFlags(**kw)  # type: ignore[arg-type]
-
-    def data_type(self, el: _Element) -> EsiDataType:
-        name = ""
-        bit_size = 0
-        base = None
-        lbound = None
-        elements = None
-        subs: list[EsiSubItemType] = []
-        enums: list[tuple[int, str]] = []
-        for tag, c in _kids(el):
-            if tag == "Name":
-                name = _text(c)
-            elif tag == "BitSize":
-                bit_size = self.int_text(c, "DataType/BitSize")
-            elif tag == "BaseType":
-                base = _text(c) or None
-            elif tag == "ArrayInfo" and elements is None:
-                lbound = self.opt_child_int(c, "LBound", "DataType/ArrayInfo")
-                elements = self.opt_child_int(c, "Elements", "DataType/ArrayInfo")
-            elif tag == "SubItem":
-                subs.append(self.sub_item_type(c))
-            elif tag == "EnumInfo":
-                value = self.child_int(c, "Enum", "DataType/EnumInfo")
-                txt = self.child(c, "Text")
-                enums.append((value, _text(txt)))
-        return EsiDataType(
-            name=name,
-            bit_size=bit_size,
-            base_type=base,
-            array_lbound=lbound,
-            array_elements=elements,
-            sub_items=tuple(subs),
-            enums=tuple(enums),
-        )
-
-    def sub_item_type(self, el: _Element) -> EsiSubItemType:
-        sub = self.opt_child_int(el, "SubIdx", "DataType/SubItem")
-        return EsiSubItemType(
-            subindex=sub,
-            name=_text(self.child(el, "Name")),
-            type=_text(self.child(el, "Type")),
-            bit_size=self.opt_child_int(el, "BitSize", "DataType/SubItem") or 0,
-            bit_offset=self.opt_child_int(el, "BitOffs", "DataType/SubItem") or 0,
-            flags=self.flags(self.child(el, "Flags")),
-        )
-
-    def value_info(
-        self, el: _Element | None, what: str
-    ) -> tuple[EsiValueInfo, tuple[EsiObjectSubItem, ...]]:
-        if el is None:
-            return EsiValueInfo(), ()
-        kw: dict[str, object] = {}
-        subs: list[EsiObjectSubItem] = []
-        for name, c in _kids(el):
-            if name == "DefaultData":
-                kw["default_data"] = self.hex_text(c, f"{what}/DefaultData")
-            elif name == "DefaultValue":
-                kw["default_value"] = _text(c)
-            elif name == "DefaultString":
-                kw["default_string"] = c.text or ""
-            elif name == "MinValue":
-                kw["min_value"] = _text(c)
-            elif name == "MaxValue":
-                kw["max_value"] = _text(c)
-            elif name == "Unit":
-                kw["unit"] = _text(c)
-            elif name == "SubItem":
-                info, _ = self.value_info(self.child(c, "Info"), f"{what}/SubItem/Info")
-                subs.append(EsiObjectSubItem(name=_text(self.child(c, "Name")), info=info))
-        return EsiValueInfo(**kw), tuple(subs)  # type: ignore[arg-type]
-
-    def obj(self, el: _Element) -> EsiObject:
-        index: int | None = None
-        names: list[_Element] = []
-        type_ = ""
-        bit_size = 0
-        info_el = None
-        flags_el = None
-        for name, c in _kids(el):
-            if name == "Index":
-                index = self.int_text(c, "Object/Index", 16)
-            elif name == "Name":
-                names.append(c)
-            elif name == "Type":
-                type_ = _text(c)
-            elif name == "BitSize":
-                bit_size = self.int_text(c, "Object/BitSize")
-            elif name == "Info":
-                info_el = c
-            elif name == "Flags":
-                flags_el = c
-        if index is None:
-            raise self.error(el, "Object: missing <Index>")
-        info, subs = self.value_info(info_el, "Object/Info")
-        return EsiObject(
-            index=index,
-            name=self.texts(names),
-            type=type_,
-            bit_size=bit_size,
-            info=info,
-            sub_items=subs,
-            flags=self.flags(flags_el),
-            line=_line(el),
-        )
-
 
 # --- entry points --------------------------------------------------------------
 
@@ -911,44 +512,6 @@ def parse_esi(
     if not isinstance(data, bytes | bytearray | memoryview):
         raise TypeError("parse_esi takes bytes (the encoding is declared inside the XML)")
     return _Parser(source).file(_safe_xml_root(data, source, max_bytes))
-
-
-def _safe_xml_root(
-    data: bytes | bytearray | memoryview, source: str, max_bytes: int
-) -> etree._Element:
-    """Root element of an ESI or ENI document: bounded size, no DTD, no network."""
-    data = bytes(data)
-    if len(data) > max_bytes:
-        raise EsiError(f"file is {len(data)} bytes, more than the limit of {max_bytes}", source)
-    if not data.strip():
-        raise EsiError("file is empty", source)
-    _check_prolog(data, source)
-    try:
-        root = etree.fromstring(data, parser=_make_parser())
-    except etree.XMLSyntaxError as exc:
-        line = exc.lineno if exc.lineno else None
-        # libxml2 messages may hold a newline; an EsiError is one line.
-        raise EsiError(f"malformed XML: {' '.join(exc.msg.split())}", source, line) from None
-    # Belt and braces: the prolog check should already have refused these.
-    docinfo: Any = root.getroottree().docinfo  # lxml-stubs lacks system_url / iterentities
-    dtd = docinfo.internalDTD
-    if docinfo.system_url or docinfo.public_id or (dtd is not None and any(dtd.iterentities())):
-        raise EsiError("document type declaration with a DTD is not allowed", source, 1)
-    return root
-
-
-def _read_bounded(path: str | os.PathLike[str], max_bytes: int) -> tuple[str, bytes]:
-    """(file name, contents) of an ESI or ENI file; the size is checked before reading."""
-    name = os.fspath(path)
-    try:
-        with open(name, "rb") as f:
-            size = os.fstat(f.fileno()).st_size
-            if size > max_bytes:
-                raise EsiError(f"file is {size} bytes, more than the limit of {max_bytes}", name)
-            data = f.read(max_bytes + 1)
-    except OSError as exc:
-        raise EsiError(f"cannot read: {exc.strerror or exc}", name) from None
-    return name, data
 
 
 def load_esi(path: str | os.PathLike[str], *, max_bytes: int = DEFAULT_MAX_BYTES) -> EsiFile:
