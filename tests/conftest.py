@@ -25,6 +25,7 @@ REPO = Path(__file__).resolve().parent.parent
 #: CPUs with the whole suite, which can keep it off the CPU for longer than
 #: the default's four attempts (200 ms). No test that uses it is about the
 #: frame timeout: a frame that is really lost still ends as one.
+#: (The command line takes it from the environment: the ``patient_cli`` fixture.)
 SIM_FRAME_TIMEOUT = 1.0
 #: SCHED_FIFO priority of simulator processes a peer with fixed timeouts talks to
 #: (SOEM waits 2 ms for most replies, pysoem cannot change that): such a peer
@@ -98,12 +99,15 @@ def make_veth_pair() -> tuple[str, str]:
     # from its link-watch work, which it may put off for up to a second while
     # other interfaces change (a loaded test run creating many pairs). A frame
     # sent before that is dropped, so wait until both ends say so.
-    limit = time.monotonic() + 5.0
-    while time.monotonic() < limit:
-        states = [Path(f"/sys/class/net/{n}/operstate").read_text().strip() for n in (a, b)]
-        if states == ["up", "up"]:
-            break
-        time.sleep(0.01)
+    # (It used to give up silently after 5 s: on a loaded machine the test then
+    # sent its first frames into a link that was not up yet and lost them.)
+    def up() -> bool:
+        return all(Path(f"/sys/class/net/{n}/operstate").read_text().strip() == "up"
+                   for n in (a, b))
+
+    if not wait_for(up):
+        delete_veth(a)
+        raise RuntimeError(f"veth pair {a}/{b} did not come up within {WAIT_LIMIT:g} s")
     return a, b
 
 
@@ -121,10 +125,20 @@ def veth_pair(root: None) -> Iterator[tuple[str, str]]:
         delete_veth(a)
 
 
+@pytest.fixture
+def patient_cli(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The masters the command line opens wait :data:`SIM_FRAME_TIMEOUT` for a frame.
+
+    For tests whose simulator runs in a thread or another process and drops
+    nothing. Not for a lossy segment: a cyclic loop waits out the frame timeout
+    of every frame lost.
+    """
+    monkeypatch.setenv("PYETHERCAT_FRAME_TIMEOUT", str(SIM_FRAME_TIMEOUT))
+
+
 @pytest.fixture(scope="session", autouse=True)
 def private_runtime_dir(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
-    """Control sockets and SII backups of this test run in its own directories;
-    the command line's frame timeout is :data:`SIM_FRAME_TIMEOUT`.
+    """Control sockets and SII backups of this test run in its own directories.
 
     Masters opened on an interface serve a control socket named after it; a
     suite running beside another (or beside a user's master) must not meet
@@ -132,12 +146,9 @@ def private_runtime_dir(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Pa
     """
     base = tmp_path_factory.mktemp("runtime")
     base.chmod(0o700)
-    saved = {k: os.environ.get(k) for k in ("PYETHERCAT_RUNTIME_DIR", "XDG_STATE_HOME",
-                                             "PYETHERCAT_FRAME_TIMEOUT")}
+    saved = {k: os.environ.get(k) for k in ("PYETHERCAT_RUNTIME_DIR", "XDG_STATE_HOME")}
     os.environ["PYETHERCAT_RUNTIME_DIR"] = str(base / "run")
     os.environ["XDG_STATE_HOME"] = str(base / "state")
-    # Every master the command line opens (in process or in a child) waits as long.
-    os.environ["PYETHERCAT_FRAME_TIMEOUT"] = str(SIM_FRAME_TIMEOUT)
     yield base
     for key, value in saved.items():
         if value is None:

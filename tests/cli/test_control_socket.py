@@ -148,7 +148,7 @@ def test_runtime_dir_must_be_private(tmp_path: Path, monkeypatch: pytest.MonkeyP
         runtime_dir()
 
 
-def test_master_open_serves_and_refuses_a_second_master_on_the_link() -> None:
+def test_master_open_serves_and_refuses_a_second_master_on_the_link(patient_cli: None) -> None:
     segment = load_topology(COE).build()
     segment.clock = WallClock()
     link = UdpLink(bind=("127.0.0.1", 0))

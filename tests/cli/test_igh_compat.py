@@ -207,7 +207,7 @@ def test_version_and_direct_master_views() -> None:
 
 
 @pytest.fixture
-def udp_segment(tmp_path: Path) -> Iterator[str]:
+def udp_segment(tmp_path: Path, patient_cli: None) -> Iterator[str]:
     """The EK1100 + EL2004 of the corpus served over UDP (state kept between commands)."""
     corpus = REPO.parent / "shared" / "corpus" / "sii"
     topo = tmp_path / "t.toml"

@@ -28,7 +28,8 @@ from pyethercat.wire.al import AlState, AlStatusCode  # noqa: E402
 
 
 @pytest.fixture
-def server(corpus_dir: Path, tmp_path: Path) -> Iterator[tuple[SimServer, str]]:
+def server(corpus_dir: Path, tmp_path: Path,
+           patient_cli: None) -> Iterator[tuple[SimServer, str]]:
     shutil.copy(corpus_dir / "sii" / "ethercrab_el2004.bin", tmp_path / "el2004.bin")
     path = tmp_path / "t.toml"
     path.write_text('[[slave]]\nname = "el2004"\nsii = "el2004.bin"\n'

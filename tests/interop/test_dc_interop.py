@@ -108,7 +108,8 @@ def test_soem_dc_sync_makes_sync0_at_its_cycle(served: tuple[SimProcess, str]) -
 
 
 @pytest.mark.root
-def test_dc_and_run_dc_commands_over_veth(served: tuple[SimProcess, str], tmp_path: Path) -> None:
+def test_dc_and_run_dc_commands_over_veth(served: tuple[SimProcess, str], tmp_path: Path,
+                                          patient_cli: None) -> None:
     """``pyethercat dc`` and ``run --dc`` against ``pyethercat sim`` on the other end of the pair."""
     from click.testing import CliRunner
 
