@@ -20,7 +20,10 @@ from typing import Any
 from pyethercat.errors import ConfigError
 from pyethercat.master.master import Master
 
-__all__ = ["Connection", "connect"]
+__all__ = ["CHILD_SIM_TIMEOUT", "Connection", "connect"]
+
+#: Frame timeout (seconds) of a master whose simulator runs in a child process.
+CHILD_SIM_TIMEOUT = 1.0
 
 
 @dataclass
@@ -78,6 +81,10 @@ def connect(obj: dict[str, Any] | None, *, child: bool = False, pcap: str | None
         from pyethercat.sim.topology import load_topology
 
         process = start_sim_process(sim, link="unix", ring=bool(load_topology(sim).ring))
+        # A socketpair loses no frame: a late reply is the child kept off the CPU
+        # (a busy machine), and a dead child closes the link. The 4 x 50 ms a real
+        # segment is given would turn a busy moment into a failed command.
+        options.setdefault("timeout", CHILD_SIM_TIMEOUT)
         try:
             assert process.link is not None
             # The handle closes its link itself when it stops.
