@@ -38,6 +38,10 @@ from pyethercat.sim.eoe_web import blob
 
 pytestmark = [pytest.mark.root, pytest.mark.slow]
 
+#: Seconds the simulator and the master have to come up, a page to load, a command to
+#: run (limits for a broken feature; a loaded CI machine is slow, not broken).
+START_LIMIT = 180
+
 
 @dataclass
 class EoeNet:
@@ -115,7 +119,8 @@ eoe = {{ ip = "{net}.11/24", gateway = "{net}.1", netns = "{drive_ns}" }}
     try:
         sim = subprocess.Popen([sys.executable, "-m", "pyethercat", "sim", str(topo), "--iface", a,
                                 "--control", control, "-q"])
-        end = time.monotonic() + 30
+        # (a loaded CI machine needs tens of seconds to start both processes)
+        end = time.monotonic() + START_LIMIT
         while not os.path.exists(control):
             assert sim.poll() is None, "the simulator stopped"
             assert time.monotonic() < end, "the simulator did not come up"
@@ -125,11 +130,11 @@ eoe = {{ ip = "{net}.11/24", gateway = "{net}.1", netns = "{drive_ns}" }}
                 [sys.executable, "-m", "pyethercat", "--iface", b, "run", "--eoe", "--eoe-tap", tap,
                  "--eoe-host-ip", f"{net}.1/24", "--seconds", "900"],
                 stdout=log, stderr=subprocess.STDOUT)
-        end = time.monotonic() + 60
+        end = time.monotonic() + START_LIMIT
         while subprocess.run([ping, "-c", "1", "-W", "1", f"{net}.10"],
                              capture_output=True).returncode != 0:
             assert master.poll() is None, master_log.read_text()[-2000:]
-            assert time.monotonic() < end, "no ping through EoE within 60 s"
+            assert time.monotonic() < end, f"no ping through EoE within {START_LIMIT} s"
         yield EoeNet(b, net, f"{net}.10", f"{net}.11", web_ns, drive_ns, tap, control, master_log)
     finally:
         _stop(master)
@@ -152,7 +157,7 @@ def test_ping_through_the_tap_ethercat_and_the_drive_namespace(eoe_net: EoeNet) 
 
 
 def test_curl_gets_the_diagnostic_page(eoe_net: EoeNet) -> None:
-    done = subprocess.run(["curl", "-s", "-m", "20", f"http://{eoe_net.drive_ip}/"],
+    done = subprocess.run(["curl", "-s", "-m", "120", f"http://{eoe_net.drive_ip}/"],
                           capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
     page = done.stdout
@@ -211,7 +216,7 @@ def test_headless_chromium_loads_the_page_and_the_live_value_changes(
         opts.add_argument(arg)
     browser = webdriver.Chrome(service=Service(driver_path), options=opts)
     try:
-        browser.set_page_load_timeout(60)
+        browser.set_page_load_timeout(START_LIMIT)
         browser.get(f"http://{eoe_net.drive_ip}/")
         first = browser.find_element(By.ID, "live-value").text
         assert "Servo Positioning Controller" in browser.title
@@ -231,14 +236,14 @@ def test_headless_chromium_loads_the_page_and_the_live_value_changes(
 def test_eoe_and_ip_reach_the_running_master(eoe_net: EoeNet) -> None:
     """``eoe`` lists the live handlers, ``ip`` re-addresses the drive's namespace interface."""
     cli = [sys.executable, "-m", "pyethercat", "--iface", eoe_net.iface]
-    done = subprocess.run([*cli, "eoe"], capture_output=True, text=True, timeout=60)
+    done = subprocess.run([*cli, "eoe"], capture_output=True, text=True, timeout=START_LIMIT)
     assert done.returncode == 0, done.stderr
     rows = [ln.split() for ln in done.stdout.splitlines()[1:]]
     assert [r[:3] for r in rows] == [[eoe_net.tap, "0", "up"], [eoe_net.tap, "1", "up"]]
     assert all(int(r[3]) > 0 for r in rows)  # bytes received from both slaves already
     new = f"{eoe_net.net}.21"
     done = subprocess.run([*cli, "ip", "-p", "1", "--ip", f"{new}/24", "--dns", f"{eoe_net.net}.1"],
-                          capture_output=True, text=True, timeout=60)
+                          capture_output=True, text=True, timeout=START_LIMIT)
     assert done.returncode == 0, done.stderr
     try:
         shown = subprocess.run(["ip", "-n", eoe_net.drive_ns, "-o", "addr", "show"],
@@ -250,4 +255,4 @@ def test_eoe_and_ip_reach_the_running_master(eoe_net: EoeNet) -> None:
         assert ping.returncode == 0, ping.stdout
     finally:
         subprocess.run([*cli, "ip", "-p", "1", "addr", f"{eoe_net.drive_ip}/24"],
-                       capture_output=True, timeout=60)
+                       capture_output=True, timeout=START_LIMIT)

@@ -628,6 +628,13 @@ def eoe_lines(segment: Any) -> list[str]:
 # --- child process ------------------------------------------------------------------
 
 
+#: How long :func:`start_sim_process` waits for the child to serve. It is up in
+#: a second on an idle machine; a loaded one (a CI run, load 10 on 2 CPUs) has
+#: been seen to take over 20 s to import and build a segment. A child that dies
+#: is noticed at once, so only a hung child waits this long.
+READY_TIMEOUT = 120.0
+
+
 @dataclass
 class SimProcess:
     """Handle of a simulator running in a child process (see :func:`start_sim_process`)."""
@@ -668,7 +675,7 @@ class SimProcess:
         except OSError:
             return ""
 
-    def wait_ready(self, timeout: float = 20.0) -> None:
+    def wait_ready(self, timeout: float = READY_TIMEOUT) -> None:
         """Wait until the child answers on its control channel."""
         deadline = time.monotonic() + timeout
         while True:
@@ -723,7 +730,7 @@ def start_sim_process(
     topology: str | os.PathLike[str],
     link: str = "unix",
     pcap: str | os.PathLike[str] | None = None,
-    ready_timeout: float = 60.0,
+    ready_timeout: float = READY_TIMEOUT,
     realtime: int = 0,
     ring: bool = False,
     link_b: str | None = None,
