@@ -7,11 +7,14 @@ brief says they must run.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
+import signal
 import subprocess
 import time
 import uuid
+import warnings
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -155,3 +158,31 @@ def private_runtime_dir(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Pa
             os.environ.pop(key, None)
         else:
             os.environ[key] = value
+    # Every process this run started carries the runtime directory in its
+    # environment; one still alive now leaked (a simulator or engine child whose
+    # parent died). On a 2-CPU CI machine a leaked busy process (worse: one under
+    # SCHED_FIFO) starves everything that runs after it: end it and say so.
+    marker = f"PYETHERCAT_RUNTIME_DIR={base / 'run'}".encode()
+    leaked = _processes_with(marker)
+    for pid, _cmd in leaked:
+        with contextlib.suppress(OSError):
+            os.kill(pid, signal.SIGKILL)
+    if leaked:
+        warnings.warn("processes left running by the tests (killed): "
+                      + "; ".join(f"{pid} {cmd[:120]}" for pid, cmd in leaked), stacklevel=1)
+
+
+def _processes_with(env_entry: bytes) -> list[tuple[int, str]]:
+    """(pid, command line) of the processes whose environment holds ``env_entry``."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+            continue
+        try:
+            if env_entry not in (entry / "environ").read_bytes().split(b"\0"):
+                continue
+            cmd = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        except OSError:
+            continue
+        found.append((int(entry.name), cmd.strip()))
+    return found
