@@ -4,7 +4,8 @@ A scripted link answers each frame only after a number of receive calls and
 records the timeout of every call: with ``reply_spin`` the first calls are
 polls (timeout 0) and the reply is taken by one of them; without it the first
 call already blocks; a reply that never comes still ends as a lost frame
-after the frame timeout (polling does not turn into an endless busy loop).
+after the frame timeout (polling does not turn into an endless busy loop);
+replies that wait in the link past their frames' deadlines are taken, not lost.
 """
 
 from __future__ import annotations
@@ -103,3 +104,14 @@ def test_a_missing_reply_is_a_lost_frame_after_the_timeout_even_while_polling() 
     assert first_block > 10 and set(link.timeouts[:first_block]) == {0.0}
     assert 0.005 < (link.timeouts[first_block] or 0) < 0.02
     assert s.stats.frames_lost == 1
+
+
+def test_replies_waiting_past_their_deadline_are_taken_not_lost() -> None:
+    """A thread kept off the CPU past the frames' deadlines finds both replies waiting."""
+    link = ScriptedLink(answer_after=1)
+    s = Scheduler(link, timeout=0.02, clock=link.clock)
+    s.reply_spin = 0.0
+    first, second = s.send_prepared(template(s)), s.send_prepared(template(s))
+    link.clock.t += 1_000_000_000  # a second later, both replies are in the queue
+    assert first.wait_raw() is not None and second.wait_raw() is not None
+    assert s.stats.frames_lost == 0 and s.stats.frames_received == 2
