@@ -126,7 +126,8 @@ def test_dropped_broken_and_power_cycled_slaves_recover():
         seg.drop_to(6, AlState.SAFEOP)
         assert wait_for(lambda: seen("slave 6 left OP: now SAFEOP+ERR (AL code 0x001B)"))
         assert wait_for(lambda: seen("slave 6 back in OP") and seg.slaves[6].al_status == 8)
-        assert r.health[6].recoveries == 1
+        # (the recovery logs "back in OP" before it counts the recovery in the health record)
+        assert wait_for(lambda: r.health[6].recoveries == 1), r.health[6]
         # 2) the link behind slave 2 breaks: slaves 3.. vanish, come back when it heals
         seg.break_after = 2
         assert wait_for(lambda: seen("slave 5 (0x1006) vanished"))
