@@ -16,7 +16,8 @@ from conftest import wait_for
 from eoe_helpers import TOPOLOGY, arp_request, ping
 
 from pyethercat.link.pair import PairLink
-from pyethercat.master.eoe import EoeClient, EoeError, EoeService, eoe_clients
+from pyethercat.master.clients import registered_clients
+from pyethercat.master.eoe import EoeClient, EoeError, EoeService, eoe_client, eoe_clients
 from pyethercat.master.eoe_switch import EoeSwitch
 from pyethercat.master.master import Master
 from pyethercat.sim.eoe import eoe_server
@@ -24,6 +25,8 @@ from pyethercat.sim.topology import parse_topology
 from pyethercat.wire.datagram import Command
 from pyethercat.wire.frame import decode_frame
 from pyethercat.wire.mailbox.eoe import EoeIpParameters, EoeResult
+from pyethercat.wire.mailbox.eoe_stream import EoeSender
+from pyethercat.wire.mailbox.header import MailboxType
 
 
 @pytest.fixture
@@ -95,6 +98,33 @@ def test_arp_and_fragmented_ping_both_ways(
         assert drive.last_timestamp is not None
     finally:
         svc.stop()
+
+
+def test_the_master_makes_the_eoe_client_of_every_mailbox_slave() -> None:
+    seg = parse_topology(TOPOLOGY).build()
+    m = Master(PairLink.responder_link(seg.process))
+    m.scan()
+    m.set_state("PREOP")
+    assert registered_clients()[MailboxType.EOE] is EoeClient
+    made = m.slaves[1].client(EoeClient)
+    assert eoe_client(m.slaves[1]) is made and eoe_clients(m.slaves)[1] is made
+    assert made.position == 1
+    # From the scan on it is the mailbox's EoE handler: the ARP reply the slave posts is
+    # taken out of an SM1 read that was not the EoE client's (an SDO upload's), and
+    # rebuilt, although nobody called eoe_client() before.
+    got: list[bytes] = []
+    made.on_frame = got.append
+    box = m.slaves[1].mbx
+    assert box is not None
+    sender = EoeSender(box.rx_size)
+    assert sender.push(arp_request(bytes([10, 9, 0, 3])), time.monotonic())
+    fragment = sender.current(time.monotonic())
+    assert fragment is not None
+    box.send(MailboxType.EOE, fragment, fetch=False)
+    m.slaves[1].sdo_read(0x1018, 1)
+    assert wait_for(lambda: len(got) == 1)
+    assert got[0][12:14] == b"\x08\x06" and got[0][20:22] == b"\x00\x02"  # ARP reply
+    assert box.pending() == []
 
 
 def test_set_ip_result_code_raises() -> None:

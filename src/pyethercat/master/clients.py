@@ -27,6 +27,7 @@ from __future__ import annotations
 from typing import ClassVar, Protocol, Self
 
 from pyethercat.master.coe import CoeClient
+from pyethercat.master.eoe import EoeClient
 from pyethercat.master.foe import FoeClient
 from pyethercat.master.mailbox import ClientContext, Mailbox
 from pyethercat.master.soe import SoeClient
@@ -47,7 +48,7 @@ class MailboxClient(Protocol):
 
 
 #: The clients every master makes, in this order.
-DEFAULT_CLIENTS: tuple[type[MailboxClient], ...] = (CoeClient, FoeClient, SoeClient)
+DEFAULT_CLIENTS: tuple[type[MailboxClient], ...] = (CoeClient, FoeClient, SoeClient, EoeClient)
 
 _registry: dict[MailboxType, type[MailboxClient]] = {c.mailbox_type: c for c in DEFAULT_CLIENTS}
 

@@ -44,15 +44,14 @@ from __future__ import annotations
 import logging
 import threading
 import time
-import weakref
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ClassVar, Self
 
 import numpy as np
 
 from pyethercat.errors import ConfigError, EtherCATError, MailboxError
-from pyethercat.master.mailbox import Mailbox, ReceivedMessage
+from pyethercat.master.mailbox import ClientContext, Mailbox, ReceivedMessage
 from pyethercat.master.scheduler import Request
 from pyethercat.master.slave import Slave
 from pyethercat.wire import registers as reg
@@ -122,7 +121,21 @@ class EoeStats:
 
 
 class EoeClient:
-    """EoE with one slave (see the module text). ``position`` is its ring position."""
+    """EoE with one slave (see the module text). ``position`` is its ring position.
+
+    The master makes one for every mailbox slave (the client registry,
+    ``master.clients``): ``slave.client(EoeClient)``, or :func:`eoe_client`,
+    which also checks that the slave announces EoE.
+    """
+
+    #: The mailbox type this client speaks (the registry key, see ``master.clients``).
+    mailbox_type: ClassVar[MailboxType] = MailboxType.EOE
+
+    @classmethod
+    def for_mailbox(cls, mailbox: Mailbox, context: ClientContext) -> Self:
+        """The client a master makes for a slave's mailbox: it takes the slave's fragments
+        as the mailbox's unsolicited handler from the start."""
+        return cls(mailbox, position=context.position)
 
     def __init__(self, mailbox: Mailbox, *, position: int = -1,
                  timeout: float = DEFAULT_EOE_TIMEOUT, queue_limit: int = 64) -> None:
@@ -471,9 +484,6 @@ class EoeService:
                     retries=0, flush=False)[0]
 
 
-_CLIENTS: weakref.WeakKeyDictionary[Mailbox, EoeClient] = weakref.WeakKeyDictionary()
-
-
 def speaks_eoe(slave: Slave) -> bool:
     """Whether a scanned slave announces EoE in its SII and has a mailbox."""
     info = slave.mailbox
@@ -482,14 +492,10 @@ def speaks_eoe(slave: Slave) -> bool:
 
 
 def eoe_client(slave: Slave) -> EoeClient:
-    """The EoE client of a scanned slave (one per mailbox); ConfigError without EoE."""
-    box = slave.mbx
-    if box is None or not speaks_eoe(slave):
+    """The EoE client of a scanned slave (``slave.client(EoeClient)``); ConfigError without EoE."""
+    if not speaks_eoe(slave):
         raise ConfigError(f"{slave.describe()} does not speak EoE (SII mailbox protocols)")
-    client = _CLIENTS.get(box)
-    if client is None:
-        client = _CLIENTS[box] = EoeClient(box, position=slave.position)
-    return client
+    return slave.client(EoeClient)
 
 
 def eoe_clients(slaves: Sequence[Slave]) -> dict[int, EoeClient]:
