@@ -366,3 +366,17 @@ def test_dns_name_any_bytes_decode() -> None:
     msg = decode_eoe(bytes.fromhex("0200 0000") + body)
     assert isinstance(msg, EoeSetIpRequest)
     assert msg.encode()[4:] == body
+
+
+def test_fragment_before_a_timestamp_that_does_not_fit_carries_whole_blocks() -> None:
+    # 62 bytes fit a 74-byte mailbox (64 bytes of fragment data), but not with the 4-byte
+    # timestamp: the first fragment is not the last, so it carries whole 32-byte blocks
+    frags = eoe_fragment(bytes(range(62)), 74, 3, timestamp=7)
+    assert [len(f.data) for f in frags] == [32, 30] and frags[-1].timestamp == 7
+    r = EoeReassembler()
+    assert [r.feed(f) for f in frags] == [None, bytes(range(62))] and r.timestamp == 7
+    assert [len(f.data) for f in eoe_fragment(bytes(100), 74, timestamp=1)] == [64, 36]
+    # 32-byte fragments (a 42-byte mailbox): a rest of 29 bytes never fits beside the time
+    with pytest.raises(MailboxError, match="do not fit"):
+        eoe_fragment(bytes(29), 42, timestamp=1)
+    assert [len(f.data) for f in eoe_fragment(bytes(29), 42)] == [29]

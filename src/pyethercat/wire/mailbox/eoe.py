@@ -551,9 +551,20 @@ def eoe_fragment(
     parts: list[bytes] = []
     pos = 0
     while len(frame) - pos > room_last:
-        parts.append(frame[pos : pos + chunk])
-        pos += chunk
+        # A fragment that is not the last carries a multiple of 32 bytes, also when
+        # the rest would fit but for the appended timestamp (then it carries less,
+        # possibly nothing, and the last one takes the rest with the timestamp).
+        rest = len(frame) - pos
+        take = chunk if rest > chunk else rest // EOE_BLOCK * EOE_BLOCK
+        parts.append(frame[pos : pos + take])
+        pos += take
+        if take < chunk:
+            break  # the last fragment has room for the rest and the timestamp
     parts.append(frame[pos:])
+    if len(parts[-1]) > room_last:
+        # (a 32-byte fragment size: a rest of 29-31 bytes and the timestamp never fit)
+        raise MailboxError(f"Ethernet frame of {len(frame)} bytes and its timestamp do not "
+                           f"fit EoE fragments of a {mailbox_size}-byte mailbox")
     if len(parts) > 0x40:
         raise MailboxError(f"Ethernet frame needs {len(parts)} EoE fragments, at most 64")
     out: list[EoeFragment] = []
