@@ -402,12 +402,14 @@ class Mailbox:
                  ).ljust(self.rx_size, b"\x00")
         limit = self.clock() + (self.timeout if timeout is None else timeout)
         waited = 0.0
-        write = Datagram(Command.FPWR, 0, self._rx_address, frame)
         template = self._prepared() if fetch else None
+        write = None if template is not None else Datagram(Command.FPWR, 0, self._rx_address,
+                                                           frame)
         while True:
             if template is not None:
                 wkc = self._write_and_read(template, frame, what)
             else:
+                assert write is not None
                 dgs = [write, self._read] if fetch else [write]
                 reqs = self.scheduler.submit(dgs)
                 self.scheduler.wait(reqs)

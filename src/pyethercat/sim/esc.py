@@ -45,6 +45,10 @@ __all__ = ["Esc"]
 _SM_MODE_MAILBOX = int(R.SmMode.MAILBOX)
 _SM_MODE_BUFFERED = int(R.SmMode.BUFFERED)
 _SM_STATUS_BUFFER_NONE = 3 << R.SM_STATUS_BUFFER_SHIFT
+# Process RAM takes every byte and no write there has a register side effect
+# (ET1100 datasheet section II, "Process RAM"): accesses that lie wholly in it
+# (mailbox and process-data buffers) skip the register masks.
+_RAM_PLAIN = not (SIDE_EFFECT_MASK[R.RAM_START:].any() or WRITE_TRIGGER[R.RAM_START:].any())
 # Error counter groups: a write to any counter of a group clears the whole
 # group (ET1100 datasheet section II, registers 0x0300-0x0313).
 _COUNTER_GROUPS = ((R.RX_ERROR_COUNTER, R.RX_ERROR_COUNTER + 8),
@@ -72,6 +76,8 @@ class Esc(EscRegisters):
         self.reset_sequence = 0
         #: Input SMs whose next buffer the PDI has begun but not completed.
         self._pdi_staging: set[int] = set()
+        #: End of the process RAM when accesses inside it may take the plain path (else 0).
+        self._ram_end = prof.ram_end if _RAM_PLAIN else 0
 
     # --- parts ---------------------------------------------------------------------
 
@@ -139,6 +145,8 @@ class Esc(EscRegisters):
     def ecat_read(self, ado: int, length: int) -> bytes | None:
         """An EtherCAT read; None when it is not performed (no working counter)."""
         lo, hi = ado, ado + length
+        if lo >= R.RAM_START and hi <= self._ram_end and length:
+            return self._ram_read(lo, hi)
         if hi > R.ADDRESS_SPACE or length == 0 or not self.impl[lo:hi].any():
             return None
         # (SM areas lie in process RAM: register accesses, the DC ones of every
@@ -156,9 +164,38 @@ class Esc(EscRegisters):
         self.after_read(lo, hi)
         return data
 
+    def _ram_read(self, lo: int, hi: int) -> bytes | None:
+        """``ecat_read`` of bytes that all lie in process RAM (no register behind them)."""
+        sms = self.sms_overlapping(lo, hi)
+        for s in sms:
+            if s.mode == _SM_MODE_MAILBOX and not s.ecat_writes and not (
+                    s.status & R.SM_STATUS_MAILBOX_FULL):
+                return None  # empty mailbox: not read, not counted
+        data = self.row[lo:hi].tobytes()
+        for s in sms:
+            if hi >= s.end and lo < s.end:
+                self._sm_read_complete(s)
+        return data
+
+    def _ram_write(self, lo: int, hi: int, data: bytes) -> bool:
+        """``ecat_write`` of bytes that all lie in process RAM (all writable, no side effects)."""
+        sms = self.sms_overlapping(lo, hi)
+        for s in sms:
+            if s.mode == _SM_MODE_MAILBOX and s.ecat_writes and s.status & R.SM_STATUS_MAILBOX_FULL:
+                return False  # full mailbox: refused
+            if not s.ecat_writes:
+                return False  # the master may not write a slave->master buffer
+        self.row[lo:hi] = np.frombuffer(data, np.uint8)
+        for s in sms:
+            if hi >= s.end and lo < s.end:
+                self._sm_write_complete(s)
+        return True
+
     def ecat_write(self, ado: int, data: bytes) -> bool:
         """An EtherCAT write; False when it is not performed (no working counter)."""
         lo, hi = ado, ado + len(data)
+        if lo >= R.RAM_START and hi <= self._ram_end and data:
+            return self._ram_write(lo, hi, data)
         if hi > R.ADDRESS_SPACE or not data or not self.impl[lo:hi].any():
             return False
         # (SM areas lie in process RAM: register accesses, the DC ones of every

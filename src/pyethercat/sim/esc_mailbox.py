@@ -73,11 +73,13 @@ class MailboxSms:
     def write_complete(self, s: SmView) -> None:
         """The master wrote the last byte of SM0: full, handed to the firmware."""
         regs = self.regs
-        regs.set_sm_status(s.n, (s.status | R.SM_STATUS_MAILBOX_FULL | R.SM_STATUS_WRITE_EVENT)
-                           & ~R.SM_STATUS_READ_EVENT)
+        row = regs.row
+        row[R.sm_address(s.n) + R.SM_STATUS] = (
+            (s.status | R.SM_STATUS_MAILBOX_FULL | R.SM_STATUS_WRITE_EVENT)
+            & ~R.SM_STATUS_READ_EVENT & 0xFF)
         if s.control & R.SM_CONTROL_AL_EVENT:
             regs.set_al_event(R.al_event_sm(s.n))
-        data = regs.row[s.start: s.end].tobytes()
+        data = row[s.start: s.end].tobytes()
         app = self.app
         if app is not None:
             app.on_mailbox(data)
@@ -119,19 +121,27 @@ class MailboxSms:
     def pdi_consumed(self, n: int) -> None:
         """The firmware read the master's mailbox: SM ``n`` is empty again."""
         regs = self.regs
-        s = regs.sm(n)
-        regs.set_sm_status(n, (s.status & ~(R.SM_STATUS_MAILBOX_FULL | R.SM_STATUS_WRITE_EVENT))
-                           | R.SM_STATUS_READ_EVENT)
-        if s.control & R.SM_CONTROL_ECAT_EVENT:
+        row = regs.row
+        base = R.sm_address(n)
+        # (status and control straight from the registers: no SmView decode per message)
+        status = int(row[base + R.SM_STATUS])
+        row[base + R.SM_STATUS] = ((status & ~(R.SM_STATUS_MAILBOX_FULL | R.SM_STATUS_WRITE_EVENT))
+                                   | R.SM_STATUS_READ_EVENT) & 0xFF
+        if row[base + R.SM_CONTROL] & R.SM_CONTROL_ECAT_EVENT:
             regs.set_ecat_event(R.ecat_event_sm(n))
 
-    def posted(self, s: SmView) -> None:
-        """The firmware wrote the last byte of SM1: the mailbox is full for the master."""
+    def posted(self, s: SmView, data: bytes | None = None) -> None:
+        """The firmware wrote the last byte of SM1: the mailbox is full for the master.
+
+        ``data``: the bytes just written there, when the caller has them.
+        """
         self._repeat_posted = False
         regs = self.regs
-        self.last_in = regs.row[s.start: s.end].tobytes()
-        regs.set_sm_status(s.n, (s.status | R.SM_STATUS_MAILBOX_FULL | R.SM_STATUS_WRITE_EVENT)
-                           & ~R.SM_STATUS_READ_EVENT)
+        row = regs.row
+        self.last_in = row[s.start: s.end].tobytes() if data is None else data
+        row[R.sm_address(s.n) + R.SM_STATUS] = (
+            (s.status | R.SM_STATUS_MAILBOX_FULL | R.SM_STATUS_WRITE_EVENT)
+            & ~R.SM_STATUS_READ_EVENT & 0xFF)
         if s.control & R.SM_CONTROL_ECAT_EVENT:
             regs.set_ecat_event(R.ecat_event_sm(s.n))
 
@@ -139,8 +149,9 @@ class MailboxSms:
         """Write a repeated or withdrawn mailbox into SM ``n`` and mark it full."""
         regs = self.regs
         s = regs.sm(n)
-        regs.row[s.start: s.end] = np.frombuffer(data[: s.length].ljust(s.length, b"\x00"), np.uint8)
-        self.posted(s)
+        payload = data[: s.length].ljust(s.length, b"\x00")
+        regs.row[s.start: s.end] = np.frombuffer(payload, np.uint8)
+        self.posted(s, payload)
 
     def post(self, data: bytes) -> bool:
         """Put a reply into SM1; False when SM1 is not a running send mailbox or still full."""
@@ -152,5 +163,5 @@ class MailboxSms:
             return False
         payload = bytes(data[: s.length]).ljust(s.length, b"\x00")
         regs.row[s.start: s.end] = np.frombuffer(payload, np.uint8)
-        self.posted(s)
+        self.posted(s, payload)
         return True

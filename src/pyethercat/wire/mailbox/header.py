@@ -185,15 +185,16 @@ def encode_mailbox(
     size: int | None = None,
 ) -> bytes:
     """Header + ``payload``, padded to ``size`` (the SM length) when given."""
-    header = MailboxHeader(
-        length=len(payload),
-        type=mtype,
-        counter=counter,
-        address=address,
-        channel=channel,
-        priority=priority,
-    )
-    frame = header.encode() + bytes(payload)
+    length = len(payload)
+    kind = int(mtype)
+    if not (length <= 0xFFFF and 0 <= address <= 0xFFFF and 0 <= channel <= 0x3F
+            and 0 <= priority <= 0x3 and 0 <= kind <= 0xF and 0 <= counter <= 0x7):
+        # Out of range: the header's own checks name the field.
+        MailboxHeader(length=length, type=mtype, counter=counter, address=address,
+                      channel=channel, priority=priority)
+    # (packed directly, as MailboxHeader.encode does: every mailbox message passes here)
+    frame = _HDR.pack(length, address, channel | (priority << 6), kind | (counter << 4)
+                      ) + bytes(payload)
     if size is not None:
         return pad_mailbox(frame, size)
     return frame
