@@ -118,6 +118,9 @@ class EoeStats:
     empty_reads: int = 0
     #: Timestamp responses received (answers to the time-request flag).
     timestamps: int = 0
+    #: Ticks that found last tick's SM0 write or SM1 read still on its way (the
+    #: slave then waits a cycle for its next mailbox datagram).
+    late: int = 0
 
 
 class EoeClient:
@@ -252,6 +255,9 @@ class EoeClient:
     def _collect(self) -> None:
         """Take the replies of the datagrams queued last tick."""
         w = self._write
+        r = self._read
+        if (w is not None and not w.done()) or (r is not None and not r.done()):
+            self.stats.late += 1
         if w is not None and w.done():
             self._write = None
             if w.error is None and w.reply is not None and w.reply.wkc == 1:
@@ -275,11 +281,19 @@ class EoeClient:
                 self.stats.empty_reads += 1
                 self.streaming = False
 
-    def _queue(self, scheduler: Scheduler, now: float, full: bool) -> None:
-        """Queue this tick's SM0 write and SM1 read (unless another client holds the mailbox)."""
+    def _queue(self, scheduler: Scheduler, now: float, full: bool, room: int = -1) -> int:
+        """Queue this tick's SM0 write and SM1 read (unless another client holds the mailbox).
+
+        ``room``: datagram bytes the next cyclic frame has left for them (-1: not
+        known, they wait for it anyway). What does not fit goes out now, in a
+        frame of its own: its reply is back before the next tick (queued, it
+        would leave right behind the next cyclic frame, and the tick that
+        follows that frame would find it still on its way and skip the slave
+        for a cycle). Returns the room left.
+        """
         box = self.mailbox
         if not box.lock.acquire(blocking=False):
-            return  # a CoE transfer has it; its reads dispatch our fragments
+            return room  # a CoE transfer has it; its reads dispatch our fragments
         try:
             out: list[Datagram] = []
             want_write = False
@@ -300,12 +314,15 @@ class EoeClient:
                 out.append(Datagram.device(Command.FPRD, box.station, box.tx_offset,
                                            box.tx_size))
             if not out:
-                return
-            reqs = scheduler.submit(out, retries=0, flush=False)
+                return room
+            size = sum(d.size for d in out)
+            now_frame = 0 <= room < size
+            reqs = scheduler.submit(out, retries=0, flush=now_frame)
             if want_write:
                 self._write = reqs[0]
             if want_read:
                 self._read = reqs[-1]
+            return room if now_frame or room < 0 else room - size
         finally:
             box.lock.release()
 
@@ -440,6 +457,15 @@ class EoeService:
 
     # -- the tick ------------------------------------------------------------------------
 
+    def _cyclic_room(self) -> int:
+        """Datagram bytes the next cyclic frame leaves free (-1: no cyclic loop, not known)."""
+        runner = self._runner
+        plans = runner.last_plans if runner is not None else None
+        if not plans:
+            return -1
+        # queued datagrams ride in the first frame the loop sends (PduCore.send_prepared)
+        return max(0, self.scheduler.core.capacity - plans[0].template.size)
+
     def tick(self) -> None:
         """Take last tick's replies and queue this tick's datagrams (see the module text)."""
         self.ticks += 1
@@ -457,11 +483,12 @@ class EoeService:
             if ok and len(full):
                 full_set.update(clients[i] for i in full)
         polled = set(self._polled)
+        room = self._cyclic_room()
         for c in work | full_set:
             if c in polled:
                 continue
             c._collect()
-            c._queue(sched, now, c in full_set)
+            room = c._queue(sched, now, c in full_set, room)
             if not c.busy:
                 with self._active_lock:
                     self._active.discard(c)
