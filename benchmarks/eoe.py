@@ -67,8 +67,8 @@ def _measure(master: Master, cycle: float, targets: list[tuple[str, int, str]], 
             # warm up: ARP, TCP slow start
             urllib.request.urlopen(f"http://{ip}/blob?size=65536", timeout=60).read()
             before = client.stats.rx.bytes
-            frags0, cycles0, skipped0 = (client.stats.rx.fragments, runner.stats.cycles,
-                                         runner.stats.skipped)
+            frags0, cycles0, skipped0, late0 = (client.stats.rx.fragments, runner.stats.cycles,
+                                                runner.stats.skipped, client.stats.late)
             t0 = time.perf_counter()
             body = urllib.request.urlopen(f"http://{ip}/blob?size={size}", timeout=600).read()
             dt = time.perf_counter() - t0
@@ -85,7 +85,10 @@ def _measure(master: Master, cycle: float, targets: list[tuple[str, int, str]], 
                          # fragments per cycle run, and cycles run per deadline: the
                          # first shows the EoE logic, the second the loop keeping up
                          "fragments_per_cycle": round(frags / max(1, ran), 3),
-                         "cycles_run_per_deadline": round(ran / max(1, ticks), 3)})
+                         "cycles_run_per_deadline": round(ran / max(1, ticks), 3),
+                         # cycles whose EoE tick found last cycle's datagrams still out
+                         "late_per_cycle": round((client.stats.late - late0) / max(1, ran), 3),
+                         "load_average": round(os.getloadavg()[0], 1)})
     finally:
         run.close()
         runner.stop()
@@ -137,12 +140,13 @@ eoe = {{ ip = "{net}.11/24", netns = "pyecat-b{tag}-drive" }}
         subprocess.run(["ip", "link", "del", a], capture_output=True)
     print(f"{'device':<14} {'cycle':>6} {'mailbox':>7} {'Ethernet B/s':>12} {'HTTP B/s':>10} "
           f"{'limit B/s':>10} {'eth/limit':>9} {'http/limit':>10} {'frag/cycle':>10} "
-          f"{'cycles run':>10}")
+          f"{'cycles run':>10} {'late':>6} {'load':>5}")
     for r in rows:
         print(f"{r['device']:<14} {r['cycle_hz']:>5}Hz {r['mailbox']:>7} {r['ethernet_Bps']:>12} "
               f"{r['http_Bps']:>10} {r['limit_Bps']:>10} {r['ethernet_ratio']:>9.3f} "
               f"{r['http_ratio']:>10.3f} {r['fragments_per_cycle']:>10.3f} "
-              f"{r['cycles_run_per_deadline']:>10.3f}")
+              f"{r['cycles_run_per_deadline']:>10.3f} {r['late_per_cycle']:>6.3f} "
+              f"{r['load_average']:>5.1f}")
     print(json.dumps({"eoe": rows}))
 
 
