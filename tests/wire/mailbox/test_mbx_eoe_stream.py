@@ -170,3 +170,10 @@ def test_undamaged_streams_deliver_every_frame(sizes: list[int], mailbox: int) -
     got = [x for p in fragments(s) if (x := r.feed_payload(p, 0.0)) is not None]
     assert got == frames
     assert r.stats.errors == 0 and r.stats.frames == len(frames)
+
+
+def test_a_mailbox_too_small_for_a_fragment_drops_frames_and_counts_them() -> None:
+    s = EoeSender(40)  # 30 bytes of room: not one 32-byte block
+    assert s.push(bytes(60), 0.0)
+    assert s.current(0.0) is None
+    assert s.stats.dropped == 1 and s.stats.errors == 1 and not s.busy

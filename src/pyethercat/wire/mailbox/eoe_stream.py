@@ -52,7 +52,6 @@ from pyethercat.wire.mailbox.eoe import (
     decode_eoe,
     eoe_fragment,
 )
-from pyethercat.wire.mailbox.header import MAILBOX_HEADER_SIZE
 
 __all__ = [
     "DEFAULT_EOE_TIMEOUT",
@@ -136,8 +135,9 @@ class EoeSender:
     def __init__(self, mailbox_size: int, *, port: int = 0,
                  queue_limit: int = DEFAULT_QUEUE_LIMIT,
                  timeout: float = DEFAULT_EOE_TIMEOUT) -> None:
-        if mailbox_size < MAILBOX_HEADER_SIZE + EOE_HEADER_SIZE + EOE_BLOCK:
-            raise MailboxError(f"mailbox of {mailbox_size} bytes is too small for EoE fragments")
+        # A mailbox too small for one fragment (slaves without EoE may have 40 bytes; the
+        # master makes an EoE client for every mailbox) is no error here: every frame
+        # pushed is dropped and counted as an error when its turn comes.
         self.mailbox_size = mailbox_size
         self.port = port
         self.queue_limit = queue_limit
