@@ -10,6 +10,7 @@ service riding in the cyclic frame with the status byte from the FMMU.
 from __future__ import annotations
 
 import ipaddress
+import time
 
 import pytest
 from conftest import wait_for
