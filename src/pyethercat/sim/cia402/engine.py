@@ -158,6 +158,10 @@ _LAZY = frozenset({_K_POSITION, _K_VELOCITY, _K_TORQUE, _K_TORQUE_DEMAND, _K_POS
 _NO_STOP = -1
 _STAY = -1
 _THRESH_EPS = 1e-9
+# States with the power stage on (the loops run, a set-point generator may move).
+_POWERED = np.zeros(8, bool)
+_POWERED[[DriveState.OPERATION_ENABLED, DriveState.QUICK_STOP_ACTIVE,
+          DriveState.FAULT_REACTION_ACTIVE]] = True
 
 
 class DriveEngine(AxisModel):
@@ -204,13 +208,38 @@ class DriveEngine(AxisModel):
         self.fe_val: F64 = arr("fe_val", np.float64, 0.0)
         #: Warning bit (statusword bit 7): sync fallback, missed SM events.
         self.warn = arr("warn", bool, False)
+        #: Skip the cycle of axes at rest with the power off while nothing they read changes
+        #: (see :meth:`step`); off runs every cycle in full (the tests compare both).
+        self.idle_fast_path = True
+        #: The last cycle was a fixed point: (instances, their image rows, warning bits).
+        self._quiet: tuple[bytes, bytes, bytes] | None = None
+
+    def unquiet(self) -> None:
+        """Something outside the cycle changed a drive's state: the next cycle runs in full."""
+        self._quiet = None
 
     # --- the cycle ------------------------------------------------------------------------
 
     def step(self, inst: I64, dt: F64) -> Faults:
-        """One cycle of ``inst`` (sorted instances) after ``dt`` seconds: faults found, resets."""
+        """One cycle of ``inst`` (sorted instances) after ``dt`` seconds: faults found, resets.
+
+        Idle fast path: a cycle of axes that stand with the power off (no state change, no
+        stop, no plan, no motion, no fault, mode unchanged) leaves every array as it was, so
+        the next cycle on the same image rows (outputs, parameters, inputs) and warning bits
+        computes nothing new and is skipped; a change of any of them, or :meth:`unquiet`,
+        runs the cycle in full again.
+        """
         r = self.rows(inst)
+        quiet = self._quiet
+        if quiet is not None:
+            if (quiet[0] == inst.tobytes() and quiet[1] == self.image[r].tobytes()
+                    and quiet[2] == self.warn[r].tobytes()):
+                return _NONE, _NONE, _NONE, _NONE
+            self._quiet = None
         f, col = self.field, self.col
+        # a fixed point needs the power off and the axes at rest already on the way in
+        rest_in = (self.idle_fast_path and len(dt) > 0 and dt.min() > 0
+                   and not self.plan_mode[r].any() and not self.v[r].any())
         self.integrate(r, dt)
         safe_dt = dt if dt.min(initial=1.0) > 0 else np.where(dt > 0, dt, 1.0)
         enc = self.encoder(r)
@@ -256,6 +285,9 @@ class DriveEngine(AxisModel):
             new, start_stop = self._transitions(r, state, cmd, cw, prev, stopping, faulted)
         reset = (state == S.FAULT) & (new == S.SWITCH_ON_DISABLED)
         # --- modes and the next set-point -------------------------------------------------
+        shown = f(*_K_MODE_DISPLAY)[r]
+        rest_in = rest_in and faulted is None and not _POWERED[new].any() and bool(
+            (new == state).all()) and not v_act.any() and bool((f(*_K_MODE)[r] == shown).all())
         mode = self._mode(r, inst)
         self._plan(r, inst, new, mode, cw, prev, dt, safe_dt, start_stop, (neg, posl, home))
         if self.stop_opt[r].max(initial=-1) >= 0:
@@ -269,6 +301,8 @@ class DriveEngine(AxisModel):
         clear = inst[reset]
         if len(clear):
             f(*_K_ERROR)[clear] = 0
+        elif rest_in and not self.v[r].any():
+            self._quiet = (inst.tobytes(), self.image[r].tobytes(), self.warn[r].tobytes())
         if faulted is None:
             return _NONE, _NONE, _NONE, clear
         assert code is not None and detail is not None

@@ -173,6 +173,7 @@ class Cia402Model(DriveEngine):
         return bool(self.sync_errors[instance] >= max(limit, 1))
 
     def on_power_on(self, instance: int) -> None:
+        self.unquiet()
         for name, (_dtype, fill) in self._arrays.items():
             if name != "layout_id":
                 getattr(self, name)[instance] = fill
@@ -266,6 +267,7 @@ class Cia402Model(DriveEngine):
         self.publish(inst)
 
     def on_state_change(self, instance: int, old: AlState, new: AlState) -> None:
+        self.unquiet()
         self.al_state[instance] = int(new)
         self.al_op[instance] = new == AlState.OP
         one = np.array([instance], np.int64)
@@ -371,6 +373,7 @@ class Cia402Model(DriveEngine):
 
     def raise_fault(self, instance: int, code: int, data: bytes) -> None:
         """An error outside the cycle: the drive goes to Fault (reaction first when enabled)."""
+        self.unquiet()
         state = int(self.state[instance])
         if state not in (S.FAULT, S.FAULT_REACTION_ACTIVE):
             one = np.array([instance], np.int64)
