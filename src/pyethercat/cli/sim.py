@@ -27,6 +27,11 @@ __all__ = ["register", "sim_command", "check_control_path"]
 @click.option("--realtime", type=click.IntRange(0, 99), default=0, metavar="PRIO",
               help="Serve under SCHED_FIFO with this priority (1-99; root or CAP_SYS_NICE), so a "
                    "loaded machine does not delay replies past a master's frame timeout.")
+@click.option("--busy-poll", "busy_poll", type=click.FloatRange(0, 1_000_000), default=None,
+              metavar="US", help="Poll for the next frame this long after each frame before "
+                                 "blocking (default 100 us; 0: block at once).")
+@click.option("--cpu", type=click.IntRange(0), default=None, metavar="N",
+              help="Pin the simulator to CPU N.")
 @click.pass_context
 def sim_command(
     ctx: click.Context,
@@ -40,6 +45,8 @@ def sim_command(
     check: bool,
     quiet: bool,
     realtime: int,
+    busy_poll: float | None,
+    cpu: int | None,
 ) -> None:
     """Serve the simulated segment of TOPOLOGY.toml on an interface or UDP address.
 
@@ -50,7 +57,7 @@ def sim_command(
     the last slave's free port is cabled to the second one (or where the
     topology's [segment] ring = "SLAVE:PORT" says).
     """
-    from pyethercat.sim.server import open_link, serve
+    from pyethercat.sim.server import DEFAULT_BUSY_POLL_S, open_link, serve
     from pyethercat.sim.topology import load_topology
 
     if check:
@@ -97,7 +104,9 @@ def sim_command(
     try:
         if spec_b is not None:
             link_b = open_link(**spec_b, pcap=None if pcap is None else _port_b_capture(pcap))  # type: ignore[arg-type]
-        stats = serve(topology, link, control=control, log=log, realtime=realtime, link_b=link_b)
+        stats = serve(topology, link, control=control, log=log, realtime=realtime, link_b=link_b,
+                      busy_poll_s=DEFAULT_BUSY_POLL_S if busy_poll is None else busy_poll / 1e6,
+                      cpu=cpu)
     finally:
         link.close()
         if link_b is not None:

@@ -70,6 +70,20 @@ class Link(abc.ABC):
         interface that is up with a link partner), None where the link cannot know."""
         return None
 
+    def poll_into(self, buf: bytearray) -> int:
+        """Take a frame that is already waiting into ``buf`` without waiting.
+
+        Returns its length (0: none waiting). For loops that poll a link and
+        keep one buffer (a simulator's serve loop): the socket links receive
+        straight into ``buf``, with no allocation per frame. ``buf`` must hold
+        :data:`MAX_FRAME` bytes.
+        """
+        frame = self.recv(0)
+        if frame is None:
+            return 0
+        buf[:len(frame)] = frame
+        return len(frame)
+
     def close(self) -> None:
         """Release the link; further use raises :class:`LinkClosedError`. Idempotent."""
         self._closed = True

@@ -118,8 +118,10 @@ class RawLink(SocketLink):
                 sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf)
             # Kernel 4.20+: our own frames are not even queued to us. Older kernels
             # refuse the option; the packet type check in recv does the job there.
+            ignores_outgoing = False
             with contextlib.suppress(OSError):
                 sock.setsockopt(_SOL_PACKET, _PACKET_IGNORE_OUTGOING, 1)
+                ignores_outgoing = True
             if promiscuous:
                 mreq = struct.pack("iHH8s", ifindex, _PACKET_MR_PROMISC, 0, b"")
                 # Membership-based: the kernel drops promiscuous mode when the socket closes.
@@ -144,6 +146,9 @@ class RawLink(SocketLink):
         self.dropped_nobufs = 0
         #: ENETDOWN notices the kernel gave recv (the interface went down).
         self.down_notices = 0
+        # With PACKET_IGNORE_OUTGOING no frame of ours is queued: poll_into needs no
+        # packet type (recv_into, no address tuple per frame).
+        self._ignores_outgoing = ignores_outgoing
 
     def _check_present(self, now: float | None = None) -> None:
         """Raise LinkError if the bound interface was deleted.
@@ -216,6 +221,34 @@ class RawLink(SocketLink):
             self._check_present()
         return super().recv(timeout)
 
+    def poll_into(self, buf: bytearray) -> int:
+        if not self._ignores_outgoing or self._gone is not None or self._closed:
+            return super().poll_into(buf)
+        try:
+            return self._sock.recv_into(buf, MAX_FRAME, socket.MSG_DONTWAIT)
+        except BlockingIOError:
+            return 0
+        except OSError as exc:
+            self._receive_failed(exc)
+            return 0
+
+    def _receive_failed(self, exc: OSError) -> None:
+        """Raise what a failed receive means; return for a notice that needs nothing."""
+        if self._closed:
+            self._check_open()
+        if exc.errno in (errno.ENODEV, errno.ENXIO):
+            self._gone = f"network interface {self.iface} has gone"
+            raise LinkError(self._gone) from exc
+        if exc.errno == errno.ENETDOWN:
+            # A one-off notice that the interface went down (the kernel says the
+            # same for a deleted one): the socket works again once it is up.
+            self._check_present()
+            self.down_notices += 1
+            if not self.carrier():
+                raise LinkDownError(f"network interface {self.iface} is down") from exc
+            return  # the notice of a spell that is already over
+        raise LinkError(f"receive on {self.iface} failed: {exc}") from exc
+
     def _receive(self, left: float | None) -> bytes | None:
         sock = self._sock
         block = min(_MAX_BLOCK if left is None else left, _MAX_BLOCK) - _TICK_MARGIN
@@ -243,20 +276,8 @@ class RawLink(SocketLink):
                 self._wait_readable(left)
             return None
         except OSError as exc:
-            if self._closed:
-                self._check_open()
-            if exc.errno in (errno.ENODEV, errno.ENXIO):
-                self._gone = f"network interface {self.iface} has gone"
-                raise LinkError(self._gone) from exc
-            if exc.errno == errno.ENETDOWN:
-                # A one-off notice that the interface went down (the kernel says the
-                # same for a deleted one): the socket works again once it is up.
-                self._check_present()
-                self.down_notices += 1
-                if not self.carrier():
-                    raise LinkDownError(f"network interface {self.iface} is down") from exc
-                return None  # the notice of a spell that is already over
-            raise LinkError(f"receive on {self.iface} failed: {exc}") from exc
+            self._receive_failed(exc)
+            return None
         if addr[2] == _PACKET_OUTGOING:
             self.dropped_outgoing += 1
             return None

@@ -92,6 +92,19 @@ class UnixLink(SocketLink):
             raise LinkClosedError(f"peer of link {self.name} has closed")
         return data
 
+    def poll_into(self, buf: bytearray) -> int:
+        if self._closed:
+            self._check_open()
+        try:
+            n = self._sock.recv_into(buf, MAX_FRAME, socket.MSG_DONTWAIT)
+        except BlockingIOError:
+            return 0
+        except OSError:
+            return super().poll_into(buf)  # says what happened
+        if not n:
+            raise LinkClosedError(f"peer of link {self.name} has closed")
+        return n
+
     def detach(self) -> int:
         """Give up the file descriptor (e.g. to pass it to a child); the link is closed."""
         self._closed = True
