@@ -143,13 +143,15 @@ ALLOWED = {
     "wire": {"errors"},
     "esi": {"errors", "wire"},
     "clock": set(),
+    # Real-time settings of a process (SCHED_FIFO, affinity, mlockall).
+    "realtime": set(),
     # The topology file format (text in, typed entries out), read by both sides.
     "topology": {"errors"},
     # Motion profiles (numpy only), sampled for the master's drive helper and for users.
     "trajectory": {"errors"},
     "link": {"errors", "wire"},
-    "master": {"errors", "wire", "esi", "link", "clock", "topology", "trajectory"},
-    "sim": {"errors", "wire", "esi", "link", "clock", "topology"},
+    "master": {"errors", "wire", "esi", "link", "clock", "topology", "trajectory", "realtime"},
+    "sim": {"errors", "wire", "esi", "link", "clock", "topology", "realtime"},
 }
 
 

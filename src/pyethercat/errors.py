@@ -18,6 +18,7 @@ __all__ = [
     "DriveError",
     "DriveFaultError",
     "DriveTimeoutError",
+    "EngineDiedError",
     "EsiError",
     "EtherCATError",
     "FrameError",
@@ -276,6 +277,11 @@ class LinkDownError(LinkError):
 
 
 # --- master runtime errors -----------------------------------------------------
+
+
+class EngineDiedError(LinkClosedError):
+    """The isolated cyclic engine's process ended without being asked to (killed, crashed):
+    no process data is exchanged any more; every access says so until the runner is stopped."""
 
 
 class TimeoutError(EtherCATError, builtins.TimeoutError):  # noqa: A001 - deliberate name

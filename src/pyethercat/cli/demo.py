@@ -120,11 +120,11 @@ def loopbacks_from_topology(path: Path, master: Master) -> list[Loopback]:
     return out
 
 
-def _bit(buf: bytearray, bit: int) -> int:
+def _bit(buf: bytearray | memoryview, bit: int) -> int:
     return (buf[bit >> 3] >> (bit & 7)) & 1
 
 
-def _set_bit(buf: bytearray, bit: int, value: int) -> None:
+def _set_bit(buf: bytearray | memoryview, bit: int, value: int) -> None:
     if value:
         buf[bit >> 3] |= 1 << (bit & 7)
     else:
@@ -158,7 +158,7 @@ class _Toggler:
         cfg = master.process_data
         assert cfg is not None
         self.out_slaves = sorted(p for p, sc in cfg.slaves.items() if sc.output_bits)
-        self._places: list[tuple[Loopback, bytearray, int, int]] = []
+        self._places: list[tuple[Loopback, bytearray | memoryview, int, int]] = []
         for lp in loops:
             src, dst = cfg.slaves[lp.src], cfg.slaves[lp.dst]
             if src.group != dst.group or src.output_bit_offset < 0 or dst.input_bit_offset < 0:

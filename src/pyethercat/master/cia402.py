@@ -149,7 +149,7 @@ class MotionRecord:
 class _Column:
     """One PDO entry of every drive as a numpy column of the image (strided view or fancy index)."""
 
-    def __init__(self, buffer: bytearray, variables: Sequence[Variable], dtype: str) -> None:
+    def __init__(self, buffer: bytearray | memoryview, variables: Sequence[Variable], dtype: str) -> None:
         size = np.dtype(dtype).itemsize
         offsets = []
         for v in variables:

@@ -65,7 +65,7 @@ class FramePlan:
 
     def __init__(self, template: CyclicTemplate, fills: list[tuple[memoryview, int]],
                  checks: list[tuple[GroupRuntime, int, int, int, int]],
-                 copies: list[tuple[GroupRuntime, bytearray, int, int, int]],
+                 copies: list[tuple[GroupRuntime, bytearray | memoryview, int, int, int]],
                  groups: list[GroupRuntime]) -> None:
         self.template = template
         self.fills = fills
@@ -153,7 +153,7 @@ def plan_frames(scheduler: Scheduler, due: list[GroupRuntime], safe: bool = Fals
             template.ordered = True  # cross traffic: the slaves in bus order (a ring)
         fills: list[tuple[memoryview, int]] = []
         checks: list[tuple[GroupRuntime, int, int, int, int]] = []
-        copies: list[tuple[GroupRuntime, bytearray, int, int, int]] = []
+        copies: list[tuple[GroupRuntime, bytearray | memoryview, int, int, int]] = []
         groups: list[GroupRuntime] = []
         for i, (g, n) in enumerate(items, start=len(lead)):
             d = g.plan[n]

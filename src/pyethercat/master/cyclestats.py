@@ -14,6 +14,8 @@ from collections.abc import Sequence
 import numpy as np
 import numpy.typing as npt
 
+from pyethercat.errors import ConfigError
+
 __all__ = ["CycleStats", "JITTER_BINS_US"]
 
 #: Upper edges (µs) of the period-jitter histogram bins; the last bin is open.
@@ -83,6 +85,16 @@ class CycleStats:
             # Bin k: the first edge the deviation stays below.
             self.histogram[bisect.bisect_right(self._edges_ns, abs(period - self.period_ns))] += 1
         self._last_start = start_ns
+
+    def keep_samples_in(self, periods: npt.NDArray[np.int64], latency: npt.NDArray[np.int64],
+                        rtt: npt.NDArray[np.int64]) -> None:
+        """Keep the sample rings in these arrays (``capacity`` int64 each, e.g. memory that
+        other processes read: the isolated engine's); call before the first cycle."""
+        for a in (periods, latency, rtt):
+            if a.shape != (self.capacity,) or a.dtype != np.int64:
+                raise ConfigError(f"sample ring must be {self.capacity} int64, got {a.shape} "
+                                  f"{a.dtype}")
+        self._periods, self._latency, self._rtt = periods, latency, rtt
 
     def record_round_trip(self, ns: int) -> None:
         self._rtt[self._n_rtt % self.capacity] = ns

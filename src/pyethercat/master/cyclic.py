@@ -77,6 +77,7 @@ from pyethercat.master.linkwatch import LinkWatch
 from pyethercat.master.scheduler import CyclicFrame, Scheduler
 from pyethercat.master.stopping import LeaveFn, OrderlyStop
 from pyethercat.master.supervision import SlaveHealth, Supervisor
+from pyethercat.realtime import set_fifo
 from pyethercat.wire.al import AlState
 
 __all__ = [
@@ -196,6 +197,8 @@ class CyclicRunner:
         self._all_due = tuple(range(len(self.groups)))
         self.watch = LinkWatch(scheduler.link, self.stats, self.supervisor, self.log,
                                self.period_ns, link_timeout, heard=self._heard)
+        #: SCHED_FIFO priority the loop thread asks for when it starts (0: none).
+        self.thread_priority = 0
         #: Objects riding along every cycle (``before_cycle(runner)``,
         #: ``after_cycle(runner, tickets, ok)``): the ring watch.
         self.riders: list[Any] = []
@@ -257,6 +260,10 @@ class CyclicRunner:
         return self
 
     def _thread_main(self) -> None:
+        if self.thread_priority:
+            why = set_fifo(self.thread_priority)
+            if why is not None:
+                self.log(f"real time: {why}")
         try:
             self.run()
         except BaseException as exc:  # noqa: BLE001 - kept and re-raised by join()

@@ -346,7 +346,7 @@ class EoeService:
         self.ticks = 0
         self._runner: CyclicRunner | None = None
         self._chained: Callable[[Cycle], None] | None = None
-        self._status: list[tuple[bytearray, np.ndarray, list[EoeClient]]] = []
+        self._status: list[tuple[bytearray | memoryview, np.ndarray, list[EoeClient]]] = []
         self._polled: list[EoeClient] = []
         self._polls: dict[EoeClient, Request] = {}
         self._thread: threading.Thread | None = None

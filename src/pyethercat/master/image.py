@@ -22,12 +22,21 @@ values and age: ``image.input_age`` (``slave.inputs.age``) counts the
 group's exchanges since the last refresh, ``slave.inputs.stale`` says
 whether they are old. ``image.safe`` holds the outputs an orderly stop
 sends (zero unless set, e.g. ``master.safe_outputs(3)["Output 1"] = 1``).
+
+An image may take its buffer from outside (``ProcessImage(group, buffer=...)``):
+the isolated cyclic engine (:mod:`pyethercat.master.engine`) keeps it in
+memory shared with the engine's process and gives an :class:`ImageSync`, so
+that a value is never read half old, half new and the engine never sends an
+output half written. ``with image.writing():`` makes several output writes
+one: the engine sends all of them in the same frame or none.
 """
 
 from __future__ import annotations
 
+import contextlib
 import struct
-from collections.abc import Iterator, MutableMapping
+from collections.abc import Callable, Iterator, MutableMapping
+from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -36,9 +45,27 @@ from pyethercat.errors import ConfigError
 from pyethercat.master.config import GroupConfig, PdoDirection, PdoVariable, ProcessDataConfig
 from pyethercat.wire.mailbox.datatypes import DATA_TYPE_BITS, DataType
 
-__all__ = ["ProcessImage", "SlaveIO", "Variable", "build_images"]
+__all__ = ["ImageSync", "ProcessImage", "SlaveIO", "Variable", "build_images"]
 
 PdoValue = bool | int | float | bytes
+#: What an image's buffer may be: its own bytearray, or a view of shared memory.
+Buffer = bytearray | memoryview
+
+
+class ImageSync(Protocol):
+    """Access to an image that another process exchanges (see the module text)."""
+
+    def read(self, get: Callable[[], PdoValue]) -> PdoValue:
+        """``get()`` over input bytes that no exchange changed meanwhile."""
+        ...
+
+    def begin_write(self) -> None:
+        """Outputs are being written: the exchange keeps sending the last whole ones."""
+        ...
+
+    def end_write(self) -> None:
+        """The outputs are whole again."""
+        ...
 
 _SIGNED = {DataType.INTEGER8, DataType.INTEGER16, DataType.INTEGER24, DataType.INTEGER32,
            DataType.INTEGER40, DataType.INTEGER48, DataType.INTEGER56, DataType.INTEGER64}
@@ -60,12 +87,14 @@ def _type_name(code: int) -> str:
 class Variable:
     """A PDO entry bound to a buffer: ``get()`` and ``set(value)`` decode and encode it."""
 
-    __slots__ = ("_buf", "_kind", "_struct", "bit_length", "bit_offset", "data_type", "info",
-                 "_mask", "_nbytes", "_shift", "_start")
+    __slots__ = ("_buf", "_kind", "_struct", "_sync", "bit_length", "bit_offset", "data_type",
+                 "info", "_mask", "_nbytes", "_shift", "_start")
 
-    def __init__(self, info: PdoVariable, buffer: bytearray, image_bit_offset: int = 0) -> None:
+    def __init__(self, info: PdoVariable, buffer: Buffer, image_bit_offset: int = 0,
+                 sync: ImageSync | None = None) -> None:
         self.info = info
         self._buf = buffer
+        self._sync = sync
         self.bit_offset = info.bit_offset - image_bit_offset
         self.bit_length = info.bit_length
         self.data_type = info.data_type
@@ -114,6 +143,12 @@ class Variable:
 
     def get(self) -> PdoValue:
         """The current value, decoded by data type."""
+        sync = self._sync
+        if sync is not None:
+            return sync.read(self._get)
+        return self._get()
+
+    def _get(self) -> PdoValue:
         kind = self._kind
         if kind == "struct":
             assert self._struct is not None
@@ -134,6 +169,17 @@ class Variable:
 
     def set(self, value: PdoValue) -> None:
         """Write ``value`` (checked against the type's range) into the buffer."""
+        sync = self._sync
+        if sync is None:
+            self._set(value)
+            return
+        sync.begin_write()
+        try:
+            self._set(value)
+        finally:
+            sync.end_write()
+
+    def _set(self, value: PdoValue) -> None:
         kind = self._kind
         try:
             if kind == "struct":
@@ -275,18 +321,29 @@ class SlaveIO(MutableMapping[str, PdoValue]):
 
 
 class ProcessImage:
-    """The image of one group: a bytearray plus named, typed access."""
+    """The image of one group: a buffer plus named, typed access.
 
-    def __init__(self, group: GroupConfig) -> None:
+    ``buffer`` and ``safe`` (``group.size`` bytes each) and ``sync`` come from
+    the isolated engine (see the module text); by default the image owns
+    bytearrays.
+    """
+
+    def __init__(self, group: GroupConfig, buffer: Buffer | None = None,
+                 sync: ImageSync | None = None, safe: Buffer | None = None) -> None:
         self.group = group
         self.name = group.name
+        for given in (buffer, safe):
+            if given is not None and len(given) != group.size:
+                raise ConfigError(f"image {group.name!r}: a buffer of {len(given)} bytes for "
+                                  f"{group.size}")
         #: The whole image: ``[outputs][inputs][mailbox status]``; datagram data are slices of it.
-        self.buffer = bytearray(group.size)
+        self.buffer: Buffer = bytearray(group.size) if buffer is None else buffer
+        self.sync = sync
         self.outputs = memoryview(self.buffer)[:group.output_bytes]
         self.inputs = memoryview(self.buffer)[group.output_bytes:group.status_offset]
         #: Outputs sent while an orderly stop runs (same layout as ``buffer``;
         #: only the output bytes matter). Zero unless the application sets values.
-        self.safe = bytearray(group.size)
+        self.safe: Buffer = bytearray(group.size) if safe is None else safe
         #: The group's exchanges since the inputs were last refreshed by a whole one.
         self.input_age = 0
         #: Whether any exchange refreshed the inputs yet.
@@ -294,8 +351,10 @@ class ProcessImage:
         self._slave_io: dict[int, tuple[SlaveIO, SlaveIO]] = {}
         self._safe_io: dict[int, SlaveIO] = {}
         for sc in group.slaves:
-            outs = [Variable(v, self.buffer) for v in sc.variables if v.direction is PdoDirection.OUTPUTS]
-            ins = [Variable(v, self.buffer) for v in sc.variables if v.direction is PdoDirection.INPUTS]
+            outs = [Variable(v, self.buffer, sync=sync) for v in sc.variables
+                    if v.direction is PdoDirection.OUTPUTS]
+            ins = [Variable(v, self.buffer, sync=sync) for v in sc.variables
+                   if v.direction is PdoDirection.INPUTS]
             self._slave_io[sc.position] = (SlaveIO(sc.position, PdoDirection.INPUTS, ins, self),
                                            SlaveIO(sc.position, PdoDirection.OUTPUTS, outs, self))
 
@@ -368,7 +427,31 @@ class ProcessImage:
         return self.buffer[sc.mailbox_status_offset]
 
     def clear_outputs(self) -> None:
-        self.buffer[:self.group.output_bytes] = bytes(self.group.output_bytes)
+        with self.writing():
+            self.buffer[:self.group.output_bytes] = bytes(self.group.output_bytes)
+
+    @contextlib.contextmanager
+    def writing(self) -> Iterator[None]:
+        """Several output writes as one: an exchange sends all of them or none (see the
+        module text; in the loop's own process every write already is one)."""
+        sync = self.sync
+        if sync is None:
+            yield
+            return
+        sync.begin_write()
+        try:
+            yield
+        finally:
+            sync.end_write()
+
+    def snapshot(self) -> bytes:
+        """A copy of the whole image taken between two exchanges."""
+        sync = self.sync
+        if sync is None:
+            return bytes(self.buffer)
+        got = sync.read(lambda: bytes(self.buffer))
+        assert isinstance(got, bytes)
+        return got
 
     def __repr__(self) -> str:
         return (f"<ProcessImage {self.name!r} {self.group.output_bytes} output + "

@@ -547,7 +547,8 @@ class Master:
     def start(self, cycle: float = 0.001, **options: Unpack[StartOptions]) -> CyclicRunner:
         """Configure (if needed), bring every slave to SAFE-OP, start cycles, go to ``target``.
 
-        Options and the orderly stop that ends the exchange: :meth:`ProcessData.start`.
+        Options and the orderly stop that ends the exchange: :meth:`ProcessData.start`;
+        ``isolated`` runs the loop in a process of its own (docs/realtime.md).
         """
         return self.pd.start(cycle, **options)
 

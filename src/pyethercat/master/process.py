@@ -79,6 +79,15 @@ class StartOptions(TypedDict, total=False):
     link_timeout: float | None
     final_state: AlState | str
     safe_cycles: int
+    isolated: bool
+    realtime: int | None
+    cpu: int | None
+    lock_memory: bool
+
+
+#: SCHED_FIFO priority the isolated engine asks for by default (below the kernel's
+#: interrupt threads, 50, so that the network card is served first).
+_DEFAULT_PRIORITY = 40
 
 
 def slave_description(slave: SlaveInfo) -> SlaveDescription:
@@ -160,6 +169,29 @@ class ProcessData:
                 self._io[s.position] = ((img.slave_inputs(s.position), img.slave_outputs(s.position))
                                         if img is not None else (None, None))
             return cfg
+
+    def use_images(self, images: dict[str, ProcessImage]) -> None:
+        """Give the slaves' ``inputs``/``outputs`` views into these images (the isolated
+        engine's shared ones while it runs, private ones again after)."""
+        self.images = images
+        cfg = self.config
+        if cfg is None:
+            return
+        for pos in list(self._io):
+            sc = cfg.slaves.get(pos)
+            img = images.get(sc.group) if sc is not None else None
+            if img is not None:
+                self._io[pos] = (img.slave_inputs(pos), img.slave_outputs(pos))
+
+    def _check_isolated(self, clock: Clock | None) -> None:
+        """Refuse ``isolated=True`` where the engine cannot run (see :meth:`start`)."""
+        from pyethercat.master.engine.launch import link_can_move
+
+        why = link_can_move(self.scheduler.link)
+        if why is not None:
+            raise ConfigError(f"isolated=True: {why}")
+        if clock is not None:
+            raise ConfigError("isolated=True: the engine keeps its own time (give no clock)")
 
     def invalidate(self) -> None:
         """Forget the configuration (a PDO mapping changed): the next start configures anew."""
@@ -244,7 +276,9 @@ class ProcessData:
               dc_lead: float | None = None, dc_monitor: float = 0.1,
               dc_limit: float = 1e-6, link_timeout: float | None = None,
               final_state: AlState | str = AlState.PREOP,
-              safe_cycles: int = 3) -> CyclicRunner:
+              safe_cycles: int = 3, isolated: bool = False,
+              realtime: int | None = None, cpu: int | None = None,
+              lock_memory: bool = True) -> CyclicRunner:
         """Configure (if needed), bring every slave to SAFE-OP, start cycles, then go to ``target``.
 
         Returns the running :class:`CyclicRunner` (a context manager; ``stop()``
@@ -258,9 +292,22 @@ class ProcessData:
         the frames pass the reference clock; the sync monitor reads 0x092C
         every ``dc_monitor`` seconds (0: never) and reports "sync unstable"
         above ``dc_limit`` seconds.
+
+        ``isolated=True`` runs the loop in a process of its own
+        (:class:`~pyethercat.master.engine.runner.IsolatedRunner`, docs/realtime.md):
+        nothing of this process (threads burning CPU, C calls holding the GIL)
+        moves its deadlines. It needs a link over one socket (not a ring's two
+        ports, not an in-process simulator) and no ``clock``; the ``callback``
+        then runs in this process after the engine's cycles, not inside them,
+        and the loop's riders (the ring watch) stay out. The engine asks for
+        SCHED_FIFO ``realtime`` (default 40; 0: none), the CPU ``cpu`` and
+        locked memory, and logs what it could not get. By default the loop is
+        a thread of this process (``realtime`` then applies to that thread).
         """
         want = AlState.parse(target) if isinstance(target, str) else AlState(int(target))
         check_final_state(final_state)  # before anything is touched
+        if isolated:
+            self._check_isolated(clock)
         with self._lock:
             if self.runner is not None and self.runner.running:
                 raise ConfigError("cyclic exchange is already running")
@@ -276,14 +323,27 @@ class ProcessData:
                 plan.monitor.period_ns = int(round(dc_monitor * 1e9))
                 plan.monitor.limit_ns = int(round(dc_limit * 1e9))
             self.bring_up(slaves, timeout)
-            runner = CyclicRunner(self.scheduler, cfg, self.images, slaves, cycle=cycle,
-                                  clock=clock, callback=callback, check_interval=check_interval,
-                                  target=want,
-                                  recover=(self.recovery or self.recover) if recover else None,
-                                  groups=groups, frame_timeout=frame_timeout, dc=plan,
-                                  link_timeout=link_timeout, leave=self._leave,
-                                  final_state=final_state, safe_cycles=safe_cycles)
-            runner.riders.extend(make(runner) for make in self.rider_factories)
+            if isolated:
+                from pyethercat.master.engine.runner import IsolatedRunner
+
+                runner: CyclicRunner = IsolatedRunner(
+                    self.scheduler, cfg, self.images, slaves, cycle=cycle, callback=callback,
+                    check_interval=check_interval, target=want,
+                    recover=(self.recovery or self.recover) if recover else None, groups=groups,
+                    frame_timeout=frame_timeout, dc=plan, link_timeout=link_timeout,
+                    leave=self._leave, final_state=final_state, safe_cycles=safe_cycles,
+                    priority=_DEFAULT_PRIORITY if realtime is None else realtime, cpu=cpu,
+                    lock_memory=lock_memory, use_images=self.use_images)
+            else:
+                runner = CyclicRunner(self.scheduler, cfg, self.images, slaves, cycle=cycle,
+                                      clock=clock, callback=callback,
+                                      check_interval=check_interval, target=want,
+                                      recover=(self.recovery or self.recover) if recover else None,
+                                      groups=groups, frame_timeout=frame_timeout, dc=plan,
+                                      link_timeout=link_timeout, leave=self._leave,
+                                      final_state=final_state, safe_cycles=safe_cycles)
+                runner.riders.extend(make(runner) for make in self.rider_factories)
+                runner.thread_priority = 0 if realtime is None else realtime
             self.runner = runner
             # Supervision starts once the slaves are where they were asked to be: the
             # check would otherwise see SAFE-OP during the walk up and "recover" them.

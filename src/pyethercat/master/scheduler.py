@@ -65,7 +65,7 @@ from pyethercat.master.pdu import (
 from pyethercat.master.redundancy import Redundancy
 from pyethercat.master.stepping import Stepper
 from pyethercat.wire.datagram import MAX_PAYLOAD, Datagram
-from pyethercat.wire.frame import MASTER_MAC, MIN_FRAME_SIZE
+from pyethercat.wire.frame import LOCALLY_ADMINISTERED_BIT, MASTER_MAC, MIN_FRAME_SIZE
 
 __all__ = [
     "DEFAULT_MAX_IN_FLIGHT",
@@ -316,6 +316,28 @@ class Scheduler:
         """``send_prepared`` and wait: the reply frame, or ``None`` when the frame was lost."""
         return self.send_prepared(template, carry_acyclic=carry_acyclic,
                                   timeout=timeout).wait_raw()
+
+    # -- the link -----------------------------------------------------------------------
+
+    def replace_link(self, link: Link, *, wait: bool = True) -> Link:
+        """Carry on over ``link``; returns the link used so far.
+
+        The isolated cyclic engine takes the master's link into its own
+        process and gives the master a link to itself. With ``wait``, frames
+        still in flight are answered (or time out) first, so that no thread
+        is receiving on the old link when it changes hands.
+        """
+        if wait:
+            limit = self.core.timeout * (self.core.retries + 2)
+            self.wait_until(lambda: not self.core.in_flight and not self._receiving, limit)
+        with self._lock:
+            old = self.link
+            self.link = link
+            self._ring = link if isinstance(link, RedundantLink) else None
+            self.core.drop_own_frames = link.sees_own_frames and not (
+                self.core.src[0] & LOCALLY_ADMINISTERED_BIT)
+            self._notify()
+        return old
 
     # -- closing --------------------------------------------------------------------
 

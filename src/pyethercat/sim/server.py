@@ -69,53 +69,17 @@ from typing import Any, Self
 
 from pyethercat.errors import ConfigError, EtherCATError, LinkClosedError, LinkDownError, LinkError
 from pyethercat.link.base import MAX_FRAME, Link
+from pyethercat.realtime import apply_realtime
 from pyethercat.sim.eoe import eoe_server
 from pyethercat.wire.frame import is_ethercat
 from pyethercat.wire.registers import AL_STATUS
 
-__all__ = ["ServerStats", "SimProcess", "SimServer", "open_link", "pin_cpu", "set_realtime",
-           "start_sim_process"]
+__all__ = ["ServerStats", "SimProcess", "SimServer", "open_link", "start_sim_process"]
 
 #: Default period of the segment's periodic work (watchdogs, SYNC), seconds.
 DEFAULT_TICK_S = 0.001
 #: Default time the serve loop polls for the next frame before blocking, seconds.
 DEFAULT_BUSY_POLL_S = 0.0001
-
-
-def set_realtime(priority: int) -> str | None:
-    """Run the calling process under SCHED_FIFO with ``priority`` (1..99).
-
-    A real ESC answers within microseconds; a simulator that the scheduler
-    leaves waiting for milliseconds on a loaded machine makes masters with
-    short frame timeouts (SOEM: 2 ms per mailbox read) give frames up and
-    retry. The server blocks in ``select`` between frames, so a real-time
-    priority costs nothing while idle. Returns None on success, else why not
-    (no permission, no such policy); the server then runs as before.
-    """
-    if not 1 <= priority <= 99:
-        raise ConfigError(f"real-time priority {priority}: use 1..99")
-    policy = getattr(os, "SCHED_FIFO", None)
-    if policy is None or not hasattr(os, "sched_setscheduler"):
-        return "this platform has no SCHED_FIFO"
-    try:
-        os.sched_setscheduler(0, policy, os.sched_param(priority))
-    except OSError as exc:
-        return f"SCHED_FIFO {priority} refused: {exc.strerror or exc}"
-    return None
-
-
-def pin_cpu(cpu: int) -> str | None:
-    """Keep the calling process on CPU ``cpu``; None on success, else why not."""
-    if not hasattr(os, "sched_setaffinity"):
-        return "this platform cannot pin a process to a CPU"
-    allowed = os.sched_getaffinity(0)
-    if cpu not in allowed:
-        return f"CPU {cpu} is not among the CPUs this process may use ({sorted(allowed)})"
-    try:
-        os.sched_setaffinity(0, {cpu})
-    except OSError as exc:
-        return f"pinning to CPU {cpu} refused: {exc.strerror or exc}"
-    return None
 
 
 @dataclass
@@ -616,7 +580,10 @@ def serve(
     ``link_b``: master port B of a ring (see :class:`SimServer`).
 
     ``realtime`` > 0 serves under SCHED_FIFO with that priority where the
-    process may (see :func:`set_realtime`); otherwise it is logged and ignored.
+    process may; otherwise it is logged and ignored. A real ESC answers within
+    microseconds; a simulator that the scheduler leaves waiting for
+    milliseconds on a loaded machine makes masters with short frame timeouts
+    (SOEM: 2 ms per mailbox read) give frames up and retry.
     ``cpu`` pins the process to that CPU; ``busy_poll_s`` is how long the loop
     polls for the next frame before it blocks (see :class:`SimServer`).
     """
@@ -634,14 +601,13 @@ def serve(
     # collector's generations so a collection during serving stays short.
     gc.collect()
     gc.freeze()
-    if realtime:
-        why = set_realtime(realtime)
-        if why is not None and log is not None:
-            log(f"serving at normal priority: {why}")
-    if cpu is not None:
-        why = pin_cpu(cpu)
-        if why is not None and log is not None:
-            log(f"serving on any CPU: {why}")
+    if realtime or cpu is not None:
+        if realtime and not 1 <= realtime <= 99:
+            raise ConfigError(f"real-time priority {realtime}: use 1..99")
+        got = apply_realtime(realtime, cpu)
+        if log is not None:
+            for why in got.missing:
+                log(f"serving without it: {why}")
     previous: dict[int, Any] = {}
 
     def on_signal(signum: int, frame: FrameType | None) -> None:

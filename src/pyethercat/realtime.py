@@ -1,0 +1,113 @@
+"""Real-time settings of a process: SCHED_FIFO, CPU affinity, locked memory.
+
+A cyclic engine or a simulator asks for what it wants and is told what it
+got: each call returns ``None`` on success or one line saying why not and
+what would allow it (root, ``CAP_SYS_NICE``, ``CAP_IPC_LOCK``), so the
+caller can report it and carry on at normal priority. Linux only; other
+platforms get the reason and nothing changes. Shared by ``master/`` (the
+isolated cyclic engine) and ``sim/`` (the serve loop).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import os
+import resource
+from dataclasses import dataclass, field
+
+__all__ = ["RealtimeReport", "apply_realtime", "lock_memory", "pin_cpu", "set_fifo"]
+
+# <sys/mman.h>: lock what is mapped now and what will be; MCL_ONFAULT (Linux 4.4)
+# locks pages as they are first touched, so address space that is only reserved
+# (thread stacks, allocator arenas) is not made resident.
+_MCL_CURRENT = 1
+_MCL_FUTURE = 2
+_MCL_ONFAULT = 4
+
+
+def set_fifo(priority: int) -> str | None:
+    """Run the calling process (all its threads created later) under SCHED_FIFO ``priority``."""
+    if not 1 <= priority <= 99:
+        return f"SCHED_FIFO priority {priority} is outside 1..99"
+    policy = getattr(os, "SCHED_FIFO", None)
+    if policy is None or not hasattr(os, "sched_setscheduler"):
+        return "this platform has no SCHED_FIFO"
+    try:
+        os.sched_setscheduler(0, policy, os.sched_param(priority))
+    except OSError as exc:
+        return (f"SCHED_FIFO {priority} refused ({exc.strerror or exc}): run as root or give "
+                "the interpreter CAP_SYS_NICE (setcap cap_sys_nice+ep)")
+    return None
+
+
+def pin_cpu(cpu: int) -> str | None:
+    """Keep the calling process on CPU ``cpu``; None on success, else why not."""
+    if not hasattr(os, "sched_setaffinity"):
+        return "this platform cannot pin a process to a CPU"
+    allowed = os.sched_getaffinity(0)
+    if cpu not in allowed:
+        return f"CPU {cpu} is not among the CPUs this process may use ({sorted(allowed)})"
+    try:
+        os.sched_setaffinity(0, {cpu})
+    except OSError as exc:
+        return f"pinning to CPU {cpu} refused: {exc.strerror or exc}"
+    return None
+
+
+def lock_memory() -> str | None:
+    """``mlockall``: the process's pages stay in RAM (no page fault waits on the disk)."""
+    name = ctypes.util.find_library("c")
+    try:
+        libc = ctypes.CDLL(name, use_errno=True)
+        mlockall = libc.mlockall
+    except (OSError, AttributeError):
+        return "this platform has no mlockall"
+    flags = _MCL_CURRENT | _MCL_FUTURE | _MCL_ONFAULT
+    if mlockall(flags) != 0 and mlockall(_MCL_CURRENT | _MCL_FUTURE) != 0:
+        err = ctypes.get_errno()
+        soft, _hard = resource.getrlimit(resource.RLIMIT_MEMLOCK)
+        limit = "unlimited" if soft == resource.RLIM_INFINITY else f"{soft // 1024} KiB"
+        return (f"mlockall refused ({os.strerror(err)}; RLIMIT_MEMLOCK {limit}): run as root, "
+                "give the interpreter CAP_IPC_LOCK, or raise 'ulimit -l'")
+    return None
+
+
+@dataclass
+class RealtimeReport:
+    """What a process asked for and got (``missing``: one line per refusal)."""
+
+    priority: int = 0
+    cpu: int | None = None
+    locked: bool = False
+    missing: list[str] = field(default_factory=list)
+
+    def text(self) -> str:
+        got = [f"SCHED_FIFO {self.priority}" if self.priority else "normal scheduling",
+               f"CPU {self.cpu}" if self.cpu is not None else "any CPU",
+               "memory locked" if self.locked else "memory not locked"]
+        return ", ".join(got)
+
+
+def apply_realtime(priority: int = 0, cpu: int | None = None, lock: bool = False) -> RealtimeReport:
+    """Ask for each setting given; the report says what was had and what was refused."""
+    report = RealtimeReport()
+    if lock:
+        why = lock_memory()
+        if why is None:
+            report.locked = True
+        else:
+            report.missing.append(why)
+    if cpu is not None:
+        why = pin_cpu(cpu)
+        if why is None:
+            report.cpu = cpu
+        else:
+            report.missing.append(why)
+    if priority:
+        why = set_fifo(priority)
+        if why is None:
+            report.priority = priority
+        else:
+            report.missing.append(why)
+    return report
