@@ -41,7 +41,8 @@ from pyethercat.cli._util import parse_int
 from pyethercat.errors import ConfigError
 from pyethercat.master.config import PdoDirection, ProcessDataConfig
 from pyethercat.master.control import messages as msg
-from pyethercat.master.cyclic import CyclicRunner
+from pyethercat.master.cyclic import JITTER_BINS_US, CyclicRunner
+from pyethercat.master.engine.runner import IsolatedRunner
 from pyethercat.master.master import Master
 from pyethercat.master.slave import Slave
 from pyethercat.wire.al import state_name
@@ -144,7 +145,9 @@ def live_view(master: Master, runner: CyclicRunner, extra: Callable[[], list[str
     stats.add_row("jitter p50/p99/max us",
                   f"{_fmt(jit['p50'])} / {_fmt(jit['p99'])} / {_fmt(jit['p100'])}")
     stats.add_row("round trip p50/p99 us", f"{_fmt(rtt['p50'])} / {_fmt(rtt['p99'])}")
+    stats.add_row("jitter histogram", _histogram_text(st.histogram))
     stats.add_row("late / overruns / skipped", f"{st.late} / {st.overruns} / {st.skipped}")
+    stats.add_row("loop", loop_text(runner))
     stats.add_row("WKC errors / lost frames", f"{st.wkc_errors} / {st.lost_frames}")
     for g in runner.groups:
         ok = Text("ok", style="green") if g.wkc_ok else Text("BAD", style="red")
@@ -161,6 +164,20 @@ def live_view(master: Master, runner: CyclicRunner, extra: Callable[[], list[str
     if lines:
         parts.append(Text("\n".join(lines)))
     return Group(*parts)
+
+
+def _histogram_text(counts: Sequence[int]) -> str:
+    """Non-empty bins of the period-jitter histogram: ``<1us 9012  <2us 85 ...``."""
+    names = [f"<{b}us" for b in JITTER_BINS_US] + [f">={JITTER_BINS_US[-1]}us"]
+    return "  ".join(f"{n} {c}" for n, c in zip(names, counts, strict=True) if c) or "-"
+
+
+def loop_text(runner: CyclicRunner) -> str:
+    """Where the loop runs and with what priority and CPU share."""
+    if isinstance(runner, IsolatedRunner):
+        return runner.engine_line()
+    fifo = runner.thread_priority
+    return f"thread of this process, {f'SCHED_FIFO {fifo}' if fifo else 'normal priority'}"
 
 
 def _link_text(runner: CyclicRunner) -> Text:
@@ -235,8 +252,17 @@ def register(cli: click.Group) -> None:
                   help="master: the cycle follows the reference clock; reference: the "
                        "reference clock follows the master's time.")
     @click.option("--plot", "plot", default=None, metavar="FILE.png",
-                  help="With --dc: plot the set-up's convergence, the sync monitor, the phase "
-                       "lock and (simulator) the SYNC0 spread (matplotlib).")
+                  help="Plot the period and jitter distribution (log scale); with --dc also "
+                       "the set-up's convergence, the sync monitor, the phase lock and "
+                       "(simulator) the SYNC0 spread (matplotlib).")
+    @click.option("--isolated", is_flag=True,
+                  help="Run the cyclic loop in a process of its own, out of reach of this "
+                       "process's threads (docs/realtime.md).")
+    @click.option("--realtime", "priority", type=click.IntRange(0, 99), default=None,
+                  metavar="PRIO", help="SCHED_FIFO priority of the loop (default: 40 for "
+                                       "--isolated, none otherwise; root or CAP_SYS_NICE).")
+    @click.option("--cpu", type=click.IntRange(0), default=None, metavar="N",
+                  help="With --isolated: pin the loop's process to CPU N.")
     @click.option("--eoe", is_flag=True,
                   help="Bring up the EoE switch: a TAP interface joining the host's IP stack "
                        "and every EoE slave (root or CAP_NET_ADMIN).")
@@ -262,7 +288,8 @@ def register(cli: click.Group) -> None:
                 sync0_us: str | None, sync1_us: str | None, shift_us: str | None,
                 dc_mode: str, plot: str | None, eoe: bool, eoe_tap: str,
                 eoe_host_ip: str | None, eoe_per_slave: bool,
-                hot_connect: tuple[str, ...], final_state: str, give_up: float) -> None:
+                hot_connect: tuple[str, ...], final_state: str, give_up: float,
+                isolated: bool, priority: int | None, cpu: int | None) -> None:
         """Bring the segment to OP and run cyclic exchange with a live view."""
         dc = dc or any(x is not None for x in (sync0_us, sync1_us, shift_us))
         eni = None
@@ -282,6 +309,8 @@ def register(cli: click.Group) -> None:
             raise ConfigError(f"run: --seconds must be positive, got {seconds:g}")
         if give_up < 0:
             raise ConfigError(f"run: --give-up must be 0 (never) or positive, got {give_up:g}")
+        if cpu is not None and not isolated:
+            raise ConfigError("run: --cpu pins the isolated loop's process: give --isolated")
         # Off a terminal rich would squeeze the table into 80 columns: give it room.
         console = Console() if sys.stdout.isatty() else Console(width=140)
         with StopSignals() as signals, connect(obj, pcap=pcap) as conn, \
@@ -308,7 +337,8 @@ def register(cli: click.Group) -> None:
                 m.dc.setup(DcSettings(trace_every=250 if plot else 0))
                 configure_sync_from_options(m, int(round(cycle * 1e9)), sync0_us, sync1_us,
                                             shift_us)
-            runner = m.start(cycle, dc=dc_mode if dc else None, final_state=final_state.upper())
+            runner = m.start(cycle, dc=dc_mode if dc else None, final_state=final_state.upper(),
+                             isolated=isolated, realtime=priority, cpu=cpu)
             signals.cycling_with(runner)
             eoe_run = None
             extra = None
@@ -350,6 +380,12 @@ def register(cli: click.Group) -> None:
                 plot_dc(plot, m.dc.report, runner.dc,
                         title=f"run --dc ({dc_mode} mode), {len(m.slaves)} slaves, "
                               f"{cycle * 1e6:g} us cycle")
+                click.echo(f"plot written to {plot}")
+            elif plot:
+                from pyethercat.cli.cycle_plot import plot_cycles
+
+                plot_cycles(plot, runner.stats, title=f"run, {len(m.slaves)} slaves, "
+                            f"{cycle * 1e6:g} us cycle ({loop_text(runner)})")
                 click.echo(f"plot written to {plot}")
             if eoe_run is not None and extra is not None:
                 click.echo("\n".join(extra()))
