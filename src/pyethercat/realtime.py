@@ -16,7 +16,8 @@ import os
 import resource
 from dataclasses import dataclass, field
 
-__all__ = ["RealtimeReport", "apply_realtime", "lock_memory", "pin_cpu", "set_fifo"]
+__all__ = ["RealtimeReport", "apply_realtime", "die_with_parent", "lock_memory", "pin_cpu",
+           "set_fifo"]
 
 # <sys/mman.h>: lock what is mapped now and what will be; MCL_ONFAULT (Linux 4.4)
 # locks pages as they are first touched, so address space that is only reserved
@@ -24,6 +25,8 @@ __all__ = ["RealtimeReport", "apply_realtime", "lock_memory", "pin_cpu", "set_fi
 _MCL_CURRENT = 1
 _MCL_FUTURE = 2
 _MCL_ONFAULT = 4
+# <linux/prctl.h>: the signal the kernel sends this process when its parent dies.
+_PR_SET_PDEATHSIG = 1
 
 
 def set_fifo(priority: int) -> str | None:
@@ -70,6 +73,23 @@ def lock_memory() -> str | None:
         limit = "unlimited" if soft == resource.RLIM_INFINITY else f"{soft // 1024} KiB"
         return (f"mlockall refused ({os.strerror(err)}; RLIMIT_MEMLOCK {limit}): run as root, "
                 "give the interpreter CAP_IPC_LOCK, or raise 'ulimit -l'")
+    return None
+
+
+def die_with_parent(signum: int) -> str | None:
+    """Have the kernel send ``signum`` to this process when its parent dies (Linux prctl).
+
+    The signal comes when the *thread* that started this process ends, not
+    only when its whole process does (prctl(2)): a handler should look at
+    ``os.getppid()`` before it acts. None on success, else why not.
+    """
+    name = ctypes.util.find_library("c")
+    try:
+        prctl = ctypes.CDLL(name, use_errno=True).prctl
+    except (OSError, AttributeError):
+        return "this platform has no prctl: the engine notices its parent's death by polling"
+    if prctl(_PR_SET_PDEATHSIG, ctypes.c_ulong(signum), 0, 0, 0) != 0:
+        return f"prctl(PR_SET_PDEATHSIG) refused: {os.strerror(ctypes.get_errno())}"
     return None
 
 

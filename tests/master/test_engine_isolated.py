@@ -212,6 +212,38 @@ def test_killed_user_process_leaves_the_slaves_in_safeop_with_zero_outputs(
     assert set(seen[asked:]) <= {0, "SAFEOP"}
 
 
+def test_engine_exits_when_the_user_dies_while_the_link_refuses_frames(
+        demo_sim: tuple[SimProcess, str],
+        user: tuple[subprocess.Popen[str], dict[str, object]]) -> None:
+    # The engine's interface is down (its frames are refused, no cycle comes back) when
+    # the user's process is killed: no slave can be reached, yet the engine must notice
+    # that its parent is gone and exit rather than spin on as an orphan.
+    _sim, iface = demo_sim
+    proc, where = user
+    engine = int(str(where["engine"]))
+    assert Path(f"/proc/{engine}").exists()
+    area = SharedArea.attach(str(where["area"]))
+    try:
+        assert wait_for(lambda: area.status.as_dict().get("cycles", 0) > 50)
+        subprocess.run(["ip", "link", "set", iface, "down"], check=True)
+        assert wait_for(lambda: area.status.as_dict().get("send_errors", 0) > 20)
+    finally:
+        area.close()
+    proc.kill()
+    proc.wait()
+    # (generous: the engine gives up the leave a few seconds after it noticed)
+    assert wait_for(lambda: not _alive(engine), seconds=60.0)
+
+
+def _alive(pid: int) -> bool:
+    """Whether ``pid`` is a live process (a zombie awaiting its reaper is not)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except (FileNotFoundError, ProcessLookupError, IndexError):
+        return False
+
+
 def test_dead_engine_raises_on_the_next_access(demo_sim: tuple[SimProcess, str]) -> None:
     _sim, iface = demo_sim
     with Master.open(iface=iface, control=False, timeout=0.5) as m:

@@ -18,12 +18,14 @@ runs in it: the user's threads, their CPU burning and their C calls holding
 the GIL are in another process and do not move its deadlines.
 
 When the user's process goes (its end of the control channel closes, its
-pid is gone, or SIGTERM), the engine sends the safe outputs for a few
+pid is gone, the kernel's parent-death signal, or SIGTERM), the engine sends the safe outputs for a few
 cycles, requests SAFEOP of every slave (one BWR of AL control, riding in the
 cyclic frames, IgH's and SOEM's way of addressing all slaves), waits until
 no slave reports OP (2 s at most) and exits. SIGINT is ignored: a Ctrl-C in
 a terminal reaches the whole process group, and the user's process decides
-how to stop.
+how to stop. The parent is watched in every cycle, also while the link
+refuses frames (an interface gone or down): with nothing reachable, the
+engine gives up the leave after its limit and exits all the same.
 """
 
 from __future__ import annotations
@@ -60,12 +62,12 @@ from pyethercat.master.engine.status import (
 )
 from pyethercat.master.image import ProcessImage
 from pyethercat.master.scheduler import Request, Scheduler
-from pyethercat.realtime import RealtimeReport, apply_realtime
+from pyethercat.realtime import RealtimeReport, apply_realtime, die_with_parent
 from pyethercat.wire import registers as reg
 from pyethercat.wire.al import AlState
 from pyethercat.wire.datagram import Command, Datagram
 
-__all__ = ["EngineClock", "EngineRider", "main", "run_engine"]
+__all__ = ["PARENT_DEATH_SIGNAL", "EngineClock", "EngineRider", "main", "run_engine"]
 
 # How often the engine looks whether its parent is still there (one getppid).
 _PARENT_CHECK_NS = 100_000_000
@@ -75,6 +77,12 @@ _PUBLISH_NS = 950_000
 _HEALTH_NS = 500_000_000
 # How long the engine waits for the slaves to leave OP when the user has gone.
 _LEAVE_NS = 2_000_000_000
+# The whole leave (safe outputs, SAFEOP) ends by this much past its own limits even when
+# no frame comes back (the link is down or gone): the engine exits regardless.
+_GIVE_UP_NS = 1_000_000_000
+# Sent by the kernel when the parent dies (prctl PR_SET_PDEATHSIG); SIGTERM stays the
+# user's own "stop" and is not confused with it.
+PARENT_DEATH_SIGNAL = signal.SIGUSR1
 _STATUS = {name: i for i, name in enumerate(HEALTH_STATUS)}
 
 
@@ -134,7 +142,13 @@ class EngineRider:
         self.state = EngineState.STARTING
         self.user_gone = ""
         self._leave_started = 0
+        self._give_up_at = 0
         self._leave_brd: Request | None = None
+        #: The descriptors the clock waits on (its list): closed ones leave it, or a
+        #: select on an end of file would return at once and the wait would spin.
+        self.fds: list[int] = []
+        self._control_open = True
+        self._after = True
         self._safe_left = 0
         self._last_event: object = None
         self._events = 0
@@ -150,6 +164,16 @@ class EngineRider:
 
     def before_cycle(self, runner: CyclicRunner) -> None:
         """Take the outputs the user wrote (or the safe ones) into the loop's images."""
+        # (here, not after the cycle: a cycle whose frames the link refused has no after,
+        # and the user must still see the link's state and events)
+        now = time.perf_counter_ns()
+        self.watch_parent(now)
+        if not self._after and now - self._published_at >= _PUBLISH_NS:
+            self._published_at = now
+            self.publish()
+            if runner.events and runner.events[-1] is not self._last_event:
+                self._post_events()
+        self._after = False
         if runner.xchg.safe:
             # (the frames carry the images' safe outputs, the shared ones)
             if self.router.open:
@@ -170,6 +194,7 @@ class EngineRider:
 
     def after_cycle(self, runner: CyclicRunner, tickets: object, ok: bool) -> None:
         """Publish inputs, statistics, events, health; answer the user's requests."""
+        self._after = True
         for g, image, shared, seq, staging in self.groups:
             lo = len(staging)
             s = self._in_seq[g.name] + 1
@@ -189,12 +214,26 @@ class EngineRider:
             self._post_events()
         if now - self._health_at >= _HEALTH_NS:
             self.publish_health(now)
-        if now - self._parent_at >= _PARENT_CHECK_NS:
-            self._parent_at = now
-            if os.getppid() != self.plan.parent_pid and not self.user_gone:
-                self.user_left("the user's process has gone (parent changed)")
         if self.user_gone:
             self._leave_step(now)
+
+    def watch_parent(self, now: int) -> None:
+        """Whether the user's process is still this process's parent; the leave's last limit."""
+        if now - self._parent_at >= _PARENT_CHECK_NS:
+            self._parent_at = now
+            self.check_parent()
+        if self.user_gone and now > self._give_up_at:
+            self.runner.log("no slave could be reached to leave OP; the engine ends anyway")
+            self.runner.abandon()
+
+    def look_at_parent(self) -> None:
+        """Check the parent at the next cycle's start (the parent-death signal's handler)."""
+        self._parent_at = -_PARENT_CHECK_NS
+
+    def check_parent(self) -> None:
+        """The user's process is gone when this process has another parent (re-parented)."""
+        if os.getppid() != self.plan.parent_pid and not self.user_gone:
+            self.user_left("the user's process has gone (parent changed)")
 
     # -- publishing ----------------------------------------------------------------------------
 
@@ -252,6 +291,8 @@ class EngineRider:
     def serve(self, left_ns: int) -> None:
         """A descriptor is readable between cycles: control messages, the user's frames."""
         self.read_control()
+        if not self.router.open:
+            self._forget(self.router.sock.fileno())
         if self.router.open:
             # Time for a frame of their own before the deadline: send them now.
             period = self.runner.period_ns
@@ -262,13 +303,19 @@ class EngineRider:
                 sched.wait_until(self.router.answered, limit)
                 self.router.answer()
 
+    def _forget(self, fd: int) -> None:
+        if fd in self.fds:
+            self.fds.remove(fd)
+
     def read_control(self) -> None:
-        while True:
+        while self._control_open:
             try:
                 msg = recv_message(self.control)
             except BlockingIOError:
                 return
             except (EOFError, OSError):
+                self._control_open = False
+                self._forget(self.control.fileno())
                 if not self.user_gone:
                     self.user_left("the user's process has gone (control channel closed)")
                 return
@@ -326,6 +373,8 @@ class EngineRider:
         every = max((g.every for g in self.runner.groups), default=1)
         self._safe_left = max(1, self.plan.safe_cycles) * every + 1
         self._leave_started = 0
+        self._give_up_at = (time.perf_counter_ns() + self._safe_left * self.runner.period_ns
+                            + _LEAVE_NS + _GIVE_UP_NS)
 
     def _leave_step(self, now: int) -> None:
         runner = self.runner
@@ -385,6 +434,7 @@ def run_engine(plan: EnginePlan, area: SharedArea, report: RealtimeReport) -> in
     runner.stats.keep_samples_in(area.rings["periods"], area.rings["latency"], area.rings["rtt"])
     runner.supervising = plan.supervising
     rider = EngineRider(plan, runner, area, router, control, report)
+    rider.fds = clock.fds
     holder.append(rider)
     runner.riders.append(rider)
     for why in report.missing:
@@ -394,7 +444,17 @@ def run_engine(plan: EnginePlan, area: SharedArea, report: RealtimeReport) -> in
         if not rider.user_gone:
             rider.user_left("SIGTERM")
 
+    def on_parent_death(signum: int, frame: object) -> None:
+        # Look at the next cycle's start, not in the middle of this one. (The signal also
+        # comes when only the thread that started the engine ends: the look tells.)
+        rider.look_at_parent()
+
     signal.signal(signal.SIGTERM, on_term)
+    signal.signal(PARENT_DEATH_SIGNAL, on_parent_death)
+    refused = die_with_parent(PARENT_DEATH_SIGNAL)
+    if refused is not None:
+        runner.log(f"parent watch: {refused}")
+    # (the parent may have died before the request: the loop's first cycle looks)
     # Everything built so far lives as long as the engine: the collector need not walk
     # it again (a full collection over the interpreter's and numpy's objects would stall
     # a cycle for milliseconds).
