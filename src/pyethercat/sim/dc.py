@@ -205,7 +205,7 @@ class DcClocks:
     def _exact(self, slaves: I64, t: I64 | int) -> F64:
         """Local time (ns, not yet in ticks) of ``slaves`` at segment time ``t`` (any shapes)."""
         dt = np.asarray(t, np.int64) - self.t0[slaves]
-        window = np.clip(dt, 0, self.until[slaves])
+        window = np.minimum(np.maximum(dt, 0), self.until[slaves])  # np.clip's wrapper costs more
         out: F64 = self.local0[slaves] + self.rate[slaves] * (
             dt * (1.0 + self.learned[slaves]) + window * (self.trim[slaves] - self.learned[slaves]))
         return out

@@ -90,6 +90,8 @@ class AxisModel(CoeModel):
                          capacity_in=capacity_in, fields=AXIS_FIELDS + fields)
         self._pcache: dict[tuple[int, int], F64] = {}
         self._consts: _Constants | None = None
+        #: Figures derived from the cached constants (dropped with them).
+        self._derived: dict[object, float | bool] = {}
         self._live: frozenset[tuple[int, int]] | None = None
         self._tx: frozenset[tuple[int, int]] | None = None
         self._live_count = -1
@@ -188,6 +190,7 @@ class AxisModel(CoeModel):
                 self.max_torque(every), self.max_speed(every))
             if not any(key in live for key in AXIS_FIELDS):
                 self._consts = consts
+                self._derived = {}
         return _Constants(*(a[r] for a in consts))
 
     def counts_per_rad(self, r: Rows) -> F64:
@@ -227,18 +230,21 @@ class AxisModel(CoeModel):
         _k, _j, kp, kv, ki, acc_gain, b, tc, load, tmax, vmax = self.constants(r)
         # at least 1 kHz, and few enough steps per velocity-loop time constant that the
         # explicit integration stays well damped (bandwidth x step < 0.8)
-        wv_max = float((kv / np.maximum(_j / _k, 1e-300)).max(initial=0.0))
+        wv_max = self._bandwidth_max(r, _k, _j, kv)
         n = min(_MAX_SUBSTEPS, max(1, math.ceil(longest / _H_MAX - 1e-9),
                                    math.ceil(longest * wv_max / 0.8 - 1e-9)))
         h = dt / n
         mode = self.plan_mode[r]
         pos = mode == CTRL_POSITION
-        any_torque = bool((mode == CTRL_TORQUE).any())
-        trq = mode == CTRL_TORQUE
-        all_on = bool((mode != CTRL_OFF).all())
-        on = (mode != CTRL_OFF).astype(np.float64)
         all_pos = bool(pos.all())
-        limit_speed = bool(np.isfinite(vmax).any())
+        if all_pos:  # the usual cycle (CSP, PP, stops): no mask work
+            any_torque, trq, all_on, on = False, pos, True, pos
+        else:
+            any_torque = bool((mode == CTRL_TORQUE).any())
+            trq = mode == CTRL_TORQUE
+            all_on = bool((mode != CTRL_OFF).all())
+            on = (mode != CTRL_OFF).astype(np.float64)
+        limit_speed = self._limit_speed(vmax)
         p0, p1 = self.plan_from[r], self.plan_to[r]
         span = (p1 - p0) / n
         vff, tff = self.plan_vff[r], self.plan_tff[r]
@@ -250,7 +256,7 @@ class AxisModel(CoeModel):
         for step in range(1, n + 1):
             # ufunc minimum/maximum rather than np.clip: clip's Python wrapper costs more
             # than the arithmetic on these short arrays
-            pref = p0 + span * (step - 1)  # the demand where this substep starts
+            pref = p0 if step == 1 else p0 + span * (step - 1)  # the demand where it starts
             vref = vff + kp * (pref - p) if all_pos else np.where(pos, vff + kp * (pref - p), vcmd)
             if limit_speed:
                 vref = np.minimum(np.maximum(vref, -vmax), vmax)
@@ -273,6 +279,27 @@ class AxisModel(CoeModel):
             p = p + (v + vn) * (0.5 * h)
             v = vn
         self.p[r], self.v[r], self.integ[r], self.torque[r] = p, v, integ, tq
+
+    def _bandwidth_max(self, r: Rows, k: F64, j: F64, kv: F64) -> float:
+        """Highest velocity-loop bandwidth (rad/s) of rows ``r`` (cached with the constants
+        when they are for every instance)."""
+        key = ("wv", r.start, r.stop) if isinstance(r, slice) else None
+        if key is not None and self._consts is not None and key in self._derived:
+            return float(self._derived[key])
+        out = float((kv / np.maximum(j / k, 1e-300)).max(initial=0.0))
+        if key is not None and self._consts is not None:
+            self._derived[key] = out
+        return out
+
+    def _limit_speed(self, vmax: F64) -> bool:
+        """Some axis has a speed limit (cached with the constants)."""
+        cached = self._derived.get("vmax") if self._consts is not None else None
+        if cached is not None:
+            return bool(cached)
+        out = bool(np.isfinite(vmax).any())
+        if self._consts is not None and len(vmax) == self.count:
+            self._derived["vmax"] = out
+        return out
 
     def encoder(self, r: Rows) -> F64:
         """The encoder's count (raw increments, whole numbers)."""

@@ -283,7 +283,7 @@ class DriveEngine(AxisModel):
             new, start_stop = state, None  # the usual cycle: enabled, stays enabled
         else:
             new, start_stop = self._transitions(r, state, cmd, cw, prev, stopping, faulted)
-        reset = (state == S.FAULT) & (new == S.SWITCH_ON_DISABLED)
+        reset = None if new is state else (state == S.FAULT) & (new == S.SWITCH_ON_DISABLED)
         # --- modes and the next set-point -------------------------------------------------
         shown = f(*_K_MODE_DISPLAY)[r]
         rest_in = rest_in and faulted is None and not _POWERED[new].any() and bool(
@@ -298,7 +298,7 @@ class DriveEngine(AxisModel):
         self.fe_val[r] = fe
         self.inputs(r, self.tx_keys())
         self._statusword(r, new, mode, cw, fe, v_act, dt)
-        clear = inst[reset]
+        clear = _NONE if reset is None else inst[reset]
         if len(clear):
             f(*_K_ERROR)[clear] = 0
         elif rest_in and not self.v[r].any():
@@ -742,6 +742,18 @@ class DriveEngine(AxisModel):
             sw |= limited * 0x0800
         op = state == S.OPERATION_ENABLED
         if not op.any():
+            f(*_K_STATUSWORD)[r] = sw
+            return
+        if op.all() and (mode == OM.CYCLIC_SYNC_POSITION).all():
+            # the usual cycle of a CSP group, the general case below without the other modes
+            in_win = (self.g_v[r] == 0) & (np.abs((self.plan_to[r] - self.origin[r])
+                                                  - (self.enc_prev[r] - self.origin[r]))
+                                           <= col(*_K_POS_WINDOW, r))
+            win_t = (self.win_t[r] + dt) * in_win
+            self.win_t[r] = win_t
+            reached = in_win & (win_t * 1000.0 >= col(*_K_POS_WINDOW_TIME, r) - _THRESH_EPS)
+            sw |= (reached * 0x0400 | (self.stop_opt[r] < 0) * 0x1000
+                   | (np.abs(fe) > col(*_K_FE_WINDOW, r)) * 0x2000)
             f(*_K_STATUSWORD)[r] = sw
             return
         halted = op & ((cw & 0x100) != 0)
