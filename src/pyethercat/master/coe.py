@@ -54,6 +54,8 @@ from pyethercat.wire.mailbox.coe import (
     SdoAbortCode,
     SdoAbortTransfer,
     SdoDownloadClient,
+    SdoDownloadSegmentRequest,
+    SdoDownloadSegmentResponse,
     SdoInfoError,
     SdoInfoGetEntryDescriptionRequest,
     SdoInfoGetEntryDescriptionResponse,
@@ -64,8 +66,14 @@ from pyethercat.wire.mailbox.coe import (
     SdoInfoMessage,
     SdoInfoOpCode,
     SdoInfoReassembler,
+    SdoInitiateDownloadRequest,
+    SdoInitiateDownloadResponse,
+    SdoInitiateUploadRequest,
+    SdoInitiateUploadResponse,
     SdoTransferDone,
     SdoUploadClient,
+    SdoUploadSegmentRequest,
+    SdoUploadSegmentResponse,
     ValueInfo,
     decode_coe,
 )
@@ -187,6 +195,53 @@ def _coe_service(msg: ReceivedMessage) -> int | None:
 def _is_sdo(msg: ReceivedMessage) -> bool:
     # An abort may travel in service 2 (what SOES sends) or 3.
     return _coe_service(msg) in (CoeService.SDO_REQUEST, CoeService.SDO_RESPONSE)
+
+
+def _sdo_answer(request: CoeMessage, index: int, subindex: int,
+                complete_access: bool) -> Callable[[ReceivedMessage], bool]:
+    """Whether an SDO message answers ``request`` (a step of the transfer of index:subindex).
+
+    The right response command for the request, with its index and subindex
+    (initiate) or its toggle (segments), or an abort of this object. Anything
+    else is a late answer to an earlier request (a slow slave, the reply to
+    a request another master or an earlier transfer left behind), which the
+    mailbox drops: SOEM ``ecx_SDOread`` counts such replies as packet errors.
+    """
+    want: type[CoeMessage]
+    if isinstance(request, SdoInitiateUploadRequest):
+        want = SdoInitiateUploadResponse
+    elif isinstance(request, SdoInitiateDownloadRequest):
+        want = SdoInitiateDownloadResponse
+    elif isinstance(request, SdoUploadSegmentRequest):
+        want = SdoUploadSegmentResponse
+    elif isinstance(request, SdoDownloadSegmentRequest):
+        want = SdoDownloadSegmentResponse
+    else:
+        return _is_sdo
+    toggle = getattr(request, "toggle", None)
+
+    def same_object(msg: SdoAbortTransfer | SdoInitiateUploadResponse
+                    | SdoInitiateDownloadResponse) -> bool:
+        return msg.index == index and (msg.subindex == subindex or complete_access)
+
+    def accept(msg: ReceivedMessage) -> bool:
+        if not _is_sdo(msg):
+            return False
+        try:
+            coe = decode_coe(msg.payload)
+        except MailboxError:
+            return True  # malformed: the transfer reports it
+        if isinstance(coe, SdoAbortTransfer):
+            # some slaves leave the address out of an abort during segments
+            return same_object(coe) or (toggle is not None and coe.index == 0)
+        if not isinstance(coe, want):
+            return False
+        if toggle is not None:
+            return bool(getattr(coe, "toggle", None) == toggle)
+        assert isinstance(coe, (SdoInitiateUploadResponse, SdoInitiateDownloadResponse))
+        return same_object(coe)
+
+    return accept
 
 
 def _is_info(msg: ReceivedMessage) -> bool:
@@ -331,12 +386,14 @@ class CoeClient:
         limit = mbx.clock() + span
         msg: CoeMessage = first
         clock = mbx.clock
+        complete_access = bool(getattr(first, "complete_access", False))
         with mbx.lock:
             mbx.drop(_is_sdo)  # answers to transfers that timed out earlier
             while True:
                 try:
-                    reply = mbx.transact(MailboxType.COE, msg.encode(), _is_sdo, what=what,
-                                         timeout=max(0.0, limit - clock()))
+                    answers = _sdo_answer(msg, index, subindex, complete_access)
+                    reply = mbx.transact(MailboxType.COE, msg.encode(), answers, what=what,
+                                         timeout=max(0.0, limit - clock()), stale=_is_sdo)
                 except EcTimeoutError:
                     self._abort(index, subindex, SdoAbortCode.TIMEOUT)
                     raise
@@ -380,7 +437,7 @@ class CoeClient:
             mbx.drop(_is_info)
             # The first fragment answers the request (sent again if unanswered).
             reply = mbx.transact(MailboxType.COE, request.encode(), _is_info, what=what,
-                                 timeout=span)
+                                 timeout=span, stale=_is_sdo)
             reasm = SdoInfoReassembler()
             while True:
                 try:

@@ -35,11 +35,18 @@ mailbox mode as the ET1100 datasheet section II "SyncManager" describes):
   it took (ETG.1000.4, mailbox header "Cnt"), and a slave that another
   master (SOEM, IgH, an earlier session) left in PREOP may remember any
   counter 1..7, so our first request (counter 1) may be dropped without a
-  word. :meth:`Mailbox.transact` therefore sends a request that got no
-  answer within half its timeout once more, with the next counter, which
-  the slave cannot have taken last. Before the first request, whatever an
-  earlier master left in SM1 (a reply it never read) is read and dropped
-  (:meth:`Mailbox.drain`), so it cannot pass for the answer.
+  word. Until the first answer came since the master took the mailbox over
+  (a new master, a reset at INIT, a drain, a repeat request),
+  :meth:`Mailbox.transact` therefore sends a request that got no answer
+  within half its timeout once more, with the next counter, which the slave
+  cannot have taken last. Once an answer came the counters are in sync and
+  a request is never sent twice: a slow slave (writing flash for 0x1010)
+  would execute it twice and answer twice. Before the first request,
+  whatever an earlier master left in SM1 (a reply it never read) is read and
+  dropped (:meth:`Mailbox.drain`), so it cannot pass for the answer; a late
+  answer that arrives during a later transaction is recognised by the
+  client's ``stale`` test (CoE: service, command, index, subindex, toggle)
+  and dropped too.
 - **Check**: length word against the SM size, duplicate counters (a message
   with the same non-zero counter as the previous one is a repetition and is
   dropped), mailbox error replies (type 0) raise
@@ -191,6 +198,8 @@ class MailboxStats:
     repeat_requests: int = 0
     #: Requests sent again with the next counter after getting no answer.
     resent: int = 0
+    #: Replies dropped because they answered an earlier request (late or stale).
+    stale: int = 0
     #: Messages dropped because they repeated the previous counter.
     duplicates: int = 0
     error_replies: int = 0
@@ -300,6 +309,9 @@ class Mailbox:
         self._lost = False
         # Whether SM1 was emptied of what an earlier session left there.
         self._drained = False
+        # Whether an answer came since the master took the mailbox over: the
+        # slave's counter is then ours, and a request is never sent twice.
+        self.synced = False
         #: SM1's status byte from the cyclic process image (None: poll with frames).
         self.status_source: StatusSource | None = None
         self.stats = MailboxStats()
@@ -353,6 +365,7 @@ class Mailbox:
             self._inbox.clear()
             self._lost = False
             self._drained = False
+            self.synced = False
 
     def drain(self, limit: int = 4) -> int:
         """Read and discard what SM1 holds from before (another master, an earlier session).
@@ -369,6 +382,7 @@ class Mailbox:
             self._inbox.clear()
             self._lost = False
             self._drained = True
+            self.synced = False
         if dropped:
             _log.info("%s: %d stale mailbox message%s dropped", self.label, dropped,
                       "s" if dropped != 1 else "")
@@ -434,18 +448,21 @@ class Mailbox:
     # -- receiving ------------------------------------------------------------------------
 
     def receive(self, accept: Accept | None = None, *, what: str = "mailbox reply",
-                timeout: float | None = None) -> ReceivedMessage:
+                timeout: float | None = None, stale: Accept | None = None,
+                ) -> ReceivedMessage:
         """Wait for a message ``accept`` takes (any message when None).
 
-        Messages nobody wants stay in the inbox for other clients; a mailbox
-        error reply raises :class:`~pyethercat.errors.MailboxErrorReply`;
-        no message in time raises :class:`~pyethercat.errors.TimeoutError`.
+        Messages ``stale`` takes and ``accept`` does not (late answers to an
+        earlier request) are dropped; other messages nobody wants stay in the
+        inbox for other clients. A mailbox error reply raises
+        :class:`~pyethercat.errors.MailboxErrorReply`; no message in time
+        raises :class:`~pyethercat.errors.TimeoutError`.
         """
         span = self.timeout if timeout is None else timeout
         limit = self.clock() + span
         waited = 0.0
         while True:
-            got = self._from_inbox(accept, what)
+            got = self._from_inbox(accept, what, stale)
             if got is not None:
                 return got
             if self._lost:
@@ -467,12 +484,17 @@ class Mailbox:
 
     def transact(self, mtype: MailboxType | int, payload: bytes, accept: Accept | None = None,
                  *, what: str = "mailbox request", timeout: float | None = None,
-                 ) -> ReceivedMessage:
+                 stale: Accept | None = None) -> ReceivedMessage:
         """Send a request and wait for the message ``accept`` takes as its answer.
 
-        Unanswered within half of ``timeout``, the request is sent once more
-        with the next counter (see the module text: the slave may have
-        dropped it as a repetition of another master's last counter).
+        While the mailbox is not yet in sync (:attr:`synced`), a request
+        unanswered within half of ``timeout`` is sent once more with the
+        next counter (see the module text: the slave may have dropped it as
+        a repetition of another master's last counter). Once in sync it is
+        sent once and no answer in time raises
+        :class:`~pyethercat.errors.TimeoutError`: the slave took the request
+        (SM0 write accepted) and may still be executing it. ``stale`` names
+        the late answers to earlier requests, dropped while waiting.
         """
         span = self.timeout if timeout is None else timeout
         clock = self.clock
@@ -480,9 +502,15 @@ class Mailbox:
         answer = f"reply to {what}"
         with self.lock:
             self.send(mtype, payload, what=what, timeout=span)
+            if self.synced:
+                try:
+                    return self._answer(accept, answer, limit - clock(), stale)
+                except EcTimeoutError:
+                    raise EcTimeoutError(f"{self.label}: no {answer} within {span:.3g} s "
+                                         "(the slave took the request; not sent again)"
+                                         ) from None
             try:
-                return self.receive(accept, what=answer,
-                                    timeout=max(0.0, limit - span / 2 - clock()))
+                return self._answer(accept, answer, limit - span / 2 - clock(), stale)
             except EcTimeoutError:
                 pass
             self.stats.resent += 1
@@ -490,10 +518,21 @@ class Mailbox:
                       what)
             self.send(mtype, payload, what=what, timeout=max(0.0, limit - clock()))
             try:
-                return self.receive(accept, what=answer, timeout=max(0.0, limit - clock()))
+                return self._answer(accept, answer, limit - clock(), stale)
             except EcTimeoutError:
                 raise EcTimeoutError(f"{self.label}: no {answer} within {span:.3g} s (sent "
                                      "twice, with two counters)") from None
+
+    def _answer(self, accept: Accept | None, what: str, budget: float,
+                stale: Accept | None) -> ReceivedMessage:
+        """The answer to the request just sent; the mailbox is in sync once one came."""
+        try:
+            got = self.receive(accept, what=what, timeout=max(0.0, budget), stale=stale)
+        except MailboxErrorReply:
+            self.synced = True  # an error reply answers the request too
+            raise
+        self.synced = True
+        return got
 
     def fetch(self) -> bool:
         """Read SM1 once; True when a message came (it is dispatched or queued)."""
@@ -541,6 +580,7 @@ class Mailbox:
         if limit is None:
             limit = self.clock() + self.timeout
         self.stats.repeat_requests += 1
+        self.synced = False  # what comes next may be the answer to an older request
         act = self._read_register(self.activate_address, 1, "SM activate")[0]
         new = act ^ reg.SM_ACTIVATE_REPEAT
         reply = self.scheduler.transact_one(
@@ -697,7 +737,8 @@ class Mailbox:
                     return
             self._inbox.append(msg)
 
-    def _from_inbox(self, accept: Accept | None, what: str) -> ReceivedMessage | None:
+    def _from_inbox(self, accept: Accept | None, what: str,
+                    stale: Accept | None = None) -> ReceivedMessage | None:
         if not self._inbox:
             return None
         with self._io:
@@ -710,6 +751,13 @@ class Mailbox:
                 if accept is None or accept(item):
                     self._inbox.remove(item)
                     return item
+                if stale is not None and stale(item):
+                    # A late answer to an earlier request (a slow slave, another
+                    # master's request): not ours, and no error either.
+                    self._inbox.remove(item)
+                    self.stats.stale += 1
+                    _log.debug("%s: stale mailbox message (counter %d) dropped while "
+                               "waiting for the %s", self.label, item.header.counter, what)
         return None
 
     def __repr__(self) -> str:
