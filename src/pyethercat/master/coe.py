@@ -218,7 +218,7 @@ def _sdo_answer(request: CoeMessage, index: int, subindex: int,
         want = SdoDownloadSegmentResponse
     else:
         return _is_sdo
-    toggle = getattr(request, "toggle", None)
+    segment = isinstance(request, (SdoUploadSegmentRequest, SdoDownloadSegmentRequest))
 
     def same_object(msg: SdoAbortTransfer | SdoInitiateUploadResponse
                     | SdoInitiateDownloadResponse) -> bool:
@@ -233,13 +233,13 @@ def _sdo_answer(request: CoeMessage, index: int, subindex: int,
             return True  # malformed: the transfer reports it
         if isinstance(coe, SdoAbortTransfer):
             # some slaves leave the address out of an abort during segments
-            return same_object(coe) or (toggle is not None and coe.index == 0)
+            return same_object(coe) or (segment and coe.index == 0)
         if not isinstance(coe, want):
             return False
-        if toggle is not None:
-            return bool(getattr(coe, "toggle", None) == toggle)
-        assert isinstance(coe, (SdoInitiateUploadResponse, SdoInitiateDownloadResponse))
-        return same_object(coe)
+        # A segment's toggle is the transfer's to check (a wrong one aborts
+        # it): segments follow an answered initiate, so no double answer of
+        # ours can be under way then.
+        return segment or same_object(coe)  # type: ignore[arg-type]
 
     return accept
 
