@@ -152,6 +152,8 @@ ALLOWED = {
     "link": {"errors", "wire"},
     "master": {"errors", "wire", "esi", "link", "clock", "topology", "trajectory", "realtime"},
     "sim": {"errors", "wire", "esi", "link", "clock", "topology", "realtime"},
+    # The dashboard: a client of the master (never of the simulator or the command line).
+    "web": {"errors", "wire", "esi", "link", "clock", "master"},
 }
 
 

@@ -218,7 +218,7 @@ def cli(ctx: click.Context, iface: str | None, udp: str | None, sim: str | None,
 
 _MODULES = ("decode", "sim", "slave_cmds", "reg_cmds", "sii_cmds", "info_cmds", "run_cmds",
             "coe_cmds", "esi_cmds", "dc_cmds", "eoe_cmds", "ring_cmds", "demo", "foe_cmds",
-            "soe_cmds", "gateway_cmds", "drive_cmds")
+            "soe_cmds", "gateway_cmds", "drive_cmds", "web_cmds")
 
 
 def _register() -> None:

@@ -282,6 +282,15 @@ def register(cli: click.Group) -> None:
     @click.option("--give-up", "give_up", default=60.0, show_default=True, type=float,
                   metavar="S", help="End with an error once no frame came back for S seconds "
                                     "(0: keep waiting).")
+    @click.option("--web", "web", is_flag=True,
+                  help="Serve the diagnostics dashboard (see 'pyethercat web') beside the loop.")
+    @click.option("--web-bind", default="127.0.0.1:8080", show_default=True, metavar="HOST:PORT",
+                  help="With --web: address to listen on.")
+    @click.option("--web-token", default=None, metavar="TOKEN",
+                  help="With --web: token for every request ('generate' makes one); needed "
+                       "for a non-loopback --web-bind.")
+    @click.option("--web-allow-writes", is_flag=True,
+                  help="With --web: the token's holder may write outputs and SDOs.")
     @click.pass_obj
     def run_cmd(obj: dict[str, Any], cycle_us: str | None, seconds: float | None,
                 pcap: str | None, layout: str, eni_file: str | None, dc: bool,
@@ -289,8 +298,19 @@ def register(cli: click.Group) -> None:
                 dc_mode: str, plot: str | None, eoe: bool, eoe_tap: str,
                 eoe_host_ip: str | None, eoe_per_slave: bool,
                 hot_connect: tuple[str, ...], final_state: str, give_up: float,
-                isolated: bool, priority: int | None, cpu: int | None) -> None:
+                isolated: bool, priority: int | None, cpu: int | None,
+                web: bool, web_bind: str, web_token: str | None,
+                web_allow_writes: bool) -> None:
         """Bring the segment to OP and run cyclic exchange with a live view."""
+        web_access = None
+        if web:
+            from pyethercat.cli.web_cmds import resolve_access
+
+            if obj.get("direct"):
+                raise ConfigError("run --web reaches the master through its control socket: "
+                                  "not with --direct")
+            # A refused address (non-loopback without a token) stops here, before the segment.
+            web_access = resolve_access(web_bind, web_token, web_allow_writes)
         dc = dc or any(x is not None for x in (sync0_us, sync1_us, shift_us))
         eni = None
         if eni_file is not None:
@@ -357,6 +377,18 @@ def register(cli: click.Group) -> None:
                 def extra() -> list[str]:
                     return format_eoe(eoe_rows(run.clients, run.bridge.names, True,
                                                time.monotonic() - run.started))
+            web_child = None
+            if web_access is not None:
+                from pyethercat.cli.web_cmds import start_child
+
+                try:
+                    web_child = start_child(obj, web_access)
+                except BaseException:
+                    if eoe_run is not None:
+                        eoe_run.close()
+                    runner.stop()
+                    raise
+                click.echo(f"dashboard: {web_child.url}")
             console.print(f"{len(m.slaves)} slaves in OP, cycling every {cycle * 1e6:g} us "
                           f"(Ctrl-C ends the run; slaves then go to {final_state.upper()})")
             try:
@@ -367,6 +399,8 @@ def register(cli: click.Group) -> None:
                 # Judged while the slaves are still cycling (the stop takes them down).
                 failure = segment_lost_error(runner, m, 0.0 if why == "gave up" else SETTLE)
             finally:
+                if web_child is not None:
+                    web_child.close()
                 if eoe_run is not None:
                     eoe_run.close()
                 runner.stop()

@@ -132,6 +132,15 @@ class CycleStats:
     def round_trips(self) -> npt.NDArray[np.int64]:
         return self._rtt[:min(self._n_rtt, self.capacity)].copy()
 
+    def recent(self, n: int) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+        """The last ``n`` (at most) period and round-trip samples in ns, oldest first.
+
+        Costs O(n), whatever the capacity: readers outside the loop (telemetry)
+        take a window of the last second instead of copying the whole ring.
+        """
+        return (_tail(self._periods, self._n_period, n, self.capacity),
+                _tail(self._rtt, self._n_rtt, n, self.capacity))
+
     @staticmethod
     def _pct(samples: npt.NDArray[np.int64], qs: Sequence[float]) -> dict[str, float]:
         if samples.size == 0:
@@ -175,3 +184,15 @@ class CycleStats:
             "histogram": dict(zip([f"<{b}us" for b in JITTER_BINS_US] + [f">={JITTER_BINS_US[-1]}us"],
                                   self.histogram, strict=True)),
         }
+
+
+def _tail(ring: npt.NDArray[np.int64], count: int, n: int, capacity: int
+          ) -> npt.NDArray[np.int64]:
+    """The last ``n`` of ``count`` samples written round ``ring``, oldest first."""
+    n = min(n, count, capacity)
+    if n <= 0:
+        return ring[:0].copy()
+    end = count % capacity
+    if end >= n:
+        return ring[end - n:end].copy()
+    return np.concatenate((ring[capacity - (n - end):], ring[:end]))

@@ -34,6 +34,7 @@ from pyethercat.master.scan import Progress
 from pyethercat.master.sii_write import SiiWriteReport
 from pyethercat.master.slave import Slave
 from pyethercat.master.soe import SoeClient
+from pyethercat.master.telemetry import telemetry_of
 from pyethercat.wire.al import AlState
 from pyethercat.wire.datagram import MAX_PAYLOAD, OVERHEAD, Command, Datagram
 from pyethercat.wire.mailbox.datatypes import DataType
@@ -508,6 +509,7 @@ def _foe_read(ctx: MasterContext, req: msg.FoeRead) -> msg.Data:
     data = foe_client(ctx.master.scheduler, s).read(
         req.name, password=req.password, max_size=req.max_size,
         progress=ctx.transfer_progress)
+    telemetry_of(ctx.master).record_foe(req.position, req.name, len(data), "read")
     return msg.Data(data)
 
 
@@ -520,6 +522,7 @@ def _foe_write(ctx: MasterContext, req: msg.FoeWrite) -> msg.Done:
     s = _mailbox_slave(ctx, req.position, "FoE")
     foe_client(ctx.master.scheduler, s).write(req.name, req.data, password=req.password,
                                               progress=ctx.transfer_progress)
+    telemetry_of(ctx.master).record_foe(req.position, req.name, len(req.data), "write")
     return msg.Done()
 
 

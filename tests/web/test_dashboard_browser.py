@@ -1,0 +1,370 @@
+"""The dashboard end to end: the demo segment, ``run --web``, headless Chromium on every page.
+
+The simulator serves ``examples/demo.toml`` over UDP with its control channel;
+``pyethercat run --web`` runs the master (1 ms cycles) and starts the
+dashboard beside it; Debian's chromium, driven by its chromedriver through
+Selenium, opens the address ``run`` printed (token and all) and walks every
+page. Screenshots go to the test's directory (and to ``$PYECAT_WEB_SCREENSHOTS``
+when set: that is how docs/img/web-*.png are made).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import select
+import shutil
+import socket
+import subprocess
+import sys
+import time
+import urllib.error
+import urllib.request
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("starlette")
+pytest.importorskip("uvicorn")
+
+REPO = Path(__file__).resolve().parents[2]
+DEMO = REPO / "examples" / "demo.toml"
+IN_CI = os.environ.get("CI", "").lower() in ("1", "true", "yes")
+
+
+def _tool(name: str) -> str:
+    path = shutil.which(name)
+    if path is None:
+        if IN_CI:
+            pytest.fail(f"required under CI=true: {name} (make tools installs it)")
+        pytest.skip(f"{name} is not installed (make tools installs it as root)")
+    return path
+
+
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def control(path: Path, request: dict[str, object]) -> dict[str, object]:
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
+        s.settimeout(10)
+        s.connect(str(path))
+        s.sendall(json.dumps(request).encode() + b"\n")
+        buf = b""
+        while not buf.endswith(b"\n"):
+            chunk = s.recv(65536)
+            if not chunk:
+                break
+            buf += chunk
+    answer: dict[str, object] = json.loads(buf)
+    assert answer.get("ok", True) is not False, answer
+    return answer
+
+
+def read_line(proc: subprocess.Popen[bytes], prefix: str, timeout: float) -> str:
+    """The first stdout line of ``proc`` starting with ``prefix`` (waits at most ``timeout``)."""
+    assert proc.stdout is not None
+    limit = time.monotonic() + timeout
+    while time.monotonic() < limit:
+        if proc.poll() is not None:
+            break
+        ready, _, _ = select.select([proc.stdout], [], [], 0.2)
+        if ready:
+            line = proc.stdout.readline().decode(errors="replace")
+            if line.startswith(prefix):
+                return line[len(prefix):].strip()
+    raise AssertionError(f"no '{prefix}' line from {proc.args}")
+
+
+@dataclass
+class Running:
+    url: str
+    token: str
+    base: str
+    control: Path
+    port: int
+    env: dict[str, str]
+    run: subprocess.Popen[bytes]
+
+
+def _stop(proc: subprocess.Popen[bytes] | None) -> None:
+    if proc is not None and proc.poll() is None:
+        proc.terminate()
+        try:
+            proc.wait(15)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+@pytest.fixture(scope="module")
+def running(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Running]:
+    tmp = tmp_path_factory.mktemp("web")
+    runtime = tmp / "runtime"
+    runtime.mkdir(mode=0o700)
+    env = dict(os.environ, PYETHERCAT_RUNTIME_DIR=str(runtime))
+    port = _free_udp_port()
+    ctl = tmp / "sim.sock"
+    sim = subprocess.Popen([sys.executable, "-m", "pyethercat", "sim", str(DEMO), "--udp",
+                            f"127.0.0.1:{port}", "--control", str(ctl), "-q"], env=env)
+    run = None
+    try:
+        limit = time.monotonic() + 30
+        while not ctl.exists() and time.monotonic() < limit:
+            time.sleep(0.05)
+        control(ctl, {"cmd": "ping"})
+        run = subprocess.Popen([sys.executable, "-m", "pyethercat", "--udp", f"127.0.0.1:{port}",
+                                "run", "--web", "--web-bind", "127.0.0.1:0", "--web-token",
+                                "generate", "--web-allow-writes"],
+                               stdout=subprocess.PIPE, env=env)
+        url = read_line(run, "dashboard: ", 90)
+        base, _, token = url.partition("?token=")
+        assert token and base.startswith("http://127.0.0.1:")
+        yield Running(url, token, base.rstrip("/"), ctl, port, env, run)
+    finally:
+        _stop(run)
+        _stop(sim)
+
+
+@pytest.fixture(scope="module")
+def browser(running: Running, tmp_path_factory: pytest.TempPathFactory) -> Iterator[object]:
+    chromium = _tool("chromium")
+    driver_path = _tool("chromedriver")
+    webdriver = pytest.importorskip("selenium.webdriver")
+    from selenium.webdriver.chrome.service import Service
+
+    opts = webdriver.ChromeOptions()
+    opts.binary_location = chromium
+    profile = tmp_path_factory.mktemp("chromium-profile")
+    for arg in ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
+                "--no-first-run", "--disable-background-networking",
+                "--disable-component-update", "--disable-sync", "--window-size=1440,1000",
+                f"--user-data-dir={profile}"):
+        opts.add_argument(arg)
+    opts.set_capability("goog:loggingPrefs", {"browser": "ALL"})
+    driver = webdriver.Chrome(service=Service(driver_path), options=opts)
+    driver.set_page_load_timeout(60)
+    try:
+        yield driver
+    finally:
+        with contextlib.suppress(Exception):
+            driver.quit()
+
+
+def _shot(driver: object, name: str, out: Path) -> None:
+    path = out / f"web-{name}.png"
+    driver.save_screenshot(str(path))  # type: ignore[attr-defined]
+    assert path.stat().st_size > 20_000
+    extra = os.environ.get("PYECAT_WEB_SCREENSHOTS")
+    if extra:
+        shutil.copy(path, Path(extra) / path.name)
+
+
+def _wait(driver: object, what, timeout: float = 30.0):  # noqa: ANN001
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    return WebDriverWait(driver, timeout, poll_frequency=0.05).until(what)
+
+
+def _q(driver: object, css: str, what: str = "text") -> str | None:
+    """Text (or an attribute) of the first element matching ``css``, read in one script.
+
+    The pages redraw on every live message, so element handles go stale; a
+    script reads the current DOM at once.
+    """
+    return driver.execute_script(  # type: ignore[attr-defined,no-any-return]
+        "const e = document.querySelector(arguments[0]);"
+        "if (!e) return null;"
+        "return arguments[1] === 'text' ? e.textContent : e.getAttribute(arguments[1]);",
+        css, what)
+
+
+def _page(driver: object, name: str) -> None:
+    from selenium.webdriver.common.by import By
+
+    driver.find_element(By.CSS_SELECTOR, f'nav a[data-page="{name}"]').click()  # type: ignore[attr-defined]
+    _wait(driver, lambda d: not d.find_element(By.ID, f"page-{name}").get_attribute("class")
+          .count("hidden"))
+
+
+def _request(url: str, *, body: dict[str, object] | None = None,
+             headers: dict[str, str] | None = None) -> tuple[int, str]:
+    data = None if body is None else json.dumps(body).encode()
+    req = urllib.request.Request(url, data=data, headers={
+        **({"Content-Type": "application/json"} if body is not None else {}), **(headers or {})})
+    try:
+        with urllib.request.urlopen(req, timeout=30) as resp:
+            return resp.status, resp.read().decode()
+    except urllib.error.HTTPError as exc:
+        return exc.code, exc.read().decode()
+
+
+def _sii_names() -> list[str]:
+    """The slaves' SII names in ring order (as the simulator's device kinds define them)."""
+    from pyethercat.sim.topology import load_topology
+
+    topo = load_topology(DEMO)
+    by_name = {s.name: s for s in topo.slaves}
+    order = ["coupler", "branch-do8", "di8", "do8", "di2", "ai2"]  # ports 0 -> 3 -> 1
+    return [by_name[n].info.device_name or "" for n in order]
+
+
+def test_every_page_in_headless_chromium(running: Running, browser: object,
+                                         tmp_path: Path) -> None:
+    from selenium.webdriver.common.by import By
+
+    d = browser
+    d.get(running.url)  # type: ignore[attr-defined]
+    # The token in the address became an HttpOnly cookie; the address no longer shows it.
+    _wait(d, lambda d: _q(d, "#node-5", "data-state") is not None)
+    assert "token" not in d.current_url  # type: ignore[attr-defined]
+    assert all(c["httpOnly"] for c in d.get_cookies())  # type: ignore[attr-defined]
+    names = _sii_names()
+
+    # Topology: every slave by name, every state badge OP once the master got there.
+    _wait(d, lambda d: all(_q(d, f"#node-{i}", "data-state") == "OP" for i in range(6)))
+    text = _q(d, "#topo") or ""
+    for name in names:
+        assert name[:40] in text
+    _shot(d, "topology", tmp_path)
+
+    # Slaves: name and state per row, the counters of every port read.
+    _page(d, "slaves")
+    for i, name in enumerate(names):
+        assert name in (_q(d, f"#slave-row-{i}") or "")
+        assert _q(d, f"#slave-row-{i} .badge", "data-state") == "OP"
+    _wait(d, lambda d: _q(d, 'td.portcell[data-link="up"]') is not None)
+    _shot(d, "slaves", tmp_path)
+
+    # Process data: a live value changes between two reads (the simulator's inputs move).
+    _page(d, "pdo")
+    cell = '.pdo-card td.value[data-pos="4"][data-name="Channel 1.Input"]'
+    control(running.control, {"cmd": "set_inputs", "slave": "di2", "data": "00"})
+    _wait(d, lambda d: _q(d, cell) == "0")
+    first = _q(d, cell)
+    control(running.control, {"cmd": "set_inputs", "slave": "di2", "data": "01"})
+    _wait(d, lambda d: _q(d, cell) == "1")
+    second = _q(d, cell)
+    assert (first, second) == ("0", "1")
+    ai = _q(d, '.pdo-card td.value[data-pos="5"]')
+    assert ai == str(0x1234)  # "3412" little endian in the topology
+
+    # Writing an output: off by default, on after a confirmation, each write confirmed.
+    set_buttons = d.find_elements(By.CSS_SELECTOR, "#pdo-3 button")  # type: ignore[attr-defined]
+    assert set_buttons and all(not b.is_enabled() for b in set_buttons)
+    d.find_element(By.ID, "pdo-writes").click()  # type: ignore[attr-defined]
+    d.find_element(By.ID, "modal-ok").click()  # type: ignore[attr-defined]
+    row = d.find_elements(By.CSS_SELECTOR, "#pdo-3 tbody tr")[2]  # type: ignore[attr-defined]
+    row.find_element(By.CSS_SELECTOR, "input").send_keys("1")
+    row.find_element(By.CSS_SELECTOR, "button").click()
+    d.find_element(By.ID, "modal-ok").click()  # type: ignore[attr-defined]
+    # do8 (ring position 3) "Channel 3.Output" drives di8 input 3 through the wiring.
+    wired = '.pdo-card td.value[data-pos="2"][data-name="Channel 3.Input"]'
+    _wait(d, lambda d: _q(d, wired) == "1")
+    assert bytes.fromhex(str(control(running.control, {"cmd": "outputs", "slave": "do8"})["data"]))[0] & 0x04
+    _shot(d, "pdo", tmp_path)
+
+    # Cycle: the counters move between two reads; the charts are drawn.
+    _page(d, "cycle")
+    kpi = "#cycle-kpis .kpi:nth-child(8) .value"
+    def cycles(d: object) -> int:
+        text = _q(d, kpi) or "0"
+        return int("".join(ch for ch in text if ch.isdigit()) or 0)
+
+    _wait(d, lambda d: cycles(d) > 0)
+    c1 = cycles(d)
+    _wait(d, lambda d: cycles(d) > c1)
+    assert d.find_elements(By.CSS_SELECTOR, "#chart-jitter canvas")  # type: ignore[attr-defined]
+    assert d.find_elements(By.CSS_SELECTOR, "#chart-hist canvas")  # type: ignore[attr-defined]
+    time.sleep(1.0)  # let the charts gather a second of points for the picture
+    _shot(d, "cycle", tmp_path)
+
+    _page(d, "dc")
+    _wait(d, lambda d: "Clocks" in (_q(d, "#page-dc") or ""))
+    assert d.find_elements(By.CSS_SELECTOR, "#dc-table tbody tr")  # type: ignore[attr-defined]
+    _shot(d, "dc", tmp_path)
+
+    _page(d, "drives")
+    _wait(d, lambda d: "CiA 402" in (_q(d, "#drives") or ""))
+    _shot(d, "drives", tmp_path)
+
+    _page(d, "mailbox")
+    _wait(d, lambda d: _q(d, "#emcy-table tbody") is not None)
+    _shot(d, "mailbox", tmp_path)
+
+    # A cable cut behind the di8: the topology marks that link and the slaves behind it.
+    _page(d, "topology")
+    t0 = time.monotonic()
+    control(running.control, {"cmd": "break_link", "slave": "di8", "port": 1})
+    try:
+        _wait(d, lambda d: _q(d, 'path.edge.broken[data-to="3"]', "d") is not None, timeout=20)
+        took = time.monotonic() - t0
+        print(f"topology marked the broken link {took * 1000:.0f} ms after the cut")
+        label = _q(d, "#break-3") or ""
+        assert "PEC-DI8" in label and "port 1" in label
+        for i in (3, 4, 5):
+            assert _q(d, f"#node-{i}", "data-state") == "LOST"
+        assert _q(d, "#node-2", "data-state") == "OP"
+        _shot(d, "topology-broken", tmp_path)
+    finally:
+        control(running.control, {"cmd": "restore_link", "slave": "di8", "port": 1})
+    # The master brings them back; the mark goes away.
+    _wait(d, lambda d: _q(d, "path.edge.broken", "d") is None, timeout=60)
+    severe = [e for e in d.get_log("browser")  # type: ignore[attr-defined]
+              if e["level"] == "SEVERE" and "favicon" not in e["message"]]
+    assert severe == []  # no script error, no content-security-policy violation
+
+
+def test_writes_need_the_token_and_reads_need_it_when_set(running: Running) -> None:
+    live = f"{running.base}/api/live"
+    assert _request(live)[0] == 403  # a token server: every request carries it
+    status, body = _request(live, headers={"Authorization": f"Bearer {running.token}"})
+    assert status == 200 and json.loads(body)["slaves"]
+    write = {"position": 3, "name": "Channel 1.Output", "value": 1}
+    assert _request(f"{running.base}/api/pdo/write", body=write)[0] == 403
+    assert _request(f"{running.base}/api/pdo/write", body=write,
+                    headers={"Authorization": "Bearer wrong"})[0] == 403
+    ok = _request(f"{running.base}/api/pdo/write", body=write,
+                  headers={"Authorization": f"Bearer {running.token}"})
+    assert ok[0] == 200, ok
+
+
+def test_web_reaches_the_running_master_read_only_by_default(running: Running) -> None:
+    """A second dashboard (``pyethercat web``) finds ``run``'s master through its socket."""
+    web = subprocess.Popen([sys.executable, "-m", "pyethercat", "--udp",
+                            f"127.0.0.1:{running.port}", "web", "--bind", "127.0.0.1:0"],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=running.env)
+    try:
+        url = read_line(web, "dashboard: ", 60)
+        assert "token" not in url  # loopback, no token asked for
+        status, body = _request(f"{url}api/live")
+        assert status == 200
+        live = json.loads(body)
+        assert live["cycle"]["running"] and live["cycle"]["cycles"] > 0  # run's loop, not its own
+        write = {"position": 3, "name": "Channel 1.Output", "value": 1}
+        status, body = _request(f"{url}api/pdo/write", body=write)
+        assert status == 403 and "read-only" in body
+        status, _ = _request(f"{url}api/sdo/write", body={"position": 0, "index": "0x1000",
+                                                          "value": "1"})
+        assert status == 403
+    finally:
+        _stop(web)
+    assert web.stderr is not None and b"Traceback" not in web.stderr.read()
+
+
+@pytest.mark.parametrize("argv", [
+    ["web", "--bind", "0.0.0.0:0"],
+    ["run", "--web", "--web-bind", "0.0.0.0:0", "--seconds", "1"],
+])
+def test_a_non_loopback_bind_without_a_token_refuses_to_start(running: Running,
+                                                              argv: list[str]) -> None:
+    done = subprocess.run([sys.executable, "-m", "pyethercat", "--udp", "127.0.0.1:9", *argv],
+                          capture_output=True, text=True, timeout=60, env=running.env)
+    assert done.returncode == 1
+    assert done.stderr.count("\n") == 1 and "Traceback" not in done.stderr
+    assert "without a token" in done.stderr and "--token" in done.stderr
