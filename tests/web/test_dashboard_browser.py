@@ -66,6 +66,19 @@ def control(path: Path, request: dict[str, object]) -> dict[str, object]:
     return answer
 
 
+def wait_control(path: Path, timeout: float = 60.0) -> None:
+    """Until the simulator answers on its control socket (it binds before it listens)."""
+    limit = time.monotonic() + timeout
+    while True:
+        try:
+            control(path, {"cmd": "ping"})
+            return
+        except OSError:
+            if time.monotonic() > limit:
+                raise
+            time.sleep(0.05)
+
+
 def read_line(proc: subprocess.Popen[bytes], prefix: str, timeout: float) -> str:
     """The first stdout line of ``proc`` starting with ``prefix`` (waits at most ``timeout``)."""
     assert proc.stdout is not None
@@ -114,10 +127,7 @@ def running(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Running]:
                             f"127.0.0.1:{port}", "--control", str(ctl), "-q"], env=env)
     run = None
     try:
-        limit = time.monotonic() + 30
-        while not ctl.exists() and time.monotonic() < limit:
-            time.sleep(0.05)
-        control(ctl, {"cmd": "ping"})
+        wait_control(ctl)
         run = subprocess.Popen([sys.executable, "-m", "pyethercat", "--udp", f"127.0.0.1:{port}",
                                 "run", "--web", "--web-bind", "127.0.0.1:0", "--web-token",
                                 "generate", "--web-allow-writes"],
@@ -131,8 +141,7 @@ def running(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Running]:
         _stop(sim)
 
 
-@pytest.fixture(scope="module")
-def browser(running: Running, tmp_path_factory: pytest.TempPathFactory) -> Iterator[object]:
+def _browser(tmp_path_factory: pytest.TempPathFactory) -> Iterator[object]:
     chromium = _tool("chromium")
     driver_path = _tool("chromedriver")
     webdriver = pytest.importorskip("selenium.webdriver")
@@ -154,6 +163,11 @@ def browser(running: Running, tmp_path_factory: pytest.TempPathFactory) -> Itera
     finally:
         with contextlib.suppress(Exception):
             driver.quit()
+
+
+@pytest.fixture(scope="module")
+def browser(running: Running, tmp_path_factory: pytest.TempPathFactory) -> Iterator[object]:
+    yield from _browser(tmp_path_factory)
 
 
 def _shot(driver: object, name: str, out: Path) -> None:
@@ -368,3 +382,102 @@ def test_a_non_loopback_bind_without_a_token_refuses_to_start(running: Running,
     assert done.returncode == 1
     assert done.stderr.count("\n") == 1 and "Traceback" not in done.stderr
     assert "without a token" in done.stderr and "--token" in done.stderr
+
+
+MAILBOX_TOPOLOGY = """
+[[slave]]
+name = "io"
+device = "builtin:coe-io"
+foe = true
+
+[[slave]]
+name = "drive"
+device = "builtin:seed002-drive"
+"""
+
+
+def test_mailbox_and_drives_pages_on_coe_slaves(tmp_path: Path,
+                                                 tmp_path_factory: pytest.TempPathFactory) -> None:
+    """SDO browse, read and write, the FoE file list, an emergency, the drive's card."""
+    from selenium.webdriver.common.by import By
+
+    topo = tmp_path / "mailbox.toml"
+    topo.write_text(MAILBOX_TOPOLOGY)
+    runtime = tmp_path / "runtime"
+    runtime.mkdir(mode=0o700)
+    env = dict(os.environ, PYETHERCAT_RUNTIME_DIR=str(runtime))
+    port = _free_udp_port()
+    ctl = tmp_path / "sim.sock"
+    link = ["--udp", f"127.0.0.1:{port}"]
+    sim = subprocess.Popen([sys.executable, "-m", "pyethercat", "sim", str(topo), *link,
+                            "--control", str(ctl), "-q"], env=env)
+    run = None
+    gen = None
+    try:
+        wait_control(ctl)
+        run = subprocess.Popen([sys.executable, "-m", "pyethercat", *link, "run", "--web",
+                                "--web-bind", "127.0.0.1:0", "--web-allow-writes"],
+                               stdout=subprocess.PIPE, env=env)
+        url = read_line(run, "dashboard: ", 90)
+        assert "?token=" in url  # --allow-writes made one: writes always need it
+        # A file written over FoE through the running master (the command line's way).
+        payload = tmp_path / "notes.txt"
+        payload.write_bytes(b"written by the test\n" * 20)
+        done = subprocess.run([sys.executable, "-m", "pyethercat", *link, "foe_write", "-p", "0",
+                               "-q", str(payload)], capture_output=True, text=True, env=env,
+                              timeout=120)
+        assert done.returncode == 0, done.stderr
+        gen = _browser(tmp_path_factory)
+        d = next(gen)
+        d.get(url)  # type: ignore[attr-defined]
+        _wait(d, lambda d: _q(d, "#node-1", "data-state") == "OP", timeout=60)
+
+        _page(d, "mailbox")
+        _wait(d, lambda d: _q(d, "#mbx-slave option") is not None)
+        d.find_element(By.ID, "sdo-browse").click()  # type: ignore[attr-defined]
+        _wait(d, lambda d: "0x1018" in (_q(d, "#sdo-list") or ""), timeout=60)
+        assert "Settings" in (_q(d, "#sdo-list") or "")
+        # Read 0x1018:01 (vendor id) by clicking its entry in the browsed dictionary.
+        d.execute_script(  # type: ignore[attr-defined]
+            "for (const s of document.querySelectorAll('#sdo-list summary'))"
+            "  if (s.textContent.includes('0x1018')) s.parentElement.open = true;")
+        rows = [r for r in d.find_elements(By.CSS_SELECTOR, "#sdo-list details[open] tr.entry")  # type: ignore[attr-defined]
+                if r.text.startswith(":01")]
+        rows[0].click()
+        _wait(d, lambda d: "0x1018:1 =" in (_q(d, "#sdo-result") or ""), timeout=30)
+        result = _q(d, "#sdo-result") or ""
+        assert "0x00504543" in result.lower() or str(0x00504543) in result
+        # Write 0x8000:01 (filter time) after the confirmation, read it back.
+        for field, value in (("sdo-index", "0x8000"), ("sdo-sub", "1"), ("sdo-value", "250")):
+            box = d.find_element(By.ID, field)  # type: ignore[attr-defined]
+            box.clear()
+            box.send_keys(value)
+        d.find_element(By.ID, "sdo-write").click()  # type: ignore[attr-defined]
+        d.find_element(By.ID, "modal-ok").click()  # type: ignore[attr-defined]
+        _wait(d, lambda d: "written" in (_q(d, "#sdo-result") or ""), timeout=30)
+        d.find_element(By.ID, "sdo-read").click()  # type: ignore[attr-defined]
+        _wait(d, lambda d: "= 250" in (_q(d, "#sdo-result") or "")
+              or " 250 " in (_q(d, "#sdo-result") or ""), timeout=30)
+        # The FoE file list has the file written above; reading it gives its size.
+        _wait(d, lambda d: "notes.txt" in (_q(d, "#foe-files") or ""), timeout=30)
+        d.find_element(By.ID, "foe-name").send_keys("notes.txt")  # type: ignore[attr-defined]
+        d.find_element(By.CSS_SELECTOR, "#foe-form button").click()  # type: ignore[attr-defined]
+        _wait(d, lambda d: f"{len(payload.read_bytes())} bytes" in (_q(d, "#foe-result") or ""),
+              timeout=60)
+        # An emergency the io posts shows in the log with its code.
+        assert control(ctl, {"cmd": "emergency", "slave": "io", "code": 0x8130,
+                             "register": 0x11, "data": "0102030405"})["sent"]
+        _wait(d, lambda d: "0x8130" in (_q(d, "#emcy-table") or ""), timeout=30)
+        _shot(d, "mailbox", tmp_path)
+
+        _page(d, "drives")
+        _wait(d, lambda d: _q(d, "#drive-1") is not None, timeout=30)
+        assert "Statusword" in (_q(d, "#drive-1") or "")
+        time.sleep(1.0)
+        _shot(d, "drives", tmp_path)
+    finally:
+        if gen is not None:
+            with contextlib.suppress(StopIteration):
+                next(gen)
+        _stop(run)
+        _stop(sim)
