@@ -179,7 +179,7 @@ def _shot(driver: object, name: str, out: Path) -> None:
         shutil.copy(path, Path(extra) / path.name)
 
 
-def _wait(driver: object, what, timeout: float = 30.0):  # noqa: ANN001
+def _wait(driver: object, what, timeout: float = 60.0):  # noqa: ANN001
     from selenium.webdriver.support.ui import WebDriverWait
 
     return WebDriverWait(driver, timeout, poll_frequency=0.05).until(what)
@@ -257,16 +257,14 @@ def test_every_page_in_headless_chromium(running: Running, browser: object,
 
     # Process data: a live value changes between two reads (the simulator's inputs move).
     _page(d, "pdo")
-    cell = '.pdo-card td.value[data-pos="4"][data-name="Channel 1.Input"]'
-    control(running.control, {"cmd": "set_inputs", "slave": "di2", "data": "00"})
-    _wait(d, lambda d: _q(d, cell) == "0")
+    # The ai2's inputs are not wired to any output: the simulator's control channel moves them.
+    cell = '.pdo-card td.value[data-pos="5"][data-name="AI Channel 1.Value"]'
+    _wait(d, lambda d: _q(d, cell) == str(0x1234))  # "3412" little endian in the topology
     first = _q(d, cell)
-    control(running.control, {"cmd": "set_inputs", "slave": "di2", "data": "01"})
-    _wait(d, lambda d: _q(d, cell) == "1")
+    control(running.control, {"cmd": "set_inputs", "slave": "ai2", "data": "7856cdab"})
+    _wait(d, lambda d: _q(d, cell) == str(0x5678))
     second = _q(d, cell)
-    assert (first, second) == ("0", "1")
-    ai = _q(d, '.pdo-card td.value[data-pos="5"]')
-    assert ai == str(0x1234)  # "3412" little endian in the topology
+    assert (first, second) == (str(0x1234), str(0x5678))
 
     # Writing an output: off by default, on after a confirmation, each write confirmed.
     set_buttons = d.find_elements(By.CSS_SELECTOR, "#pdo-3 button")  # type: ignore[attr-defined]

@@ -42,7 +42,6 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 
 from pyethercat.errors import EtherCATError
-from pyethercat.link.redundant import RedundantLink
 from pyethercat.master import diag
 from pyethercat.master.cyclic import JITTER_BINS_US, CycleStats
 from pyethercat.wire import registers as reg
@@ -151,6 +150,8 @@ class SlaveTelemetry:
     counters: bytes | None = None
     #: |0x092C| in ns (None: no DC system time, or not read).
     dc_difference_ns: int | None = None
+    #: The master port its answers come back on ("A", "B"; None: no answer).
+    side: str | None = None
 
 
 @dataclass(frozen=True)
@@ -195,6 +196,30 @@ class TelemetryEvent:
 
 
 @dataclass(frozen=True)
+class FaultTelemetry:
+    """A fault the ring service located (``master.locate``): kind, place, the cable's ends."""
+
+    kind: str
+    text: str
+    #: (position, port) of each end of the cable; position -1 is the master.
+    ends: list[list[int]] = field(default_factory=list)
+    slaves: list[int] = field(default_factory=list)
+    detail: str = ""
+
+
+@dataclass(frozen=True)
+class PortTelemetry:
+    """One master port of a ring (cable redundancy)."""
+
+    name: str
+    carrier: bool | None
+    returning: bool
+    sent: int
+    received: int
+    missing: int
+
+
+@dataclass(frozen=True)
 class TelemetrySnapshot:
     """Everything a dashboard shows that changes, taken at ``time`` (seconds, wall clock)."""
 
@@ -210,6 +235,10 @@ class TelemetrySnapshot:
     registers_error: str = ""
     #: The master has two ports (cable redundancy): the segment is a ring.
     redundant: bool = False
+    #: Faults located by the ring service's last diagnosis, and the master ports of a ring.
+    faults: list[FaultTelemetry] = field(default_factory=list)
+    ports: list[PortTelemetry] = field(default_factory=list)
+    ring_state: str = ""
 
 
 @dataclass(frozen=True)
@@ -226,15 +255,28 @@ class FoeFile:
 # --- the reader ---------------------------------------------------------------------------
 
 
+@dataclass
+class _Row:
+    """What one register reading found for one slave."""
+
+    answered: bool
+    dl_status: int | None = None
+    counters: bytes | None = None
+    dc_difference_ns: int | None = None
+    al: tuple[int, bool, int] | None = None
+    side: str | None = None
+
+
+@dataclass
 class _Reading:
     """One register reading of every slave (see :meth:`Telemetry._read_registers`)."""
 
-    def __init__(self, at: float, rows: dict[int, tuple[bool, int | None, bytes | None,
-                                                         int | None, tuple[int, bool, int] | None]],
-                 error: str = "") -> None:
-        self.at = at
-        self.rows = rows
-        self.error = error
+    at: float
+    rows: dict[int, _Row]
+    error: str = ""
+    faults: list[FaultTelemetry] = field(default_factory=list)
+    ports: list[PortTelemetry] = field(default_factory=list)
+    ring_state: str = ""
 
 
 class Telemetry:
@@ -353,7 +395,10 @@ class Telemetry:
                                  self._slaves(runner, reading), self._dc(runner), [],
                                  _wall(reading.at, now) if reading is not None else 0.0,
                                  reading.error if reading is not None else "",
-                                 isinstance(self.master.scheduler.link, RedundantLink))
+                                 self.master.ring.redundant,
+                                 reading.faults if reading is not None else [],
+                                 reading.ports if reading is not None else [],
+                                 reading.ring_state if reading is not None else "")
         self._last = snap
         self.taken += 1
         return snap
@@ -361,46 +406,71 @@ class Telemetry:
     # -- registers --------------------------------------------------------------------------
 
     def _read_registers(self, now: float, runner: RunnerView | None) -> _Reading:
-        """DL status, AL status, error counters and 0x092C of every slave, one batch."""
+        """Ports, AL status and counters of every slave, and 0x092C: one batch.
+
+        DL and AL status come from the ring service (``master.ring``). While
+        the cyclic loop runs, its ring watch reads them whenever a slave
+        reports a change (an event in the datagrams' IRQ field), and reading
+        them here would clear the very events it waits for; so the watch's
+        last diagnosis is taken, and only registers without side effects
+        (error counters, the DC difference) are read. Without a loop, the
+        ring service's diagnosis is run here.
+        """
         m = self.master
+        ring = m.ring
         slaves = list(m.slaves)
+        if not slaves:
+            return _Reading(now, {})
+        watched = runner is not None and runner.running
         dc_set_up = getattr(m.dc, "report", None) is not None
-        dgs: list[Datagram] = []
-        plan: list[tuple[int, int]] = []
-        for s in slaves:
-            st = s.station_address
-            first = len(dgs)
-            dgs.append(Datagram.device(Command.FPRD, st, reg.DL_STATUS, 2))
-            dgs.append(Datagram.device(Command.FPRD, st, reg.AL_STATUS, 6))
-            dgs.append(Datagram.device(Command.FPRD, st, reg.RX_ERROR_COUNTER,
-                                       diag.ERROR_COUNTERS_SIZE))
-            if dc_set_up and s.dc_supported:
-                dgs.append(Datagram.device(Command.FPRD, st, reg.DC_SYSTEM_TIME_DIFFERENCE, 4))
-            plan.append((first, len(dgs) - first))
-        rows: dict[int, tuple[bool, int | None, bytes | None, int | None,
-                              tuple[int, bool, int] | None]] = {}
-        if not dgs:
-            return _Reading(now, rows)
         try:
-            replies = m.transact(dgs)
+            result = ring.last if watched else None
+            if result is None:
+                result = ring.start_diagnosis(flush=True, al=True).result()
+            dgs: list[Datagram] = []
+            plan: list[tuple[int, int]] = []
+            for s in slaves:
+                first = len(dgs)
+                if watched:
+                    dgs.append(Datagram.device(Command.FPRD, s.station_address,
+                                               reg.RX_ERROR_COUNTER, diag.ERROR_COUNTERS_SIZE))
+                if dc_set_up and s.dc_supported:
+                    dgs.append(Datagram.device(Command.FPRD, s.station_address,
+                                               reg.DC_SYSTEM_TIME_DIFFERENCE, 4))
+                plan.append((first, len(dgs) - first))
+            replies = m.transact(dgs) if dgs else []
         except EtherCATError as exc:
             return _Reading(now, {}, f"register reading failed: {exc}")
+        by_pos = {r.position: r for r in result.readings}
+        rows: dict[int, _Row] = {}
         for s, (first, count) in zip(slaves, plan, strict=True):
-            dl, al, cnt = replies[first:first + 3]
-            answered = dl.wkc == 1 or al.wkc == 1
-            al_value: tuple[int, bool, int] | None = None
-            if al.wkc == 1:
-                status, _res, code = struct.unpack("<HHH", bytes(al.data))
-                al_value = (status & reg.AL_STATE_MASK, bool(status & reg.AL_ERROR_FLAG), code)
-            diff: int | None = None
-            if count == 4 and replies[first + 3].wkc == 1:
-                diff = decode_time_difference(struct.unpack("<I", bytes(replies[first + 3].data))[0])
-            rows[s.position] = (answered,
-                                struct.unpack("<H", bytes(dl.data))[0] if dl.wkc == 1 else None,
-                                bytes(cnt.data) if cnt.wkc == 1 else None, diff, al_value)
+            r = by_pos.get(s.position)
+            row = _Row(answered=r is not None and r.side is not None,
+                       side=r.side if r is not None else None)
+            if r is not None:
+                row.dl_status = r.dl_status
+                if r.al_status is not None:
+                    row.al = (r.al_status & reg.AL_STATE_MASK, bool(r.al_status & reg.AL_ERROR_FLAG),
+                              r.al_code or 0)
+                if r.counters is not None and not watched:
+                    row.counters = _encode_counters(r.counters)
+            k = first
+            if watched:
+                if replies[k].wkc == 1:
+                    row.counters = bytes(replies[k].data)
+                k += 1
+            if k < first + count and replies[k].wkc == 1:
+                row.dc_difference_ns = decode_time_difference(
+                    struct.unpack("<I", bytes(replies[k].data))[0])
+            rows[s.position] = row
         with contextlib.suppress(EtherCATError):
             m.poll_mailboxes()  # emergencies posted meanwhile come through _on_emergency
-        return _Reading(now, rows)
+        faults = [FaultTelemetry(f.kind, f.text, [list(e) for e in f.ends], list(f.slaves),
+                                 f.detail) for f in ring.faults]
+        ports = [PortTelemetry(p.name, p.carrier, p.returning, p.sent, p.received, p.missing)
+                 for p in ring.ports()]
+        return _Reading(now, rows, "", faults, ports,
+                        result.ring_state if result.ring else "line")
 
     def _slaves(self, runner: RunnerView | None, reading: _Reading | None
                 ) -> list[SlaveTelemetry]:
@@ -410,18 +480,21 @@ class Telemetry:
             h = health.get(s.position)
             row = reading.rows.get(s.position) if reading is not None else None
             state, error, code = int(s.al_state), s.al_error, s.al_status_code
-            answered = True
-            dl = cnt = diff = None
-            if row is not None:
-                answered, dl, cnt, diff, al = row
-                if al is not None:
-                    state, error, code = al
+            if row is not None and row.al is not None:
+                state, error, code = row.al
+            if h is not None and h.state and (row is None or h.status != "ok"):
+                # Supervision read it more recently than an event-driven diagnosis.
+                state, error, code = h.state, h.error, h.code
+            answered = row.answered if row is not None else True
             if h is not None and not h.present:
                 answered = False
-            out.append(SlaveTelemetry(s.position, s.station_address, state, error,
-                                      code if error else 0, answered,
-                                      h.status if h is not None else "",
-                                      h.recoveries if h is not None else 0, dl, cnt, diff))
+            out.append(SlaveTelemetry(
+                s.position, s.station_address, state, error, code if error else 0, answered,
+                h.status if h is not None else "", h.recoveries if h is not None else 0,
+                row.dl_status if row is not None else None,
+                row.counters if row is not None else None,
+                row.dc_difference_ns if row is not None else None,
+                row.side if row is not None else None))
         return out
 
     def _dc(self, runner: RunnerView | None) -> DcTelemetry:
@@ -439,6 +512,20 @@ class Telemetry:
                            lock.error_ns if lock is not None else None,
                            lock.locked if lock is not None else None,
                            mon.last_ns, mon.worst_ns, mon.unstable)
+
+
+def _encode_counters(c: diag.SlaveCounters) -> bytes:
+    """The 0x0300-0x0313 bytes of decoded counters (the snapshot carries the raw form)."""
+    raw = bytearray(diag.ERROR_COUNTERS_SIZE)
+    for n, p in enumerate(c.ports):
+        raw[2 * n] = p.invalid_frames
+        raw[2 * n + 1] = p.rx_errors
+        raw[reg.FORWARDED_RX_ERROR_COUNTER - reg.RX_ERROR_COUNTER + n] = p.forwarded_rx_errors
+        raw[reg.LOST_LINK_COUNTER - reg.RX_ERROR_COUNTER + n] = p.lost_links
+    raw[reg.ECAT_PROCESSING_ERROR_COUNTER - reg.RX_ERROR_COUNTER] = c.processing_unit_errors
+    raw[reg.PDI_ERROR_COUNTER - reg.RX_ERROR_COUNTER] = c.pdi_errors
+    struct.pack_into("<H", raw, reg.PDI_ERROR_CODE - reg.RX_ERROR_COUNTER, c.pdi_error_code)
+    return bytes(raw)
 
 
 def _wall(at: float, now: float) -> float:

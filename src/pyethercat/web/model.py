@@ -150,7 +150,7 @@ class LiveModel:
             if img is not None and len(img.buffer) == len(g.image):
                 img.buffer[:] = g.image
         slaves = [self._slave(t, snap.registers_time) for t in snap.slaves]
-        links = self._links(slaves)
+        links = self._links(slaves, snap)
         return {
             "time": snap.time, "seq": snap.seq, "cycle": _cycle(snap),
             "groups": [{"name": g.name, "wkc": g.wkc, "expected": g.expected_wkc, "ok": g.wkc_ok,
@@ -162,6 +162,12 @@ class LiveModel:
                  "position": e.position, "code": e.code, "register": e.register, "data": e.data}
                 for e in snap.events],
             "registers_time": snap.registers_time, "registers_error": snap.registers_error,
+            "faults": [{"kind": f.kind, "text": f.text, "ends": f.ends, "slaves": f.slaves,
+                        "detail": f.detail} for f in snap.faults],
+            "ports": [{"name": p.name, "carrier": p.carrier, "returning": p.returning,
+                       "sent": p.sent, "received": p.received, "missing": p.missing}
+                      for p in snap.ports],
+            "ring_state": snap.ring_state,
         }
 
     def _slave(self, t: Any, at: float) -> dict[str, Any]:
@@ -184,7 +190,7 @@ class LiveModel:
             "code": t.code, "code_text": al_status_code_name(t.code) if t.code else "",
             "answered": t.answered, "health": health, "recoveries": t.recoveries,
             "ports": ports, "counters": counters, "rates": rates,
-            "dc_difference_ns": t.dc_difference_ns,
+            "dc_difference_ns": t.dc_difference_ns, "side": t.side,
         }
 
     def _rate(self, position: int, at: float, c: diag.SlaveCounters) -> list[float]:
@@ -201,24 +207,35 @@ class LiveModel:
         self._rates[position] = rates
         return rates
 
-    def _links(self, slaves: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    def _links(self, slaves: list[dict[str, Any]], snap: TelemetrySnapshot
+               ) -> list[dict[str, Any]]:
         """Every cable of the scanned tree and whether it is broken now.
 
-        A cable is broken when the slave before it answers but shows no link
-        on that port, or answers while the slave behind it does not.
+        A cable is broken when the ring service located a fault on it, when
+        the slave before it answers but shows no link on that port, or when
+        that slave answers and the one behind it does not.
         """
+        located: dict[tuple[int, int], str] = {}
+        for f in snap.faults:
+            if f.kind in ("link", "cut", "port", "crc"):
+                for end in f.ends:
+                    located[(end[0], end[1])] = f"{f.kind}: {f.text}"
         out = []
         for s in self.slaves:
+            me = slaves[s.position]
             if s.parent is None or s.parent_port is None:
+                fault = located.get((-1, 0)) or located.get((s.position, 0))
                 out.append({"from": None, "port": None, "to": s.position, "to_port": 0,
-                            "broken": not slaves[s.position]["answered"]})
+                            "broken": bool(fault) or not me["answered"], "fault": fault or ""})
                 continue
             parent = slaves[s.parent.position]
             port = next((p for p in parent["ports"] if p["n"] == s.parent_port), None)
             no_link = bool(port and port.get("known") and not port.get("link"))
-            broken = parent["answered"] and (no_link or not slaves[s.position]["answered"])
+            fault = located.get((s.parent.position, s.parent_port)) or located.get((s.position, 0))
+            crc = bool(fault) and fault is not None and fault.startswith("crc")
+            broken = (bool(fault) and not crc) or (parent["answered"] and (no_link or not me["answered"]))
             out.append({"from": s.parent.position, "port": s.parent_port, "to": s.position,
-                        "to_port": 0, "broken": broken})
+                        "to_port": 0, "broken": broken, "crc": crc, "fault": fault or ""})
         return out
 
     def _values(self, snap: TelemetrySnapshot) -> dict[str, list[list[str]]]:

@@ -204,7 +204,9 @@ function renderTopology() {
   const m = sv("g", { class: "master" });
   m.append(sv("rect", { x: 10, y: Y0, width: 100, height: H, rx: 6 }));
   m.append(sv("text", { x: 60, y: Y0 + 20, "text-anchor": "middle" }, "Master"));
-  m.append(sv("text", { x: 60, y: Y0 + 36, "text-anchor": "middle", "font-size": "10" }, S.segment.redundant ? "ports A · B" : "port A"));
+  const portText = (live && live.ports.length)
+    ? live.ports.map((p) => `${p.name}:${p.returning ? "ok" : "—"}`).join(" · ") : (S.segment.redundant ? "ports A · B" : "port A");
+  m.append(sv("text", { x: 60, y: Y0 + 36, "text-anchor": "middle", "font-size": "10" }, portText));
   svg.append(m);
   /* edges first, under the nodes */
   for (const r of rows) {
@@ -228,7 +230,8 @@ function renderTopology() {
         lx = x + 6; ly = me.y + H / 2 - 5; label = `${s.parent_port} → 0`;
       }
     }
-    svg.append(sv("path", { d, class: "edge" + (isBroken ? " broken" : ""), "data-to": r.pos, "data-broken": isBroken ? "1" : "0" }));
+    const crc = info && info.crc;
+    svg.append(sv("path", { d, class: "edge" + (isBroken ? " broken" : crc ? " crc" : ""), "data-to": r.pos, "data-broken": isBroken ? "1" : "0" }));
     svg.append(sv("text", { x: lx, y: ly, class: "edgelabel" }, label));
     if (isBroken) {
       /* drawn after the nodes: a cross on the cable and the text beside the column */
@@ -238,6 +241,7 @@ function renderTopology() {
       marks.push(sv("text", { x: mx - 5, y: my + 5, class: "breaklabel" }, "✕"));
       marks.push(sv("text", { x: X0 + maxDepth * INDENT + W + 16, y: my + 4, class: "breaklabel", id: "break-" + r.pos },
         `✕ link down: ${where} → #${r.pos} ${s.name}`));
+      if (info.fault) marks.push(sv("text", { x: X0 + maxDepth * INDENT + W + 30, y: my + 18, class: "edgelabel" }, "located: " + info.fault));
     }
   }
   if (S.segment.redundant && rows.length) {
@@ -281,6 +285,12 @@ function renderTopology() {
   for (const mk of marks) svg.append(mk);
   clear(host);
   host.append(svg);
+  const faults = live ? live.faults : [];
+  const box = el("div", { class: "faults", id: "faults" });
+  if (live && live.ring_state && S.segment.redundant) box.append(el("div", { class: "muted" }, "ring: " + live.ring_state));
+  for (const f of faults) box.append(el("div", { class: "fault" }, el("b", null, f.kind), " " + f.text + (f.detail ? " — " + f.detail : "")));
+  if (live && !faults.length) box.append(el("div", { class: "muted" }, "No fault located (DL status, lost-link and CRC counters of every slave)."));
+  host.append(box);
 }
 function cssColor(cls) {
   return { OP: "#1f9d55", SAFEOP: "#d69e2e", PREOP: "#3182ce", INIT: "#8a94a6", BOOT: "#805ad5", ERR: "#d64545", LOST: "#8b1c1c" }[cls];
