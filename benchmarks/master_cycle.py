@@ -8,7 +8,11 @@ end of a veth pair:
     configuration, state changes), ours vs pysoem;
 (b) round trip of one process-data cycle (send + receive), median and p99,
     ours vs pysoem;
-(c) jitter percentiles of our 1 kHz cyclic loop over 30 s (``--quick``: 3 s).
+(c) jitter percentiles of our 1 kHz cyclic loop over 30 s (``--quick``: 3 s);
+(d) with ``--dashboard``: the same loop with and without the web dashboard
+    open (``pyethercat web`` reaching the master through its control socket,
+    two headless Chromium browsers on the Cycle page, the heaviest one), in
+    alternating windows; the jitter percentiles of both, pooled.
 
 ``--hostile``: the hostile user (benchmarks/hostile.py): 1 kHz for
 ``--hostile-seconds`` idle, then with four threads burning CPU in Python and
@@ -28,6 +32,7 @@ Needs root (veth pair). The last output line is one JSON object of figures.
 Usage: python benchmarks/master_cycle.py [--quick] [--sizes 10,100] [--realtime 5]
        python benchmarks/master_cycle.py --realtime-figures   # hostile user, 10/4 kHz,
            # and benchmarks/sim_rtt.py: every figure of the real-time path in one run
+       python benchmarks/master_cycle.py --dashboard [--sizes 10] [--windows 6] [--window 10]
 """
 
 from __future__ import annotations
@@ -369,6 +374,86 @@ def high_rate(n: int, cycle: float, seconds: float, priority: int) -> dict[str, 
     return out
 
 
+def _normal_priority() -> None:
+    """This thread (and what it starts) under normal scheduling: a dashboard is no real-time job."""
+    os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+
+
+def _browsers(url: str, count: int, tmp: Path) -> list[object]:
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    out: list[object] = []
+    for k in range(count):
+        opts = webdriver.ChromeOptions()
+        opts.binary_location = "/usr/bin/chromium"
+        for arg in ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
+                    "--no-first-run", "--disable-background-networking",
+                    "--disable-component-update", "--disable-sync", "--window-size=1440,1000",
+                    f"--user-data-dir={tmp / f'profile{k}'}"):
+            opts.add_argument(arg)
+        d = webdriver.Chrome(service=Service("/usr/bin/chromedriver"), options=opts)
+        d.get(url + "#cycle")
+        out.append(d)
+    return out
+
+
+def bench_dashboard(iface: str, windows: int, window_s: float, priority: int
+                    ) -> dict[str, object]:
+    """(d): the 1 kHz loop's jitter in alternating windows without / with the dashboard open."""
+    from pyethercat.master.control.endpoint import link_spec
+    from pyethercat.master.control.server import serve
+
+    with Master.open(iface) as m, tempfile.TemporaryDirectory() as tmp:
+        os.environ["PYETHERCAT_RUNTIME_DIR"] = str(Path(tmp) / "run")
+        (Path(tmp) / "run").mkdir(mode=0o700)
+        m.scan()
+        m.configure()
+        runner = m.start(cycle=0.001, check_interval=0.1)  # under this thread's SCHED_FIFO
+        _normal_priority()
+        server = serve(m, link_spec(iface=iface))
+        samples: dict[str, list[np.ndarray]] = {"without": [], "with": []}
+        polls = 0
+        try:
+            for k in range(2 * windows):
+                mode = "with" if k % 2 else "without"
+                web = browsers = None
+                if mode == "with":
+                    web = subprocess.Popen(
+                        [sys.executable, "-m", "pyethercat", "--iface", iface, "web", "--bind",
+                         "127.0.0.1:0", "--rate", "20"], stdout=subprocess.PIPE)
+                    assert web.stdout is not None
+                    url = web.stdout.readline().decode().split("dashboard: ", 1)[1].strip()
+                    browsers = _browsers(url, 2, Path(tmp))
+                    time.sleep(2.0)  # both pages open and drawing
+                start = runner.stats.cycles
+                time.sleep(window_s)
+                got = runner.stats.cycles - start
+                periods, _ = runner.stats.recent(got)
+                samples[mode].append(np.abs(periods - runner.stats.period_ns))
+                if browsers is not None:
+                    for b in browsers:
+                        b.quit()  # type: ignore[attr-defined]
+                if web is not None:
+                    web.terminate()
+                    web.wait(10)
+            from pyethercat.master.telemetry import telemetry_of
+
+            polls = telemetry_of(m).taken
+        finally:
+            server.close()
+            runner.stop()
+            m.set_state("INIT")
+    out: dict[str, object] = {"windows": windows, "window_s": window_s, "snapshots": polls,
+                              "loadavg": os.getloadavg()}
+    for mode, parts in samples.items():
+        allj = np.concatenate(parts) / 1000.0
+        out[mode] = {f"p{q:g}": float(np.percentile(allj, q)) for q in (50, 90, 99, 99.9)}
+        out[mode]["max"] = float(allj.max())  # type: ignore[index]
+        out[mode]["samples"] = int(allj.size)  # type: ignore[index]
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="3 s loop instead of 30 s")
@@ -394,6 +479,10 @@ def main() -> None:
     ap.add_argument("--realtime-figures", action="store_true",
                     help="everything the real-time path is judged by, in one run: the hostile "
                          "user, the high rates and benchmarks/sim_rtt.py")
+    ap.add_argument("--dashboard", action="store_true",
+                    help="(d) only: loop jitter with and without the web dashboard open")
+    ap.add_argument("--windows", type=int, default=6, help="(d): windows of each kind")
+    ap.add_argument("--window", type=float, default=10.0, help="(d): seconds per window")
     args = ap.parse_args()
     if os.geteuid() != 0:
         print("needs root for the veth pair", file=sys.stderr)
@@ -425,6 +514,32 @@ def main() -> None:
     loop_s = 3.0 if args.quick else 30.0
     figures: dict[str, object] = {"loop_seconds": loop_s, "master_priority": args.realtime,
                                   "alternations": args.alternations, "pinned": args.pin}
+    if args.dashboard:
+        for n in (int(x) for x in args.sizes.split(",")):
+            a, b = veth()
+            with tempfile.TemporaryDirectory() as tmp:
+                path = Path(tmp) / f"bench{n}.toml"
+                path.write_text(topology(n))
+                sim = start_sim_process(path, link=f"iface:{a}", realtime=10)
+                try:
+                    load0 = os.getloadavg()
+                    res = bench_dashboard(b, args.windows, args.window, args.realtime)
+                finally:
+                    sim.stop()
+                    subprocess.run(["ip", "link", "del", a], check=False, capture_output=True)
+            w, wo = res["with"], res["without"]
+            assert isinstance(w, dict) and isinstance(wo, dict)
+            print(f"--- (d) {n} slaves, 1 kHz loop, {args.windows} x {args.window:g} s windows "
+                  f"each (load average before {load0[0]:.2f}, after {res['loadavg'][0]:.2f})")  # type: ignore[index]
+            for mode, r in (("without dashboard", wo), ("with dashboard", w)):
+                print(f"    {mode:<18} jitter us p50 {r['p50']:.1f}, p90 {r['p90']:.1f}, "
+                      f"p99 {r['p99']:.1f}, p99.9 {r['p99.9']:.1f}, max {r['max']:.0f} "
+                      f"({r['samples']} periods)")
+            print(f"    ratio with/without: p99 {w['p99'] / wo['p99']:.2f}, "
+                  f"p99.9 {w['p99.9'] / wo['p99.9']:.2f}; {res['snapshots']} telemetry snapshots")
+            figures[f"dashboard_{n}"] = {**res, "loadavg_before": load0}
+        print(json.dumps(figures))
+        return
     per_round = max(1, args.rounds // args.alternations)
     for n in (int(x) for x in args.sizes.split(",")):
         a, b = veth()

@@ -129,8 +129,8 @@ def running(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Running]:
     try:
         wait_control(ctl)
         run = subprocess.Popen([sys.executable, "-m", "pyethercat", "--udp", f"127.0.0.1:{port}",
-                                "run", "--web", "--web-bind", "127.0.0.1:0", "--web-token",
-                                "generate", "--web-allow-writes"],
+                                "run", "--dc", "--web", "--web-bind", "127.0.0.1:0",
+                                "--web-token", "generate", "--web-allow-writes"],
                                stdout=subprocess.PIPE, env=env)
         url = read_line(run, "dashboard: ", 90)
         base, _, token = url.partition("?token=")
@@ -296,9 +296,12 @@ def test_every_page_in_headless_chromium(running: Running, browser: object,
     time.sleep(1.0)  # let the charts gather a second of points for the picture
     _shot(d, "cycle", tmp_path)
 
+    # DC (run --dc): the reference, the phase lock, |0x092C| of every DC slave over time.
     _page(d, "dc")
-    _wait(d, lambda d: "Clocks" in (_q(d, "#page-dc") or ""))
-    assert d.find_elements(By.CSS_SELECTOR, "#dc-table tbody tr")  # type: ignore[attr-defined]
+    _wait(d, lambda d: "Reference" in (_q(d, "#dc-kpis") or ""))
+    _wait(d, lambda d: _q(d, "#chart-dc canvas", "width") is not None)
+    assert len(d.find_elements(By.CSS_SELECTOR, "#dc-table tbody tr")) == 6  # type: ignore[attr-defined]
+    time.sleep(1.0)
     _shot(d, "dc", tmp_path)
 
     _page(d, "drives")

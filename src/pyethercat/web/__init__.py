@@ -11,3 +11,5 @@ shipped as a static file: nothing is fetched from the internet at run time.
 - :mod:`~pyethercat.web.security`: bind address, token, writes, CSP;
 - :mod:`~pyethercat.web.app`: the Starlette application; :mod:`~pyethercat.web.server`: uvicorn.
 """
+
+__all__: list[str] = []

@@ -95,13 +95,15 @@ class Hub:
             self.load_segment()
         snap = self.conn.call(TelemetryRequest(since=self._seq))
         self.polls += 1
-        with self._lock:
+        model = self._model
+        if model is None or len(snap.slaves) != len(model.slaves):
+            # The master scanned again: the static part changed (browsers reload it).
+            self.load_segment()
             model = self._model
             assert model is not None
             if len(snap.slaves) != len(model.slaves):
-                # The master scanned again: the static part changed.
-                self._model = None
-                return self.poll_once()
+                snap = self.conn.call(TelemetryRequest(since=self._seq))
+        with self._lock:
             live = model.live(snap)
             self._seq = max(self._seq, max((e.seq for e in snap.events), default=0))
             for e in live["events"]:

@@ -222,6 +222,9 @@ class LiveModel:
                     located[(end[0], end[1])] = f"{f.kind}: {f.text}"
         out = []
         for s in self.slaves:
+            if s.position >= len(slaves) or (s.parent is not None
+                                             and s.parent.position >= len(slaves)):
+                continue  # the master scanned again; the next segment message has it
             me = slaves[s.position]
             if s.parent is None or s.parent_port is None:
                 fault = located.get((-1, 0)) or located.get((s.position, 0))
