@@ -64,9 +64,12 @@ function slaveName(pos) {
   const s = S.segment && S.segment.slaves[pos];
   return s ? s.name : "slave " + pos;
 }
+/* One formatter for all: toLocaleTimeString builds a new one per call, which took most of
+   the page's time once a few hundred events were listed. */
+const CLOCK = new Intl.DateTimeFormat([], { hour: "2-digit", minute: "2-digit", second: "2-digit", hour12: false });
 function timeText(t) {
   const d = new Date(t * 1000);
-  return d.toLocaleTimeString([], { hour12: false }) + "." + String(d.getMilliseconds()).padStart(3, "0");
+  return CLOCK.format(d) + "." + String(d.getMilliseconds()).padStart(3, "0");
 }
 
 /* ---------- API ---------- */
@@ -119,6 +122,7 @@ function onHistory(h) {
   S.series = {};
   for (const [k, rows] of Object.entries(h.series)) S.series[k] = rows.slice(-MAX_POINTS);
   S.events = h.events.slice(-500);
+  eventsShown = null;
 }
 function push(name, row) {
   const s = S.series[name] || (S.series[name] = []);
@@ -295,8 +299,13 @@ function renderTopology() {
 function cssColor(cls) {
   return { OP: "#1f9d55", SAFEOP: "#d69e2e", PREOP: "#3182ce", INIT: "#8a94a6", BOOT: "#805ad5", ERR: "#d64545", LOST: "#8b1c1c" }[cls];
 }
+let eventsShown = null;
 function renderEvents() {
   const box = $("events");
+  /* The list only changes when an event arrives: redrawn then, not on every message. */
+  const last = S.events.length ? S.events[S.events.length - 1].seq : -1;
+  if (eventsShown === last && box.firstChild) return;
+  eventsShown = last;
   clear(box);
   const list = S.events.slice(-200).reverse();
   if (!list.length) { box.append(el("p", { class: "muted" }, "No events yet.")); return; }
