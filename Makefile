@@ -32,7 +32,8 @@ $(STAMP): pyproject.toml
 venv: $(STAMP)
 
 # Outside tools some tests use: tshark (interop), xmllint (ESI corpus), ip (veth
-# pairs), ping/curl/chromium/chromedriver (EoE end to end). Installed with apt-get when missing and we are root; otherwise (or when
+# pairs), ping/curl (EoE end to end), chromium/chromedriver (EoE end to end, the web
+# dashboard's browser tests). Installed with apt-get when missing and we are root; otherwise (or when
 # apt-get fails) the tests that need them skip with a reason, and fail under CI=true.
 tools:
 	@missing=""; \
