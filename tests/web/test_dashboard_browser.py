@@ -39,6 +39,9 @@ IN_CI = os.environ.get("CI", "").lower() in ("1", "true", "yes")
 # The simulator answers under SCHED_FIFO when it may (as the interop tests run it): on a
 # loaded host the DC set-up's 50 ms frame time-out would otherwise measure the queueing.
 REALTIME = ["--realtime", "10"] if os.geteuid() == 0 else []
+# The master runs under normal scheduling: under SCHED_FIFO its 1 kHz loop and the
+# simulator's took most of both cores and starved the browser on a loaded host.
+MASTER = [sys.executable, "-m", "pyethercat"]
 
 
 def _tool(name: str) -> str:
@@ -134,7 +137,7 @@ def running(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Running]:
     run = None
     try:
         wait_control(ctl)
-        run = subprocess.Popen([sys.executable, "-m", "pyethercat", "--udp", f"127.0.0.1:{port}",
+        run = subprocess.Popen([*MASTER, "--udp", f"127.0.0.1:{port}",
                                 "run", "--dc", "--web", "--web-bind", "127.0.0.1:0",
                                 "--web-token", "generate", "--web-allow-writes"],
                                stdout=subprocess.PIPE, env=env)
@@ -163,7 +166,10 @@ def _browser(tmp_path_factory: pytest.TempPathFactory) -> Iterator[object]:
         opts.add_argument(arg)
     opts.set_capability("goog:loggingPrefs", {"browser": "ALL"})
     driver = webdriver.Chrome(service=Service(driver_path), options=opts)
-    driver.set_page_load_timeout(60)
+    # Selenium reads attributes through a script: a renderer starved on a loaded host
+    # answered after more than the default 30 s (below the driver's 120 s read time-out).
+    driver.set_page_load_timeout(100)
+    driver.set_script_timeout(100)
     try:
         yield driver
     finally:
@@ -218,7 +224,7 @@ def _request(url: str, *, body: dict[str, object] | None = None,
     req = urllib.request.Request(url, data=data, headers={
         **({"Content-Type": "application/json"} if body is not None else {}), **(headers or {})})
     try:
-        with urllib.request.urlopen(req, timeout=30) as resp:
+        with urllib.request.urlopen(req, timeout=STARTUP) as resp:
             return resp.status, resp.read().decode()
     except urllib.error.HTTPError as exc:
         return exc.code, exc.read().decode()
@@ -338,7 +344,7 @@ def test_every_page_in_headless_chromium(running: Running, browser: object,
     finally:
         control(running.control, {"cmd": "restore_link", "slave": "di8", "port": 1})
     # The master brings them back; the mark goes away.
-    _wait(d, lambda d: _q(d, "path.edge.broken", "d") is None, timeout=60)
+    _wait(d, lambda d: _q(d, "path.edge.broken", "d") is None, timeout=STARTUP)
     severe = [e for e in d.get_log("browser")  # type: ignore[attr-defined]
               if e["level"] == "SEVERE" and "favicon" not in e["message"]]
     assert severe == []  # no script error, no content-security-policy violation
@@ -425,7 +431,7 @@ def test_mailbox_and_drives_pages_on_coe_slaves(tmp_path: Path,
     gen = None
     try:
         wait_control(ctl)
-        run = subprocess.Popen([sys.executable, "-m", "pyethercat", *link, "run", "--web",
+        run = subprocess.Popen([*MASTER, *link, "run", "--web",
                                 "--web-bind", "127.0.0.1:0", "--web-allow-writes"],
                                stdout=subprocess.PIPE, env=env)
         url = read_line(run, "dashboard: ", STARTUP)
@@ -440,12 +446,12 @@ def test_mailbox_and_drives_pages_on_coe_slaves(tmp_path: Path,
         gen = _browser(tmp_path_factory)
         d = next(gen)
         d.get(url)  # type: ignore[attr-defined]
-        _wait(d, lambda d: _q(d, "#node-1", "data-state") == "OP", timeout=60)
+        _wait(d, lambda d: _q(d, "#node-1", "data-state") == "OP", timeout=STARTUP)
 
         _page(d, "mailbox")
         _wait(d, lambda d: _q(d, "#mbx-slave option") is not None)
         d.find_element(By.ID, "sdo-browse").click()  # type: ignore[attr-defined]
-        _wait(d, lambda d: "0x1018" in (_q(d, "#sdo-list") or ""), timeout=60)
+        _wait(d, lambda d: "0x1018" in (_q(d, "#sdo-list") or ""), timeout=STARTUP)
         assert "Settings" in (_q(d, "#sdo-list") or "")
         # Read 0x1018:01 (vendor id) by clicking its entry in the browsed dictionary.
         d.execute_script(  # type: ignore[attr-defined]
@@ -454,7 +460,7 @@ def test_mailbox_and_drives_pages_on_coe_slaves(tmp_path: Path,
         rows = [r for r in d.find_elements(By.CSS_SELECTOR, "#sdo-list details[open] tr.entry")  # type: ignore[attr-defined]
                 if r.text.startswith(":01")]
         rows[0].click()
-        _wait(d, lambda d: "0x1018:1 =" in (_q(d, "#sdo-result") or ""), timeout=30)
+        _wait(d, lambda d: "0x1018:1 =" in (_q(d, "#sdo-result") or ""), timeout=STARTUP)
         result = _q(d, "#sdo-result") or ""
         assert "0x00504543" in result.lower() or str(0x00504543) in result
         # Write 0x8000:01 (filter time) after the confirmation, read it back.
@@ -464,24 +470,24 @@ def test_mailbox_and_drives_pages_on_coe_slaves(tmp_path: Path,
             box.send_keys(value)
         d.find_element(By.ID, "sdo-write").click()  # type: ignore[attr-defined]
         d.find_element(By.ID, "modal-ok").click()  # type: ignore[attr-defined]
-        _wait(d, lambda d: "written" in (_q(d, "#sdo-result") or ""), timeout=30)
+        _wait(d, lambda d: "written" in (_q(d, "#sdo-result") or ""), timeout=STARTUP)
         d.find_element(By.ID, "sdo-read").click()  # type: ignore[attr-defined]
         _wait(d, lambda d: "= 250" in (_q(d, "#sdo-result") or "")
-              or " 250 " in (_q(d, "#sdo-result") or ""), timeout=30)
+              or " 250 " in (_q(d, "#sdo-result") or ""), timeout=STARTUP)
         # The FoE file list has the file written above; reading it gives its size.
-        _wait(d, lambda d: "notes.txt" in (_q(d, "#foe-files") or ""), timeout=30)
+        _wait(d, lambda d: "notes.txt" in (_q(d, "#foe-files") or ""), timeout=STARTUP)
         d.find_element(By.ID, "foe-name").send_keys("notes.txt")  # type: ignore[attr-defined]
         d.find_element(By.CSS_SELECTOR, "#foe-form button").click()  # type: ignore[attr-defined]
         _wait(d, lambda d: f"{len(payload.read_bytes())} bytes" in (_q(d, "#foe-result") or ""),
-              timeout=60)
+              timeout=STARTUP)
         # An emergency the io posts shows in the log with its code.
         assert control(ctl, {"cmd": "emergency", "slave": "io", "code": 0x8130,
                              "register": 0x11, "data": "0102030405"})["sent"]
-        _wait(d, lambda d: "0x8130" in (_q(d, "#emcy-table") or ""), timeout=30)
+        _wait(d, lambda d: "0x8130" in (_q(d, "#emcy-table") or ""), timeout=STARTUP)
         _shot(d, "mailbox", tmp_path)
 
         _page(d, "drives")
-        _wait(d, lambda d: _q(d, "#drive-1") is not None, timeout=30)
+        _wait(d, lambda d: _q(d, "#drive-1") is not None, timeout=STARTUP)
         assert "Statusword" in (_q(d, "#drive-1") or "")
         time.sleep(1.0)
         _shot(d, "drives", tmp_path)

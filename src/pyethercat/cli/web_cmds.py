@@ -117,14 +117,18 @@ class WebChild:
                 self.proc.wait()
 
 
-def _die_with_parent() -> None:
+def _child_setup() -> None:
     # PR_SET_PDEATHSIG: the dashboard ends when the master's process does, however it ends.
     with __import__("contextlib").suppress(OSError, AttributeError):
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)
+    # A master started under SCHED_FIFO (chrt) would hand its priority down: the dashboard
+    # is no real-time job and must not compete with the cyclic loop (sched(7)).
+    with __import__("contextlib").suppress(OSError, AttributeError):
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
 
 
 def start_child(obj: dict[str, Any], access: Any, *, rate: float = 10.0,
-                timeout: float = 30.0) -> WebChild:
+                timeout: float = 120.0) -> WebChild:
     """Start ``pyethercat web`` for the master this process serves; returns once it listens."""
     _need_web_extra()
     args = [sys.executable, "-m", "pyethercat"]
@@ -138,7 +142,7 @@ def start_child(obj: dict[str, Any], access: Any, *, rate: float = 10.0,
     env = dict(os.environ)
     if access.token:
         env[TOKEN_ENV] = access.token
-    proc = subprocess.Popen(args, stdout=subprocess.PIPE, env=env, preexec_fn=_die_with_parent)
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, env=env, preexec_fn=_child_setup)
     assert proc.stdout is not None
     limit = time.monotonic() + timeout
     line = b""
