@@ -13,7 +13,6 @@ process, never in the master's.
 
 from __future__ import annotations
 
-import importlib
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -25,6 +24,7 @@ from pyethercat.master.image import ProcessImage, Variable, build_images
 from pyethercat.master.slave import Slave
 from pyethercat.master.slave_info import Port
 from pyethercat.master.telemetry import TelemetrySnapshot
+from pyethercat.wire import cia402
 from pyethercat.wire.al import al_status_code_name, state_name
 
 __all__ = ["describe_segment", "LiveModel", "format_value", "DRIVE_OBJECTS"]
@@ -252,25 +252,20 @@ class LiveModel:
     def _drives(self, snap: TelemetrySnapshot) -> list[dict[str, Any]]:
         if not snap.groups:
             return []
-        try:
-            cia402: Any = importlib.import_module("pyethercat.wire.cia402")
-        except ImportError:  # the CiA 402 tables are not part of this install yet
-            cia402 = None
         out = []
         for pos, vars_ in sorted(self._drive_vars.items()):
             values = {k: v.get() for k, v in vars_.items()}
             sw = int(values.get("statusword", 0))
             state = None
             mode = None
-            if cia402 is not None:
-                st = cia402.decode_state(sw)
-                state = st.name.replace("_", " ").lower() if st is not None else "unknown"
-                m = values.get("mode")
-                if m is not None:
-                    try:
-                        mode = cia402.OperationMode(int(m)).name
-                    except ValueError:
-                        mode = str(m)
+            st = cia402.decode_state(sw)
+            state = st.name.replace("_", " ").lower() if st is not None else "unknown"
+            m = values.get("mode")
+            if m is not None:
+                try:
+                    mode = cia402.OperationMode(int(m)).name
+                except ValueError:
+                    mode = str(m)
             fe = values.get("following_error")
             if fe is None and "target" in values and "position" in values:
                 fe = int(values["target"]) - int(values["position"])
