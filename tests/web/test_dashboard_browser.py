@@ -191,10 +191,16 @@ def _shot(driver: object, name: str, out: Path) -> None:
         shutil.copy(path, Path(extra) / path.name)
 
 
-def _wait(driver: object, what, timeout: float = 60.0):  # noqa: ANN001
+def _wait(driver: object, what, timeout: float = 60.0, describe=None):  # noqa: ANN001
+    from selenium.common.exceptions import TimeoutException
     from selenium.webdriver.support.ui import WebDriverWait
 
-    return WebDriverWait(driver, timeout, poll_frequency=0.05).until(what)
+    try:
+        return WebDriverWait(driver, timeout, poll_frequency=0.05).until(what)
+    except TimeoutException:
+        if describe is None:
+            raise
+        raise TimeoutException(f"after {timeout:g} s: {describe(driver)}") from None
 
 
 def _q(driver: object, css: str, what: str = "text") -> str | None:
@@ -451,7 +457,14 @@ def test_mailbox_and_drives_pages_on_coe_slaves(tmp_path: Path,
         _page(d, "mailbox")
         _wait(d, lambda d: _q(d, "#mbx-slave option") is not None)
         d.find_element(By.ID, "sdo-browse").click()  # type: ignore[attr-defined]
-        _wait(d, lambda d: "0x1018" in (_q(d, "#sdo-list") or ""), timeout=STARTUP)
+        _wait(d, lambda d: "0x1018" in (_q(d, "#sdo-list") or ""), timeout=STARTUP,
+              describe=lambda d: f"SDO list: {(_q(d, '#sdo-list') or '')[:300]!r}")
+        # A segment message comes again on every reconnection of the WebSocket (a
+        # starved browser or server misses the keep-alive ping under load) and after a
+        # rescan: with the same slave chosen, the browsed dictionary stays.
+        d.execute_script("onSegment(JSON.parse(JSON.stringify(S.segment)));")  # type: ignore[attr-defined]
+        assert "0x1018" in (_q(d, "#sdo-list") or "")
+        assert _q(d, "#mbx-slave", "value") == "0"
         assert "Settings" in (_q(d, "#sdo-list") or "")
         # Read 0x1018:01 (vendor id) by clicking its entry in the browsed dictionary.
         d.execute_script(  # type: ignore[attr-defined]

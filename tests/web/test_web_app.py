@@ -155,3 +155,37 @@ def test_the_page_has_no_inline_code_and_fetches_nothing_from_outside() -> None:
     assert "innerHTML" not in script and "eval(" not in script
     assert "MIT License" in (STATIC / "LICENSE-uPlot.txt").read_text()
     assert (STATIC / "uplot.iife.min.js").stat().st_size > 40_000
+
+
+def test_a_rescan_sends_the_segment_again_and_a_slow_browser_keeps_it(master: Master) -> None:
+    import asyncio
+
+    from pyethercat.web.hub import Client
+    from pyethercat.web.model import LiveModel
+
+    hub = Hub(DirectConnection(MasterContext(master, "sim:demo")), rate=20.0)
+    hub.load_segment()
+    # The segment as the hub knew it before the master scanned again (one slave fewer).
+    hub._model = LiveModel(master.slaves[:-1], None)
+    client = Client()
+    hub.clients.add(client)
+
+    async def one_round() -> list[str]:
+        task = asyncio.create_task(hub.run())
+        got = [await asyncio.wait_for(client.queue.get(), 30.0) for _ in range(2)]
+        task.cancel()
+        return got
+
+    first, second = asyncio.run(one_round())
+    seg, live = json.loads(first), json.loads(second)
+    assert seg["type"] == "segment" and len(seg["slaves"]) == len(master.slaves)
+    assert live["type"] == "live" and len(live["slaves"]) == len(master.slaves)
+    assert hub.rescanned is False
+
+    # A browser that reads nothing loses live snapshots, never the segment.
+    slow = Client()
+    slow.offer(first)
+    for _ in range(5):
+        slow.offer(second)
+    waiting = [slow.queue.get_nowait() for _ in range(slow.queue.qsize())]
+    assert waiting == [first, second] and slow.dropped == 4

@@ -43,7 +43,7 @@ import numpy as np
 
 from pyethercat.errors import EtherCATError
 from pyethercat.master import diag
-from pyethercat.master.cyclic import JITTER_BINS_US, CycleStats
+from pyethercat.master.cyclestats import JITTER_BINS_US, CycleStats
 from pyethercat.wire import registers as reg
 from pyethercat.wire.datagram import Command, Datagram
 from pyethercat.wire.dc import decode_time_difference

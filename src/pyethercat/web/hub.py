@@ -15,7 +15,6 @@ with them.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import json
 import math
 import threading
@@ -34,6 +33,7 @@ from pyethercat.web.source import MasterConnection
 __all__ = ["Hub", "Client"]
 
 _EVENTS = 500
+_SEGMENT = '{"type": "segment"'
 
 
 class Client:
@@ -45,9 +45,16 @@ class Client:
 
     def offer(self, text: str) -> None:
         if self.queue.full():
-            with contextlib.suppress(asyncio.QueueEmpty):
-                self.queue.get_nowait()
-                self.dropped += 1
+            # A slow browser loses the oldest live snapshot, not a segment message
+            # (the static part it draws the pages from); of two segments the newer counts.
+            waiting: list[str] = []
+            while not self.queue.empty():
+                waiting.append(self.queue.get_nowait())
+            drop = next((i for i, t in enumerate(waiting) if not t.startswith(_SEGMENT)), 0)
+            del waiting[drop]
+            self.dropped += 1
+            for t in waiting:
+                self.queue.put_nowait(t)
         self.queue.put_nowait(text)
 
 
@@ -72,6 +79,8 @@ class Hub:
         #: Snapshots asked for (the benchmark and the tests read it).
         self.polls = 0
         self._last_cycle: tuple[int, int, int] | None = None
+        #: The segment was loaded again after a rescan and the browsers have not had it yet.
+        self.rescanned = False
 
     # -- the static part --------------------------------------------------------------------
 
@@ -97,8 +106,10 @@ class Hub:
         self.polls += 1
         model = self._model
         if model is None or len(snap.slaves) != len(model.slaves):
-            # The master scanned again: the static part changed (browsers reload it).
+            # The master scanned again: the static part changed (run() sends it to the
+            # browsers before this snapshot).
             self.load_segment()
+            self.rescanned = True
             model = self._model
             assert model is not None
             if len(snap.slaves) != len(model.slaves):
@@ -147,12 +158,16 @@ class Hub:
                 try:
                     live = await asyncio.to_thread(self.poll_once)
                     self.error = ""
-                    text = json.dumps({"type": "live", **live}, default=_json_default)
+                    texts = [json.dumps({"type": "live", **live}, default=_json_default)]
+                    if self.rescanned and self.segment is not None:
+                        self.rescanned = False
+                        texts.insert(0, json.dumps({"type": "segment", **self.segment}))
                 except (EtherCATError, OSError) as exc:
                     self.error = str(exc)
-                    text = json.dumps({"type": "error", "text": self.error})
+                    texts = [json.dumps({"type": "error", "text": self.error})]
                 for c in list(self.clients):
-                    c.offer(text)
+                    for text in texts:
+                        c.offer(text)
             await asyncio.sleep(max(0.0, period - (time.monotonic() - started)))
 
 

@@ -10,7 +10,7 @@
 
 const S = {
   segment: null, live: null, page: "topology", charts: {}, series: {}, events: [],
-  writesEnabled: false, sdoPosition: null, lastMessage: 0, connected: false,
+  writesEnabled: false, sdoPosition: null, mbxSlave: null, browseSeq: 0, lastMessage: 0, connected: false,
 };
 const MAX_POINTS = 600;
 const STATE_ORDER = ["INIT", "PREOP", "BOOT", "SAFEOP", "OP"];
@@ -580,8 +580,13 @@ function renderDrives() {
 }
 
 /* ---------- mailbox ---------- */
+/* A slave is the same device across segment messages when its position and identity are. */
+function slaveKey(s) {
+  return s ? [s.position, s.vendor, s.product, s.revision, s.serial, s.name].join("/") : "";
+}
 function buildMailbox() {
   const sel = $("mbx-slave");
+  const before = S.sdoPosition === null ? "" : slaveKey(S.mbxSlave);
   clear(sel);
   for (const s of S.segment.slaves) {
     if (!s.mailbox.length) continue;
@@ -590,12 +595,19 @@ function buildMailbox() {
   if (!sel.options.length) sel.append(el("option", { value: "" }, "no slave with a mailbox"));
   sel.onchange = mailboxSlaveChanged;
   $("sdo-write").disabled = !S.segment.writable;
+  // A segment message comes on every (re)connection and after a rescan: when the slave
+  // chosen is still there, the browsed dictionary, the result and the FoE list stay
+  // (rebuilding cleared a browse the user was reading, or one still on its way).
+  const same = before !== "" && S.segment.slaves.some((s) => s.mailbox.length && slaveKey(s) === before);
+  if (same) { sel.value = String(S.sdoPosition); S.mbxSlave = S.segment.slaves[S.sdoPosition]; return; }
   mailboxSlaveChanged();
 }
 function mailboxSlaveChanged() {
   const v = $("mbx-slave").value;
   S.sdoPosition = v === "" ? null : Number(v);
   const s = S.sdoPosition === null ? null : S.segment.slaves[S.sdoPosition];
+  S.mbxSlave = s;
+  S.browseSeq += 1;  // a browse of the slave chosen before must not fill this one's list
   $("mbx-protocols").textContent = s ? "mailbox: " + s.mailbox.join(", ") : "";
   clear($("sdo-list"));
   $("sdo-list").append(el("p", { class: "muted" }, s && s.coe ? "Press Browse to read the object dictionary (SDO information)." : "This slave does not announce CoE."));
@@ -604,10 +616,12 @@ function mailboxSlaveChanged() {
 }
 async function browseSdo() {
   const box = $("sdo-list");
+  const seq = ++S.browseSeq;
   clear(box);
   box.append(el("p", { class: "muted" }, "reading the object dictionary…"));
   try {
     const r = await api(`/api/sdo/list?position=${S.sdoPosition}`);
+    if (seq !== S.browseSeq) return;
     clear(box);
     for (const o of r.objects) {
       const d = el("details", null, el("summary", null, el("span", { class: "idx" }, hex(o.index)), o.name || o.error || ""));
@@ -621,7 +635,9 @@ async function browseSdo() {
       d.append(t);
       box.append(d);
     }
-  } catch (err) { clear(box); box.append(el("p", { class: "result error" }, err.message)); }
+  } catch (err) {
+    if (seq !== S.browseSeq) return;
+    clear(box); box.append(el("p", { class: "result error" }, err.message)); }
 }
 async function readSdo(ev) {
   if (ev) ev.preventDefault();
