@@ -464,7 +464,8 @@ def test_mailbox_and_drives_pages_on_coe_slaves(tmp_path: Path,
         # rescan: with the same slave chosen, the browsed dictionary stays.
         d.execute_script("onSegment(JSON.parse(JSON.stringify(S.segment)));")  # type: ignore[attr-defined]
         assert "0x1018" in (_q(d, "#sdo-list") or "")
-        assert _q(d, "#mbx-slave", "value") == "0"
+        assert d.execute_script(  # type: ignore[attr-defined]
+            "return document.getElementById('mbx-slave').value;") == "0"
         assert "Settings" in (_q(d, "#sdo-list") or "")
         # Read 0x1018:01 (vendor id) by clicking its entry in the browsed dictionary.
         d.execute_script(  # type: ignore[attr-defined]
