@@ -549,15 +549,26 @@ def test_seeded_drops_are_deterministic() -> None:
 
 
 def test_seeded_drops_from_the_topology_file_are_deterministic() -> None:
-    text = ("[segment]\ndrop_probability = 0.3\nseed = 11\n"
-            "[[slave]]\nname = 'a'\ndevice = 'builtin:di8'\n")
+    body = "[[slave]]\nname = 'a'\ndevice = 'builtin:di8'\n"
 
-    def pattern() -> list[bool]:
-        seg = parse_topology(text).build()
+    def pattern(segment: str) -> list[bool]:
+        seg = parse_topology(segment + body).build()
         return [seg.process(encode_frame([Datagram.device(Command.BRD, 0, 0, 1)])) is None
                 for _ in range(64)]
 
-    assert pattern() == pattern()
+    def direct(p: float, seed: int) -> list[bool]:
+        seg = parse_topology(body).build()
+        seg.drop_probability(p, seed=seed)
+        return [seg.process(encode_frame([Datagram.device(Command.BRD, 0, 0, 1)])) is None
+                for _ in range(64)]
+
+    a = pattern("[segment]\ndrop_probability = 0.3\nseed = 11\n")
+    # The file's probability and seed are applied: the same losses as set directly,
+    # some frames lost and most not; without the key nothing is lost.
+    assert a == pattern("[segment]\ndrop_probability = 0.3\nseed = 11\n") == direct(0.3, 11)
+    assert 5 < sum(a) < 40
+    assert a != pattern("[segment]\ndrop_probability = 0.3\nseed = 12\n")
+    assert not any(pattern(""))
 
 
 @pytest.mark.parametrize(

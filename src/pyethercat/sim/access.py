@@ -26,6 +26,7 @@ from pyethercat.wire.al import AlState
 
 __all__ = [
     "SIDE_EFFECT_MASK",
+    "SM_LOWEST",
     "WRITE_TRIGGER",
     "EscRegisters",
     "SmView",
@@ -117,6 +118,14 @@ def buffer_written(status: int) -> int:
     return (status & ~R.SM_STATUS_BUFFER_MASK) | (nxt << R.SM_STATUS_BUFFER_SHIFT) | R.SM_STATUS_WRITE_EVENT
 
 
+#: Lowest address a sync manager governs: the digital I/O registers 0x0F00-0x0FFF
+#: (ET1200 terminals such as the EL2004 put their outputs there) and the process
+#: RAM. Registers below are never governed by an SM, whatever the SM registers
+#: say: an SM configured over them takes no part in any access, so that a
+#: hostile SM window over 0x0800 cannot lock the SM registers themselves.
+SM_LOWEST = R.DIGITAL_OUTPUT
+
+
 class SmView:
     """Decoded registers of one sync manager (a snapshot)."""
 
@@ -129,8 +138,9 @@ class SmView:
 
     @property
     def enabled(self) -> bool:
+        """Activated, not deactivated by the PDI, not empty, and over memory an SM may govern."""
         return bool(self.activate & R.SM_ACTIVATE_ENABLE) and not (
-            self.pdi_control & R.SM_PDI_DEACTIVATE) and self.length > 0
+            self.pdi_control & R.SM_PDI_DEACTIVATE) and self.length > 0 and self.start >= SM_LOWEST
 
     @property
     def mode(self) -> int:

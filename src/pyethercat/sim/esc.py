@@ -24,6 +24,7 @@ import numpy.typing as npt
 
 from pyethercat.sim.access import (
     SIDE_EFFECT_MASK,
+    SM_LOWEST,
     WRITE_TRIGGER,
     EscRegisters,
     SmView,
@@ -149,9 +150,9 @@ class Esc(EscRegisters):
             return self._ram_read(lo, hi)
         if hi > R.ADDRESS_SPACE or length == 0 or not self.impl[lo:hi].any():
             return None
-        # (SM areas lie in process RAM: register accesses, the DC ones of every
-        # cycle among them, need not look)
-        sms = self.sms_overlapping(lo, hi) if hi > R.RAM_START else []
+        # (SMs govern the digital I/O registers and the process RAM only: other
+        # register accesses, the DC ones of every cycle among them, need not look)
+        sms = self.sms_overlapping(lo, hi) if hi > SM_LOWEST else []
         for s in sms:
             if s.mode == _SM_MODE_MAILBOX and not s.ecat_writes and not (
                     s.status & R.SM_STATUS_MAILBOX_FULL):
@@ -198,9 +199,9 @@ class Esc(EscRegisters):
             return self._ram_write(lo, hi, data)
         if hi > R.ADDRESS_SPACE or not data or not self.impl[lo:hi].any():
             return False
-        # (SM areas lie in process RAM: register accesses, the DC ones of every
-        # cycle among them, need not look)
-        sms = self.sms_overlapping(lo, hi) if hi > R.RAM_START else []
+        # (SMs govern the digital I/O registers and the process RAM only: other
+        # register accesses, the DC ones of every cycle among them, need not look)
+        sms = self.sms_overlapping(lo, hi) if hi > SM_LOWEST else []
         for s in sms:
             if s.mode == _SM_MODE_MAILBOX and s.ecat_writes and s.status & R.SM_STATUS_MAILBOX_FULL:
                 return False  # full mailbox: refused

@@ -1,38 +1,43 @@
-"""FMMU configuration compiled into gather/scatter index arrays.
+"""Logical addressing: the FMMUs of a route compiled into gather/scatter index arrays.
 
-When the FMMU or SM registers of any slave change, the segment compiles the
-active FMMUs of all slaves on the frame's route into flat index arrays over
-the memory array (``EscMemory.flat``):
+Each logical datagram shape (address, length, command) gets a plan, made the
+first time the shape is seen and then cached: the FMMUs of the route that
+overlap the datagram's window are resolved, for that window only, into flat
+index arrays over the memory array (``EscMemory.flat``):
 
 - byte entries (logical start bit 0, stop bit 7, physical start bit 0): one
   logical byte <-> one physical byte;
 - bit entries (anything else): one logical bit <-> one physical bit.
 
-A logical datagram then costs a fixed number of numpy operations: two
-``searchsorted`` to find the entries inside [address, address + length), a
-gather for the read FMMUs and a scatter for the write FMMUs. The rules of
-the FMMU rules hold (ESC datasheet section I, "FMMU"; KickCAT
-``EmulatedESC.cc`` ``copyFmmu``): a logical byte may be read by one FMMU and
-written by another,
-bit operations leave unmapped bits untouched (``ufunc.at`` read-modify-write),
-unconfigured logical addresses pass unchanged.
+A plan covers at most the datagram's bytes (2047) times the FMMUs that
+overlap them, whatever the FMMUs say: an FMMU of 64 KiB, or one whose
+logical range runs past 0xFFFFFFFF (logical addresses wrap at 32 bits, as
+the ESC compares them), costs what its part inside the window costs. The
+plan cache is bounded too.
 
-Sync managers (ESC datasheet section I, "SyncManager") are compiled in as well, so that a logical access
-obeys the same rules as FPRD/FPWR: write entries whose physical byte lies in
-an enabled ECAT-read SM (inputs, send mailbox) are dropped, as the ESC
-refuses EtherCAT writes there (and they do not count in the working
-counter); read entries on the last byte of an enabled buffered ECAT-read SM
-complete a buffer read (status 'read event', the SM's AL event, its ECAT
-event cleared). Each datagram shape's status updates are two cached fancy-
-index operations.
+Executing a plan costs a fixed number of numpy operations: a gather for the
+read FMMUs, a scatter for the write FMMUs, the placing of the read values.
+The FMMU rules hold (ESC datasheet section I, "FMMU"; KickCAT
+``EmulatedESC.cc`` ``copyFmmu``): a logical byte may be read by one FMMU and
+written by another, bit operations leave unmapped bits untouched
+(``ufunc.at`` read-modify-write), unconfigured logical addresses pass
+unchanged, a physical byte the chip lacks is neither read nor written.
+
+Sync managers (ESC datasheet section I, "SyncManager") are compiled in as
+well, so that a logical access obeys the same rules as FPRD/FPWR: write
+entries whose physical byte lies in an enabled ECAT-read SM (inputs, send
+mailbox) are dropped, as the ESC refuses EtherCAT writes there (and they do
+not count in the working counter); read entries on the last byte of an
+enabled buffered ECAT-read SM complete a buffer read (status 'read event',
+the SM's AL event, its ECAT event cleared).
 
 Ordering along the ring matters only where mappings overlap: when a logical
 byte read by one slave is written by a later slave on the route (cross
 traffic), or when byte and bit entries of different slaves read the same
-byte. Such bytes are listed in ``conflicts``; a datagram touching one is
-processed pass by pass in route order (``_execute_ordered``). Several
-readers of the same byte/bit otherwise resolve by ordered assignment (the
-last slave on the route wins, as on the wire).
+byte. A datagram touching such a byte is processed pass by pass in route
+order (``_execute_ordered``). Several readers of the same byte/bit otherwise
+resolve by ordered assignment (the last slave on the route wins, as on the
+wire).
 """
 
 from __future__ import annotations
@@ -58,6 +63,9 @@ U8 = npt.NDArray[np.uint8]
 BoolA = npt.NDArray[np.bool_]
 
 SLAVE_STRIDE = R.ADDRESS_SPACE
+_SPACE = 1 << 32
+#: Plans kept (each is bounded by the datagram size times the FMMUs it covers).
+_PLAN_CACHE = 1024
 
 
 @dataclass
@@ -154,12 +162,57 @@ def _combine(idx: I64, val: U8, op: np.ufunc) -> tuple[I64, U8]:
     return idx[starts], op.reduceat(val, starts).astype(np.uint8)
 
 
+def _pieces(logical: int, length: int, lo: int, n: int) -> list[tuple[int, int, int]]:
+    """Byte offsets [i0, i1) of an FMMU at ``logical`` (``length`` bytes) inside the window
+    [lo, lo + n) of the 32-bit logical space, with the window offset of i0 (both wrap)."""
+    d = (lo - logical) % _SPACE  # FMMU offset of the window's first byte
+    out = []
+    for start in (d, d - _SPACE):
+        i0, i1 = max(start, 0), min(start + n, length)
+        if i1 > i0:
+            out.append((i0, i1, i0 - start))
+    return out
+
+
+@dataclass
+class _Entries:
+    """The mapped entries of one window, sorted by (window offset, route position)."""
+
+    rb_rel: I64     # byte reads: window byte, flat index, SM entry, position
+    rb_phys: I64
+    rb_sm: I64
+    rb_pos: I64
+    wb_rel: I64     # byte writes: window byte, flat index, completes a buffer, position
+    wb_phys: I64
+    wb_done: BoolA
+    wb_pos: I64
+    rt_rel: I64     # bit reads: window bit, flat byte, bit, SM entry, position
+    rt_pbyte: I64
+    rt_shift: I64
+    rt_sm: I64
+    rt_pos: I64
+    wt_rel: I64     # bit writes: window bit, flat byte, bit, completes a buffer, position
+    wt_pbyte: I64
+    wt_shift: I64
+    wt_done: BoolA
+    wt_pos: I64
+    stride: int
+
+    @property
+    def wb_slave(self) -> I64:
+        return self.wb_phys // self.stride
+
+    @property
+    def wt_slave(self) -> I64:
+        return self.wt_pbyte // self.stride
+
+
 class _Plan:
-    """Cached index slices of one logical datagram shape."""
+    """Cached index arrays of one logical datagram shape."""
 
     __slots__ = ("wkc", "ordered", "done", "r_phys", "r_rel", "t_pbyte", "t_shift", "t_rel",
                  "w_phys", "w_rel", "b_pbyte", "b_shift", "b_clear", "b_rel",
-                 "or_idx", "or_val", "and_idx", "and_val", "and_hit")
+                 "or_idx", "or_val", "and_idx", "and_val", "and_hit", "entries", "size")
 
     def __init__(self, wkc: int) -> None:
         self.wkc = wkc
@@ -182,147 +235,39 @@ class _Plan:
         self.b_shift: I64 | None = None
         self.b_clear: U8 | None = None
         self.b_rel: I64 | None = None
+        #: The window's entries (kept for the ordered path only).
+        self.entries: _Entries | None = None
+        #: Index entries the plan holds (for the cache bound).
+        self.size = 0
 
 
 class LogicalMap:
-    """Compiled FMMU mappings of a route (see the module docstring).
+    """The FMMUs of a route (see the module docstring).
 
     ``writable[slave]`` is the slave's ECAT-writable byte mask (written bytes
-    outside it are dropped); ``complete[slave]`` lists the last bytes of the
-    slave's enabled buffered write SMs (a write there completes a buffer).
+    outside it are dropped), ``implemented[slave]`` the bytes its chip has;
+    ``complete[slave]`` lists the last bytes of the slave's enabled buffered
+    write SMs (a write there completes a buffer).
     """
 
     def __init__(self, configs: list[FmmuConfig], writable: list[npt.NDArray[np.bool_]],
                  complete: dict[int, set[int]], implemented: list[npt.NDArray[np.bool_]],
                  sm_reads: SmReads | None = None, stride: int = SLAVE_STRIDE) -> None:
         self.configs = configs
-        smr = sm_reads if sm_reads is not None else SmReads.empty()
-        self._smr = smr
-        rb_log, rb_phys, rb_pos, rb_sm = [], [], [], []
-        wb_log, wb_phys, wb_pos, wb_done = [], [], [], []
-        rt_lbit, rt_pbyte, rt_shift, rt_pos, rt_sm = [], [], [], [], []
-        wt_lbit, wt_pbyte, wt_shift, wt_pos, wt_done = [], [], [], [], []
-        # Logical bytes a write FMMU may count for (not refused by an ECAT-read SM).
-        wc_log, wc_pos = [], []
-        for c in configs:
-            base = c.slave * stride
-            impl = implemented[c.slave]
-            wmask = writable[c.slave]
-            done = complete.get(c.slave, set())
-            refused = smr.refused.get(c.slave)
-            last = smr.last.get(c.slave)
-            if c.byte_aligned:
-                log = np.arange(c.logical, c.logical + c.length, dtype=np.int64)
-                phys = np.arange(c.physical, c.physical + c.length, dtype=np.int64)
-                if c.write:
-                    cnt = ~_in_ranges(phys, refused) if refused else np.ones(len(log), bool)
-                    wc_log.append(log[cnt])
-                    wc_pos.append(np.full(int(cnt.sum()), c.pos, np.int64))
-                keep = phys < R.ADDRESS_SPACE
-                log, phys = log[keep], phys[keep]
-                pos = np.full(len(log), c.pos, np.int64)
-                if c.read:
-                    ok = impl[phys]
-                    rb_log.append(log[ok])
-                    rb_phys.append(phys[ok] + base)
-                    rb_pos.append(pos[ok])
-                    rb_sm.append(_sm_ids(phys[ok], last) if last else np.full(int(ok.sum()), -1, np.int64))
-                if c.write:
-                    ok = wmask[phys]
-                    if refused:
-                        ok &= ~_in_ranges(phys, refused)
-                    wb_log.append(log[ok])
-                    wb_phys.append(phys[ok] + base)
-                    wb_pos.append(pos[ok])
-                    wb_done.append(np.isin(phys[ok], list(done)) if done else np.zeros(int(ok.sum()), bool))
-            else:
-                k = np.arange(c.bits, dtype=np.int64)
-                lbit = c.logical * 8 + c.start_bit + k
-                pbit = c.physical * 8 + c.physical_bit + k
-                if c.write:
-                    cnt = ~_in_ranges(pbit >> 3, refused) if refused else np.ones(len(lbit), bool)
-                    wc_log.append(np.unique(lbit[cnt] >> 3))
-                    wc_pos.append(np.full(len(wc_log[-1]), c.pos, np.int64))
-                keep = (pbit >> 3) < R.ADDRESS_SPACE
-                lbit, pbit = lbit[keep], pbit[keep]
-                pos = np.full(len(lbit), c.pos, np.int64)
-                if c.read:
-                    ok = impl[pbit >> 3]
-                    rt_lbit.append(lbit[ok])
-                    rt_pbyte.append((pbit[ok] >> 3) + base)
-                    rt_shift.append(pbit[ok] & 7)
-                    rt_pos.append(pos[ok])
-                    rt_sm.append(_sm_ids(pbit[ok] >> 3, last) if last else np.full(int(ok.sum()), -1, np.int64))
-                if c.write:
-                    ok = wmask[pbit >> 3]
-                    if refused:
-                        ok &= ~_in_ranges(pbit >> 3, refused)
-                    wt_lbit.append(lbit[ok])
-                    wt_pbyte.append((pbit[ok] >> 3) + base)
-                    wt_shift.append(pbit[ok] & 7)
-                    wt_pos.append(pos[ok])
-                    wt_done.append(np.isin(pbit[ok] >> 3, list(done)) if done else np.zeros(int(ok.sum()), bool))
-
-        def sort(keys: I64, *cols: I64) -> tuple[I64, ...]:
-            # Stable by (logical, route position): ordered assignment = last reader wins.
-            order = np.lexsort((cols[-1], keys)) if len(keys) else np.zeros(0, np.int64)
-            return (keys[order],) + tuple(c[order] for c in cols)
-
-        self.rb_log, self.rb_phys, self.rb_sm, self.rb_pos = sort(
-            _cat(rb_log), _cat(rb_phys), _cat(rb_sm), _cat(rb_pos))
-        wdone = np.concatenate(wb_done).astype(bool) if wb_done else np.zeros(0, bool)
-        self.wb_log, self.wb_phys, wdone_i, self.wb_pos = sort(
-            _cat(wb_log), _cat(wb_phys), wdone.astype(np.int64), _cat(wb_pos))
-        self.wb_done: BoolA = wdone_i.astype(bool)
-        self.rt_lbit, self.rt_pbyte, self.rt_shift, self.rt_sm, self.rt_pos = sort(
-            _cat(rt_lbit), _cat(rt_pbyte), _cat(rt_shift), _cat(rt_sm), _cat(rt_pos))
-        self.wc_log, self.wc_pos = sort(_cat(wc_log), _cat(wc_pos))
-        tdone = np.concatenate(wt_done).astype(bool) if wt_done else np.zeros(0, bool)
-        self.wt_lbit, self.wt_pbyte, self.wt_shift, tdone_i, self.wt_pos = sort(
-            _cat(wt_lbit), _cat(wt_pbyte), _cat(wt_shift), tdone.astype(np.int64), _cat(wt_pos))
-        self.wt_done: BoolA = tdone_i.astype(bool)
-        self.wt_slave: I64 = self.wt_pbyte // stride
-        self.wb_slave: I64 = self.wb_phys // stride
-        self.wt_clear: U8 = (~(np.left_shift(1, self.wt_shift))).astype(np.uint8)
-        # FMMU-level ranges for the working counter (ordered by route position).
+        self._writable = writable
+        self._implemented = implemented
+        self._complete = complete
+        self._smr = sm_reads if sm_reads is not None else SmReads.empty()
+        self._stride = stride
+        self.empty = not configs
+        # FMMU-level arrays, to find the FMMUs a window overlaps with array operations.
         self.f_lo = np.array([c.logical for c in configs], dtype=np.int64)
-        self.f_hi = np.array([c.logical + c.length for c in configs], dtype=np.int64)
+        self.f_len = np.array([c.length for c in configs], dtype=np.int64)
         self.f_pos = np.array([c.pos for c in configs], dtype=np.int64)
         self.f_read = np.array([c.read for c in configs], dtype=bool)
-        self.has_bits = bool(len(self.rt_lbit) or len(self.wt_lbit))
-        self.conflicts = self._find_conflicts()
-        self.empty = not configs
+        self.f_write = np.array([c.write for c in configs], dtype=bool)
         self._plans: dict[tuple[int, int, bool, bool], _Plan] = {}
-
-    def _find_conflicts(self) -> I64:
-        """Logical bytes whose result depends on the order along the route."""
-        read_log = np.concatenate([self.rb_log, self.rt_lbit >> 3])
-        read_pos = np.concatenate([self.rb_pos, self.rt_pos])
-        write_log = np.concatenate([self.wb_log, self.wt_lbit >> 3])
-        write_pos = np.concatenate([self.wb_pos, self.wt_pos])
-        bad: list[I64] = []
-        if len(read_log) and len(write_log):
-            # Earliest reader of each logical byte versus the writers of that byte.
-            order = np.lexsort((read_pos, read_log))
-            rl, rp = read_log[order], read_pos[order]
-            first = np.ones(len(rl), bool)
-            first[1:] = rl[1:] != rl[:-1]
-            ul, up = rl[first], rp[first]
-            idx = np.searchsorted(ul, write_log)
-            idx_c = np.minimum(idx, len(ul) - 1)
-            hit = (idx < len(ul)) & (ul[idx_c] == write_log) & (up[idx_c] < write_pos)
-            bad.append(write_log[hit])
-        if len(self.rb_log) and len(self.rt_lbit):
-            tb = self.rt_lbit >> 3
-            common = np.intersect1d(self.rb_log, tb)
-            for b in common.tolist():
-                p1 = set(self.rb_pos[self.rb_log == b].tolist())
-                p2 = set(self.rt_pos[tb == b].tolist())
-                if len(p1 | p2) > 1:
-                    bad.append(np.array([b], np.int64))
-        if not bad:
-            return np.zeros(0, np.int64)
-        return np.unique(np.concatenate(bad))
+        self._plan_entries = 0
 
     # --- execution --------------------------------------------------------------------
 
@@ -330,7 +275,7 @@ class LogicalMap:
         """Apply a logical datagram: (working counter, slaves whose write SM completed,
         whether an ECAT event request bit was cleared).
 
-        The index slices, the working counter, the completed slaves and the
+        The index arrays, the working counter, the completed slaves and the
         buffer reads depend only on (address, length, command), so they are
         computed once per datagram shape and cached: the cyclic cost is a
         gather, a scatter, a placement and the SM status updates.
@@ -338,14 +283,17 @@ class LogicalMap:
         key = (lo, len(data), reads, writes)
         plan = self._plans.get(key)
         if plan is None:
-            plan = self._plan(lo, lo + len(data), reads, writes)
-            if len(self._plans) > 4096:
+            plan = self._plan(lo, len(data), reads, writes)
+            if len(self._plans) >= _PLAN_CACHE or self._plan_entries > 8_000_000:
                 self._plans.clear()
+                self._plan_entries = 0
             self._plans[key] = plan
+            self._plan_entries += plan.size
         if not plan.wkc:
             return 0, plan.done, False
         if plan.ordered:
-            done = self._execute_ordered(flat, lo, data, reads, writes)
+            assert plan.entries is not None
+            done = _execute_ordered(plan.entries, flat, data, reads, writes)
             return plan.wkc, done, self._sm_read_events(flat, plan)
         # Gather first (a slave reads its memory as it was), scatter the data as
         # it arrived (``data`` is unchanged until the reads are placed), then place.
@@ -387,53 +335,141 @@ class LogicalMap:
         flat[plan.and_idx] = old & plan.and_val
         return True
 
-    def _plan(self, lo: int, hi: int, reads: bool, writes: bool) -> _Plan:
-        wkc = self.working_counter(lo, hi, reads, writes)
+    # --- plans ---------------------------------------------------------------------------
+
+    def _overlapping(self, lo: int, n: int) -> I64:
+        """Indices of the FMMUs with a byte in the window (32-bit wrap included)."""
+        if self.empty:
+            return np.zeros(0, np.int64)
+        d = (lo - self.f_lo) % _SPACE
+        hit = (d < self.f_len) | (d + n > _SPACE)
+        return np.nonzero(hit)[0]
+
+    def _entries(self, lo: int, n: int, fmmus: I64, reads: bool, writes: bool
+                 ) -> tuple[_Entries, I64, I64]:
+        """The entries of the window (sorted) and the write-countable (window byte, position) pairs."""
+        smr = self._smr
+        rb: list[list[I64]] = [[], [], [], []]
+        wb: list[list[I64]] = [[], [], [], []]
+        rt: list[list[I64]] = [[], [], [], [], []]
+        wt: list[list[I64]] = [[], [], [], [], []]
+        wc_rel: list[I64] = []
+        wc_pos: list[I64] = []
+        stride = self._stride
+        for f in fmmus.tolist():
+            c = self.configs[f]
+            if not ((c.read and reads) or (c.write and writes)):
+                continue
+            base = c.slave * stride
+            impl = self._implemented[c.slave]
+            wmask = self._writable[c.slave]
+            done = self._complete.get(c.slave)
+            refused = smr.refused.get(c.slave)
+            last = smr.last.get(c.slave)
+            for i0, i1, r0 in _pieces(c.logical, c.length, lo, n):
+                if c.byte_aligned:
+                    rel = np.arange(r0, r0 + i1 - i0, dtype=np.int64)
+                    phys = np.arange(c.physical + i0, c.physical + i1, dtype=np.int64)
+                    pbyte = phys
+                else:
+                    j0 = max(8 * i0, c.start_bit)
+                    j1 = min(8 * i1, c.start_bit + c.bits)
+                    if j1 <= j0:
+                        continue
+                    jj = np.arange(j0, j1, dtype=np.int64)
+                    rel = 8 * r0 + (jj - 8 * i0)
+                    pbit = c.physical * 8 + c.physical_bit + (jj - c.start_bit)
+                    pbyte = pbit >> 3
+                if c.write and writes:
+                    cnt = ~_in_ranges(pbyte, refused) if refused else np.ones(len(rel), bool)
+                    wc_rel.append(np.unique(rel[cnt] >> (0 if c.byte_aligned else 3)))
+                    wc_pos.append(np.full(len(wc_rel[-1]), c.pos, np.int64))
+                keep = pbyte < R.ADDRESS_SPACE
+                rel, pbyte = rel[keep], pbyte[keep]
+                shift = None if c.byte_aligned else (pbit[keep] & 7)
+                pos = np.full(len(rel), c.pos, np.int64)
+                if c.read and reads:
+                    ok = impl[pbyte]
+                    sm = _sm_ids(pbyte[ok], last) if last else np.full(int(ok.sum()), -1, np.int64)
+                    parts = (rel[ok], pbyte[ok] + base, sm, pos[ok])
+                    if shift is None:
+                        for k, p in enumerate(parts):
+                            rb[k].append(p)
+                    else:
+                        for k, p in enumerate((parts[0], parts[1], shift[ok], parts[2], parts[3])):
+                            rt[k].append(p)
+                if c.write and writes:
+                    ok = wmask[pbyte]
+                    if refused:
+                        ok &= ~_in_ranges(pbyte, refused)
+                    fin = (np.isin(pbyte[ok], list(done)) if done else np.zeros(int(ok.sum()), bool))
+                    parts = (rel[ok], pbyte[ok] + base, fin.astype(np.int64), pos[ok])
+                    if shift is None:
+                        for k, p in enumerate(parts):
+                            wb[k].append(p)
+                    else:
+                        for k, p in enumerate((parts[0], parts[1], shift[ok], parts[2], parts[3])):
+                            wt[k].append(p)
+
+        def sort(cols: list[list[I64]]) -> list[I64]:
+            arrays = [_cat(c) for c in cols]
+            if not len(arrays[0]):
+                return arrays
+            # Stable by (window offset, route position): ordered assignment = last reader wins.
+            order = np.lexsort((arrays[-1], arrays[0]))
+            return [a[order] for a in arrays]
+
+        rbs, wbs, rts, wts = sort(rb), sort(wb), sort(rt), sort(wt)
+        entries = _Entries(rbs[0], rbs[1], rbs[2], rbs[3],
+                           wbs[0], wbs[1], wbs[2].astype(bool), wbs[3],
+                           rts[0], rts[1], rts[2], rts[3], rts[4],
+                           wts[0], wts[1], wts[2], wts[3].astype(bool), wts[4], stride)
+        return entries, _cat(wc_rel), _cat(wc_pos)
+
+    def _plan(self, lo: int, n: int, reads: bool, writes: bool) -> _Plan:
+        fmmus = self._overlapping(lo, n)
+        if not len(fmmus) or n == 0:
+            return _Plan(0)
+        e, wc_rel, wc_pos = self._entries(lo, n, fmmus, reads, writes)
+        wkc = 0
+        if reads:
+            wkc += len(np.unique(self.f_pos[fmmus][self.f_read[fmmus]]))
+        if writes:
+            # Per slave: at least one byte it may write (bytes an ECAT-read SM
+            # refuses do not count, as for FPWR).
+            nw = len(np.unique(wc_pos))
+            wkc += 2 * nw if reads else nw
         plan = _Plan(wkc)
         if not wkc:
             return plan
-        if len(self.conflicts):
-            c0, c1 = np.searchsorted(self.conflicts, (lo, hi))
-            plan.ordered = bool(c1 > c0)
+        plan.size = len(e.rb_rel) + len(e.wb_rel) + len(e.rt_rel) + len(e.wt_rel)
+        plan.ordered = _ordered(e)
+        if plan.ordered:
+            plan.entries = e
+        if len(e.rb_rel):
+            plan.r_phys, plan.r_rel = e.rb_phys, e.rb_rel
+        if len(e.rt_rel):
+            plan.t_pbyte, plan.t_shift, plan.t_rel = e.rt_pbyte, e.rt_shift, e.rt_rel
         done_parts: list[I64] = []
-        if reads:
-            self._plan_sm_reads(plan, lo, hi)
-            r0, r1 = np.searchsorted(self.rb_log, (lo, hi))
-            if r1 > r0:
-                plan.r_phys = self.rb_phys[r0:r1].copy()
-                plan.r_rel = self.rb_log[r0:r1] - lo
-            t0, t1 = np.searchsorted(self.rt_lbit, (lo * 8, hi * 8))
-            if t1 > t0:
-                plan.t_pbyte = self.rt_pbyte[t0:t1].copy()
-                plan.t_shift = self.rt_shift[t0:t1].copy()
-                plan.t_rel = self.rt_lbit[t0:t1] - lo * 8
-        if writes:
-            w0, w1 = np.searchsorted(self.wb_log, (lo, hi))
-            if w1 > w0:
-                plan.w_phys = self.wb_phys[w0:w1].copy()
-                plan.w_rel = self.wb_log[w0:w1] - lo
-                d = self.wb_done[w0:w1]
-                done_parts.append(self.wb_slave[w0:w1][d])
-            b0, b1 = np.searchsorted(self.wt_lbit, (lo * 8, hi * 8))
-            if b1 > b0:
-                plan.b_pbyte = self.wt_pbyte[b0:b1].copy()
-                plan.b_shift = self.wt_shift[b0:b1].copy()
-                plan.b_clear = self.wt_clear[b0:b1].copy()
-                plan.b_rel = self.wt_lbit[b0:b1] - lo * 8
-                d = self.wt_done[b0:b1]
-                done_parts.append(self.wt_slave[b0:b1][d])
+        if len(e.wb_rel):
+            plan.w_phys, plan.w_rel = e.wb_phys, e.wb_rel
+            done_parts.append(e.wb_slave[e.wb_done])
+        if len(e.wt_rel):
+            plan.b_pbyte, plan.b_shift, plan.b_rel = e.wt_pbyte, e.wt_shift, e.wt_rel
+            plan.b_clear = (~(np.left_shift(1, e.wt_shift))).astype(np.uint8)
+            done_parts.append(e.wt_slave[e.wt_done])
         if done_parts:
             plan.done = np.unique(np.concatenate(done_parts)).astype(np.int64)
+        if reads:
+            self._plan_sm_reads(plan, e)
         return plan
 
-    def _plan_sm_reads(self, plan: _Plan, lo: int, hi: int) -> None:
+    def _plan_sm_reads(self, plan: _Plan, e: _Entries) -> None:
         """The buffered ECAT-read SMs whose last byte this datagram reads, as status updates."""
         smr = self._smr
         if not len(smr.status):
             return
-        r0, r1 = np.searchsorted(self.rb_log, (lo, hi))
-        t0, t1 = np.searchsorted(self.rt_lbit, (lo * 8, hi * 8))
-        ids = np.concatenate([self.rb_sm[r0:r1], self.rt_sm[t0:t1]])
+        ids = np.concatenate([e.rb_sm, e.rt_sm])
         ids = np.unique(ids[ids >= 0])
         if not len(ids):
             return
@@ -447,63 +483,60 @@ class LogicalMap:
             plan.and_idx, plan.and_hit = and_idx, hit
             plan.and_val = (~hit).astype(np.uint8)
 
-    @staticmethod
-    def _count(pos: I64) -> int:
-        if len(pos) == 0:
-            return 0
-        return 1 + int(np.count_nonzero(pos[1:] != pos[:-1]))
 
-    def working_counter(self, lo: int, hi: int, reads: bool, writes: bool) -> int:
-        """WKC of a logical datagram over [lo, hi): +1 per slave read, +2 (LRW) / +1 (LWR) per slave written."""
-        if self.empty:
-            return 0
-        hit = (self.f_lo < hi) & (self.f_hi > lo)
-        wkc = 0
-        if reads:
-            wkc += self._count(self.f_pos[hit & self.f_read])
+def _ordered(e: _Entries) -> bool:
+    """Whether the window's result depends on the order along the route (see the module docstring)."""
+    read_rel = np.concatenate([e.rb_rel, e.rt_rel >> 3])
+    read_pos = np.concatenate([e.rb_pos, e.rt_pos])
+    write_rel = np.concatenate([e.wb_rel, e.wt_rel >> 3])
+    write_pos = np.concatenate([e.wb_pos, e.wt_pos])
+    if len(read_rel) and len(write_rel):
+        # Earliest reader of each logical byte versus the writers of that byte.
+        order = np.lexsort((read_pos, read_rel))
+        rl, rp = read_rel[order], read_pos[order]
+        first = np.ones(len(rl), bool)
+        first[1:] = rl[1:] != rl[:-1]
+        ul, up = rl[first], rp[first]
+        idx = np.searchsorted(ul, write_rel)
+        idx_c = np.minimum(idx, len(ul) - 1)
+        if ((idx < len(ul)) & (ul[idx_c] == write_rel) & (up[idx_c] < write_pos)).any():
+            return True
+    if len(e.rb_rel) and len(e.rt_rel):
+        tb = e.rt_rel >> 3
+        for b in np.intersect1d(e.rb_rel, tb).tolist():
+            if len(set(e.rb_pos[e.rb_rel == b].tolist()) | set(e.rt_pos[tb == b].tolist())) > 1:
+                return True
+    return False
+
+
+def _execute_ordered(e: _Entries, flat: U8, data: U8, reads: bool, writes: bool) -> I64:
+    """Pass-by-pass processing in route order (only for windows whose result depends on it)."""
+    positions = sorted(set(e.rb_pos.tolist()) | set(e.rt_pos.tolist())
+                       | set(e.wb_pos.tolist()) | set(e.wt_pos.tolist()))
+    done: set[int] = set()
+    wb_slave, wt_slave = e.wb_slave, e.wt_slave
+    for p in positions:
+        arriving = data.copy()
+        rsel = np.nonzero(e.rb_pos == p)[0] if reads else np.zeros(0, np.int64)
+        tsel = np.nonzero(e.rt_pos == p)[0] if reads else np.zeros(0, np.int64)
+        rvals = flat[e.rb_phys[rsel]]
+        tvals = (flat[e.rt_pbyte[tsel]] >> e.rt_shift[tsel]) & 1
         if writes:
-            # Per slave: at least one byte it may write (bytes an ECAT-read SM
-            # refuses do not count, as for FPWR).
-            w0, w1 = np.searchsorted(self.wc_log, (lo, hi))
-            nw = len(np.unique(self.wc_pos[w0:w1])) if w1 > w0 else 0
-            wkc += 2 * nw if reads else nw
-        return wkc
-
-    def _execute_ordered(self, flat: U8, lo: int, data: U8, reads: bool, writes: bool) -> I64:
-        """Pass-by-pass processing in route order (only for datagrams over conflicting bytes)."""
-        hi = lo + len(data)
-        r0, r1 = np.searchsorted(self.rb_log, (lo, hi))
-        t0, t1 = np.searchsorted(self.rt_lbit, (lo * 8, hi * 8))
-        w0, w1 = np.searchsorted(self.wb_log, (lo, hi))
-        b0, b1 = np.searchsorted(self.wt_lbit, (lo * 8, hi * 8))
-        positions = sorted(set(self.rb_pos[r0:r1].tolist()) | set(self.rt_pos[t0:t1].tolist())
-                           | set(self.wb_pos[w0:w1].tolist()) | set(self.wt_pos[b0:b1].tolist()))
-        done: set[int] = set()
-        for p in positions:
-            arriving = data.copy()
-            rsel = np.nonzero(self.rb_pos[r0:r1] == p)[0] + r0 if reads else np.zeros(0, np.int64)
-            tsel = np.nonzero(self.rt_pos[t0:t1] == p)[0] + t0 if reads else np.zeros(0, np.int64)
-            rvals = flat[self.rb_phys[rsel]]
-            tvals = (flat[self.rt_pbyte[tsel]] >> self.rt_shift[tsel]) & 1
-            if writes:
-                wsel = np.nonzero(self.wb_pos[w0:w1] == p)[0] + w0
-                if len(wsel):
-                    flat[self.wb_phys[wsel]] = arriving[self.wb_log[wsel] - lo]
-                    if self.wb_done[wsel].any():
-                        done.update(self.wb_slave[wsel][self.wb_done[wsel]].tolist())
-                bsel = np.nonzero(self.wt_pos[b0:b1] == p)[0] + b0
-                if len(bsel):
-                    lb = self.wt_lbit[bsel] - lo * 8
-                    vals = ((arriving[lb >> 3] >> (lb & 7)) & 1).astype(np.uint8)
-                    np.bitwise_and.at(flat, self.wt_pbyte[bsel], self.wt_clear[bsel])
-                    np.bitwise_or.at(flat, self.wt_pbyte[bsel],
-                                     (vals << self.wt_shift[bsel]).astype(np.uint8))
-                    if self.wt_done[bsel].any():
-                        done.update(self.wt_slave[bsel][self.wt_done[bsel]].tolist())
-            if len(rsel):
-                data[self.rb_log[rsel] - lo] = rvals
-            if len(tsel):
-                bits = np.unpackbits(data, bitorder="little")
-                bits[self.rt_lbit[tsel] - lo * 8] = tvals
-                data[:] = np.packbits(bits, bitorder="little")
-        return np.array(sorted(done), dtype=np.int64)
+            wsel = np.nonzero(e.wb_pos == p)[0]
+            if len(wsel):
+                flat[e.wb_phys[wsel]] = arriving[e.wb_rel[wsel]]
+                done.update(wb_slave[wsel][e.wb_done[wsel]].tolist())
+            bsel = np.nonzero(e.wt_pos == p)[0]
+            if len(bsel):
+                lb = e.wt_rel[bsel]
+                vals = ((arriving[lb >> 3] >> (lb & 7)) & 1).astype(np.uint8)
+                np.bitwise_and.at(flat, e.wt_pbyte[bsel], (~np.left_shift(1, e.wt_shift[bsel])).astype(np.uint8))
+                np.bitwise_or.at(flat, e.wt_pbyte[bsel], (vals << e.wt_shift[bsel]).astype(np.uint8))
+                done.update(wt_slave[bsel][e.wt_done[bsel]].tolist())
+        if len(rsel):
+            data[e.rb_rel[rsel]] = rvals
+        if len(tsel):
+            bits = np.unpackbits(data, bitorder="little")
+            bits[e.rt_rel[tsel]] = tvals
+            data[:] = np.packbits(bits, bitorder="little")
+    return np.array(sorted(done), dtype=np.int64)

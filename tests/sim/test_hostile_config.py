@@ -1,0 +1,127 @@
+"""Hostile configurations and frames leave a segment a fresh master can bring to OP.
+
+A master (or a fuzzer) may write anything: an SM window over the register
+space, FMMUs of 64 KiB running past the end of the logical space, random
+bytes in any register. Registers 0x0000-0x0EFF are never governed by a sync
+manager, plans are bounded by the datagram, and after such frames a new
+master finds, configures and runs the segment as if it were fresh.
+"""
+
+from __future__ import annotations
+
+import random
+import struct
+
+from simhelp import fmmu_bytes, sm_bytes
+
+from pyethercat.clock import VirtualClock
+from pyethercat.link.pair import PairLink
+from pyethercat.master.master import Master
+from pyethercat.sim.topology import parse_topology
+from pyethercat.wire import registers as R
+from pyethercat.wire.al import AlState
+from pyethercat.wire.datagram import Command, Datagram
+from pyethercat.wire.frame import decode_frame, encode_frame
+
+TOPOLOGY = """
+[[slave]]
+name = "coupler"
+device = "builtin:coupler"
+[[slave]]
+name = "do8"
+device = "builtin:do8"
+[[slave]]
+name = "di8"
+device = "builtin:di8"
+[[slave]]
+name = "io"
+device = "builtin:coe-io"
+[[wire]]
+from = "do8:0"
+to = "di8:0"
+"""
+
+
+def _send(seg: object, *dgrams: Datagram) -> list[Datagram]:
+    reply = seg.process(encode_frame(list(dgrams)))  # type: ignore[attr-defined]
+    return [] if reply is None else decode_frame(reply).datagrams
+
+
+def _hostile_frames() -> list[bytes]:
+    frames = [
+        # SM0 over the register space: start 0x0800, mailbox mode, enabled (every slave)
+        encode_frame([Datagram.device(Command.BWR, 0, R.sm_address(0),
+                                      sm_bytes(0x0800, 0x100, R.SM_CONTROL_MAILBOX_IN))]),
+        # ... and SM1 reading the AL registers
+        encode_frame([Datagram.device(Command.BWR, 0, R.sm_address(1),
+                                      sm_bytes(0x0120, 0x20, R.SM_CONTROL_MAILBOX_IN))]),
+        # an FMMU whose logical range runs past 0xFFFFFFFF, and a bit FMMU of 64 KiB
+        encode_frame([Datagram.device(Command.BWR, 0, R.fmmu_address(0),
+                                      fmmu_bytes(0xFFFFFF02, 0xFFFF, 0, 7, 0x1000, 0, 3)),
+                      Datagram.device(Command.BWR, 0, R.fmmu_address(1),
+                                      fmmu_bytes(0x10, 0xFFFF, 3, 2, 0x0800, 5, 3))]),
+        encode_frame([Datagram.logical(Command.LRW, 0, bytes(1486))]),
+        encode_frame([Datagram.logical(Command.LRW, 0xFFFFFA00, bytes(1486))]),
+        encode_frame([Datagram.device(Command.BWR, 0, R.AL_CONTROL, struct.pack("<H", 0x18))]),
+    ]
+    # Mutated configuration frames: random bytes into the register space. Not
+    # into DL control 0x0100-0x0103: closing port 0 by loop control cuts a
+    # real ESC off its master too (every frame then circulates and is destroyed).
+    rng = random.Random(20251124)
+    for _ in range(400):
+        ado = rng.randrange(0x0000, 0x0A00)
+        data = bytes(rng.randrange(256) for _ in range(rng.randrange(1, 48)))
+        if ado < R.DL_CONTROL + 4 and ado + len(data) > R.DL_CONTROL:
+            continue
+        cmd = rng.choice([Command.BWR, Command.APWR, Command.BRW, Command.FPWR])
+        d = (Datagram.positional(cmd, -rng.randrange(4), ado, data) if cmd == Command.APWR
+             else Datagram.device(cmd, rng.randrange(4), ado, data))
+        frames.append(encode_frame([d, Datagram.logical(Command.LRW, rng.randrange(2**32), bytes(64))]))
+    return frames
+
+
+def test_an_sm_over_the_registers_governs_nothing() -> None:
+    seg = parse_topology(TOPOLOGY).build()
+    # A mailbox the master reads (slave -> master) over the SM registers themselves.
+    _send(seg, Datagram.device(Command.BWR, 0, R.sm_address(0),
+                               sm_bytes(0x0800, 0x100, R.SM_CONTROL_MAILBOX_IN)))
+    # A fresh master's reset of all SM registers (0x0800-0x08FF, the window's last
+    # byte included) is written and counted by every slave, every time: no
+    # "mailbox" fills up and refuses the next one...
+    for _ in range(3):
+        (d,) = _send(seg, Datagram.device(Command.BWR, 0, R.SM_BASE, bytes(0x100)))
+        assert d.wkc == 4
+        (d,) = _send(seg, Datagram.device(Command.BRD, 0, R.sm_address(0), R.SM_SIZE))
+        assert d.wkc == 4 and bytes(d.data) == bytes(R.SM_SIZE)
+        _send(seg, Datagram.device(Command.BWR, 0, R.sm_address(0),
+                                   sm_bytes(0x0800, 0x100, R.SM_CONTROL_MAILBOX_IN)))
+    # ...not even through an FMMU (an ECAT-read SM refuses logical writes in its
+    # window: here it governs nothing) ...
+    _send(seg, Datagram.device(Command.BWR, 0, R.fmmu_address(0),
+                               fmmu_bytes(0x10000, 8, 0, 7, R.sm_address(2), 0, 2)))
+    (d,) = _send(seg, Datagram.logical(Command.LWR, 0x10000, sm_bytes(0x1100, 1, 0x64, enable=0)))
+    assert d.wkc == 4
+    assert all(sl.read(R.sm_address(2), 4) == struct.pack("<HH", 0x1100, 1) for sl in seg.slaves)
+    assert seg.sm_span() == (0, 0)
+    # ...and an SM reading registers leaves them readable.
+    _send(seg, Datagram.device(Command.BWR, 0, R.sm_address(1),
+                               sm_bytes(0x0120, 0x20, R.SM_CONTROL_MAILBOX_IN)))
+    (d,) = _send(seg, Datagram.device(Command.BRD, 0, R.AL_STATUS, 2))
+    assert d.wkc == 4
+
+
+def test_after_hostile_frames_a_fresh_master_brings_the_segment_to_op() -> None:
+    seg = parse_topology(TOPOLOGY).build()
+    for frame in _hostile_frames():
+        seg.process(frame)
+    m = Master(PairLink.responder_link(seg.process), clock=VirtualClock())
+    m.scan()
+    assert [s.name.split()[0] for s in m.slaves] == ["PEC-CU4", "PEC-DO8", "PEC-DI8", "PEC-COEIO"]
+    m.configure()
+    m.run(cycle=0.001, seconds=0.05)
+    assert all(s.al_state == AlState.OP for s in m.slaves)
+    assert [int(sl.al_state) for sl in seg.slaves] == [int(AlState.OP)] * 4
+    # the process image works: an output reaches the wired input
+    m.slaves[1].outputs["Output 1"] = 1
+    m.run(cycle=0.001, seconds=0.01)
+    assert m.slaves[2].inputs["Input 1"] == 1
