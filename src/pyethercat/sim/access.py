@@ -129,18 +129,26 @@ SM_LOWEST = R.DIGITAL_OUTPUT
 class SmView:
     """Decoded registers of one sync manager (a snapshot)."""
 
-    __slots__ = ("n", "start", "length", "control", "status", "activate", "pdi_control")
+    __slots__ = ("n", "start", "length", "control", "status", "activate", "pdi_control",
+                 "ram_end")
 
-    def __init__(self, n: int, raw: bytes) -> None:
+    def __init__(self, n: int, raw: bytes, ram_end: int = R.ADDRESS_SPACE) -> None:
         self.n = n
         self.start, self.length, self.control, self.status, self.activate, self.pdi_control = (
             R.SM_STRUCT.unpack(raw))
+        #: First address after the chip's process RAM.
+        self.ram_end = ram_end
 
     @property
     def enabled(self) -> bool:
-        """Activated, not deactivated by the PDI, not empty, and over memory an SM may govern."""
+        """Activated, not deactivated by the PDI, not empty, and over memory an SM may govern.
+
+        An SM window reaching past the chip's process RAM is not activated
+        (the datasheets do not say what the chips do; the simulator keeps
+        every buffer inside memory that exists)."""
         return bool(self.activate & R.SM_ACTIVATE_ENABLE) and not (
-            self.pdi_control & R.SM_PDI_DEACTIVATE) and self.length > 0 and self.start >= SM_LOWEST
+            self.pdi_control & R.SM_PDI_DEACTIVATE) and self.length > 0 and (
+            self.start >= SM_LOWEST and self.start + self.length <= self.ram_end)
 
     @property
     def mode(self) -> int:
@@ -160,6 +168,7 @@ class SmView:
         view = SmView.__new__(SmView)
         view.n, view.start, view.length, view.control = self.n, self.start, self.length, self.control
         view.status, view.activate, view.pdi_control = status, self.activate, self.pdi_control
+        view.ram_end = self.ram_end
         return view
 
 
@@ -177,6 +186,7 @@ class EscRegisters:
         self.memory = memory
         self.index = index
         self.profile = prof
+        memory.fit(prof.ram_end)  # (rows as wide as this chip's RAM; the host recompiles)
         self.impl, self.writable = register_masks(prof)
         # The enabled SMs as last decoded, and the register bytes they came from.
         self._sm_raw = b""
@@ -218,7 +228,7 @@ class EscRegisters:
 
     def sm(self, n: int) -> SmView:
         base = R.sm_address(n)
-        return SmView(n, self.row[base: base + R.SM_SIZE].tobytes())
+        return SmView(n, self.row[base: base + R.SM_SIZE].tobytes(), self.profile.ram_end)
 
     def set_sm_status(self, n: int, value: int) -> None:
         self.row[R.sm_address(n) + R.SM_STATUS] = value & 0xFF
@@ -234,7 +244,8 @@ class EscRegisters:
         if static != self._sm_raw:
             self._sm_raw = static
             raw = regs.tobytes()
-            views = (SmView(n, raw[R.SM_SIZE * n: R.SM_SIZE * (n + 1)])
+            ram_end = self.profile.ram_end
+            views = (SmView(n, raw[R.SM_SIZE * n: R.SM_SIZE * (n + 1)], ram_end)
                      for n in range(self.profile.sm_count))
             self._sm_enabled = [v for v in views if v.enabled]
         return [s.with_status(int(regs[R.SM_SIZE * s.n + R.SM_STATUS]))

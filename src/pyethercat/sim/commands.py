@@ -252,7 +252,7 @@ class Commands:
         if hi > R.ADDRESS_SPACE:
             return 0
         host = self.host
-        if not self._fast_write_ok(lo, hi):
+        if not self._fast_write_ok(lo, hi) or hi > host.memory.stride:
             wkc = 0
             escs = host.escs
             for s in rows.tolist():
@@ -365,7 +365,7 @@ class Commands:
         sm_lo, sm_hi = host.sm_span()
         plan = BrdPlan()
         sii_timed = host.sii_busy_ns > 0 or any(p.sii_read_ns or p.sii_write_ns for p in self.profiles)
-        plan.slow = bool((lo < sm_hi and hi > sm_lo) or (
+        plan.slow = bool((lo < sm_hi and hi > sm_lo) or hi > host.memory.stride or (
             sii_timed and lo < R.SII_CONTROL + 2 and hi > R.SII_CONTROL))
         plan.rows = rows = self._rows_implementing(passes, lo, hi)
         plan.contiguous = contiguous = bool(route.contiguous and len(rows) == len(passes))

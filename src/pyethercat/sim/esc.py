@@ -159,6 +159,8 @@ class Esc(EscRegisters):
                 return None  # empty mailbox: not read, not counted
         self.refresh(lo, hi)
         data = self.row[lo:hi].tobytes()
+        if len(data) < length:  # past the row: memory the chip lacks reads 0
+            data += bytes(length - len(data))
         for s in sms:
             if hi >= s.end and lo < s.end:
                 self._sm_read_complete(s)
@@ -213,8 +215,11 @@ class Esc(EscRegisters):
             # (real ESCs answer e.g. a BWR of 0x092C with working counter 0).
             return False
         row = self.row
-        old = row[lo:hi].copy()
         new = np.frombuffer(data, np.uint8)
+        if hi > len(row):  # past the row: memory the chip lacks (nothing writable there)
+            hi = len(row)
+            w, new = w[: hi - lo], new[: hi - lo]
+        old = row[lo:hi].copy()
         row[lo:hi] = np.where(w, new, old)
         if SIDE_EFFECT_MASK[lo:hi].any():
             self._write_side_effects(lo, hi, old, new)
@@ -372,6 +377,10 @@ class Esc(EscRegisters):
         lo, hi = address, address + length
         if lo < 0 or hi > R.ADDRESS_SPACE:
             raise ValueError(f"PDI read 0x{address:04X}+{length} outside the 64 KiB space")
+        top = len(self.row)
+        if hi > top:  # memory the chip lacks reads 0
+            head = self.pdi_read(address, top - lo) if lo < top else b""
+            return head + bytes(length - len(head))
         self.refresh(lo, hi)
         data = self.row[lo:hi].tobytes()
         if lo < R.AL_CONTROL + 2 and hi > R.AL_CONTROL:
@@ -383,8 +392,9 @@ class Esc(EscRegisters):
 
     def pdi_write(self, address: int, data: bytes) -> None:
         lo, hi = address, address + len(data)
-        if lo < 0 or hi > R.ADDRESS_SPACE:
-            raise ValueError(f"PDI write 0x{address:04X}+{len(data)} outside the 64 KiB space")
+        if lo < 0 or hi > max(self.profile.ram_end, R.RAM_START):
+            raise ValueError(f"PDI write 0x{address:04X}+{len(data)} outside the chip's memory "
+                             f"(0x0000-0x{self.profile.ram_end - 1:04X})")
         sms = self.sms_overlapping(lo, hi)
         # A process-data input buffer (3-buffer mode, PDI writes) is published
         # only when its last byte is written: until then EtherCAT reads the

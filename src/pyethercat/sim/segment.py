@@ -147,11 +147,14 @@ class SimSlave:
         self.esc = esc
 
     def read(self, address: int, length: int) -> bytes:
-        """Raw memory bytes (no side effects)."""
-        return self.esc.row[address: address + length].tobytes()
+        """Raw memory bytes (no side effects; memory the chip lacks reads 0)."""
+        data = self.esc.row[address: address + length].tobytes()
+        return data + bytes(length - len(data))
 
     def write(self, address: int, data: bytes) -> None:
         """Raw memory write (no side effects; for test set-up)."""
+        if address + len(data) > len(self.esc.row):
+            raise ValueError(f"raw write 0x{address:04X}+{len(data)} past the simulated memory")
         self.esc.row[address: address + len(data)] = np.frombuffer(bytes(data), np.uint8)
 
     def u16(self, address: int) -> int:
