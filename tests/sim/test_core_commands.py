@@ -174,8 +174,24 @@ def test_irq_field_is_or_of_masked_event_requests() -> None:
     one(seg, Datagram.device(Command.BWR, 0, R.AL_CONTROL, struct.pack("<H", 2)))
     d = one(seg, Datagram.device(Command.NOP, 0, 0, 1))
     assert d.irq & R.EcatEvent.AL_STATUS
-    # reading AL status clears the event
-    one(seg, Datagram.device(Command.BRD, 0, R.AL_STATUS, 2))
+    # reading AL status clears the event; the read itself still carries it (each
+    # slave ORs its events into the header before it executes the datagram)
+    assert one(seg, Datagram.device(Command.BRD, 0, R.AL_STATUS, 2)).irq & R.EcatEvent.AL_STATUS
+    assert one(seg, Datagram.device(Command.NOP, 0, 0, 1)).irq == 0
+    # a state change shows from the next datagram on, not in the AL control write itself
+    assert not one(seg, Datagram.device(Command.BWR, 0, R.AL_CONTROL, struct.pack("<H", 1))).irq
+    assert one(seg, Datagram.device(Command.NOP, 0, 0, 1)).irq & R.EcatEvent.AL_STATUS
+
+
+def test_dl_status_event_cleared_by_reading_dl_status() -> None:
+    seg = seg3()
+    one(seg, Datagram.device(Command.BWR, 0, R.ECAT_EVENT_MASK, struct.pack("<H", R.EcatEvent.DL_STATUS)))
+    # the links came up at power-on: pending until DL status (0x0110) is read
+    assert one(seg, Datagram.device(Command.NOP, 0, 0, 1)).irq == R.EcatEvent.DL_STATUS
+    assert one(seg, Datagram.device(Command.FPRD, 0x1001, R.DL_STATUS, 2)).irq == R.EcatEvent.DL_STATUS
+    # still pending at the slaves that were not read
+    assert one(seg, Datagram.device(Command.NOP, 0, 0, 1)).irq == R.EcatEvent.DL_STATUS
+    assert one(seg, Datagram.device(Command.BRD, 0, R.DL_STATUS, 2)).irq == R.EcatEvent.DL_STATUS
     assert one(seg, Datagram.device(Command.NOP, 0, 0, 1)).irq == 0
 
 

@@ -551,13 +551,16 @@ class Segment(RingMixin):
                     _HEADER_TAIL.pack_into(buf, off + 2, ((address + count) & 0xFFFF) | (address & 0xFFFF0000),
                                            lw, irq | self._irq)
                     continue
+            # The IRQ field passes each slave in the header, before the slave
+            # executes the datagram: it shows the events as they were before it.
+            irq |= self._irq
             if cmd in _CLASS:
                 add, address = self._datagram(cmd, address, np.frombuffer(buf, np.uint8, n, doff), n)
                 if self._irq_dirty:
                     self._refresh_irq()
             else:
                 add = 0  # NOP and unknown commands pass untouched
-            _HEADER_TAIL.pack_into(buf, off + 2, address, lw, irq | self._irq)
+            _HEADER_TAIL.pack_into(buf, off + 2, address, lw, irq)
             wkc_off = doff + n
             _WKC.pack_into(buf, wkc_off, (_WKC.unpack_from(buf, wkc_off)[0] + add) & 0xFFFF)
         if vclock is not None and self.advance_clock:
