@@ -219,6 +219,18 @@ def test_sii_read_errors_are_typed() -> None:
         m.sii_read(0)
 
 
+def test_staggered_busy_slaves_are_read_whatever_the_frame_count() -> None:
+    """The busy limit counts per slave: slaves whose EEPROMs run staggered
+    (one busy in every frame) are read however long the whole read takes."""
+    from pyethercat.master.scan import SiiAccess, read_sii_batch
+
+    slaves = [FakeSlave(_image("A", 1), busy_polls=3), FakeSlave(_image("B", 2), busy_polls=5)]
+    m, _, _ = _master(slaves)
+    m.scan()
+    images = read_sii_batch(m.scheduler, [SiiAccess.of(s) for s in m.slaves], max_polls=5)
+    assert [parse_sii(i).product_code for i in images] == [1, 2]
+
+
 def test_topology_from_line_and_fallback() -> None:
     line = []
     for n in range(3):

@@ -19,7 +19,11 @@ ST = 0x1000
 
 
 def sii_cmd(seg: Segment, command: int, word: int) -> int:
+    """Start an SII command and read the status once the EEPROM is done with it
+    (the generic profiles take the datasheets' read and write times and the
+    EEPROM's write cycle: 7 ms of segment time covers all of them)."""
     fpwr(seg, ST, R.SII_CONTROL, struct.pack("<HI", command, word))
+    seg.clock.advance(7_000_000)  # type: ignore[attr-defined]
     return u16(fprd(seg, ST, R.SII_CONTROL, 2))
 
 
@@ -86,10 +90,19 @@ def test_sii_checksum_error_at_load_and_ownership_and_busy() -> None:
     assert sii_cmd(seg, R.SiiControl.CMD_READ, 0) & R.SiiControl.ACK_ERROR
     fpwr(seg, ST, R.SII_CONFIG, b"\x00")
     sii_cmd(seg, 0, 0)
-    seg.sii_busy_ns = 1_000_000
-    assert sii_cmd(seg, R.SiiControl.CMD_READ, 8) & R.SiiControl.BUSY
+    # the ET1100's read time (datasheet: ~680 us for 4 words), then a longer override
+    fpwr(seg, ST, R.SII_CONTROL, struct.pack("<HI", R.SiiControl.CMD_READ, 8))
     assert isinstance(seg.clock, VirtualClock)
-    seg.clock.advance(2_000_000)
+    seg.clock.advance(600_000)
+    busy = R.SiiControl.BUSY | R.SiiControl.CMD_READ
+    assert u16(fprd(seg, ST, R.SII_CONTROL, 2)) & busy == busy
+    seg.clock.advance(100_000)
+    assert not u16(fprd(seg, ST, R.SII_CONTROL, 2)) & R.SiiControl.BUSY
+    seg.sii_busy_ns = 1_000_000
+    fpwr(seg, ST, R.SII_CONTROL, struct.pack("<HI", R.SiiControl.CMD_READ, 8))
+    seg.clock.advance(900_000)
+    assert u16(fprd(seg, ST, R.SII_CONTROL, 2)) & R.SiiControl.BUSY
+    seg.clock.advance(200_000)
     assert not u16(fprd(seg, ST, R.SII_CONTROL, 2)) & R.SiiControl.BUSY
 
 
@@ -327,3 +340,19 @@ def test_sync0_of_several_slaves_fires_per_slave_and_stops_when_deactivated() ->
     assert apps[0].syncs == [starts[0] + k * 1_000_000 for k in range(4)]
     assert apps[1].syncs == [starts[1]]
     assert apps[2].syncs == [starts[2], starts[2] + 1_000_000]
+
+
+def test_sii_registers_keep_their_values_while_a_command_runs() -> None:
+    """0x0502-0x050F are written only when the interface is idle (ET1100
+    datasheet section II): a master that does not wait for busy to clear
+    cannot change the address of a read in progress or start another."""
+    seg = line(1, profile="ET1200")
+    address_all(seg)
+    image = bytes(seg.slaves[0].esc.sii)
+    fpwr(seg, ST, R.SII_CONTROL, struct.pack("<HI", R.SiiControl.CMD_READ, 0x08))
+    d = fpwr(seg, ST, R.SII_CONTROL, struct.pack("<HI", R.SiiControl.CMD_READ, 0x20))
+    assert d.wkc == 1  # the registers exist: the access is counted, the data dropped
+    assert struct.unpack("<I", seg.slaves[0].read(R.SII_ADDRESS, 4))[0] == 0x08
+    seg.clock.advance(700_000)  # type: ignore[attr-defined]
+    assert not u16(fprd(seg, ST, R.SII_CONTROL, 2)) & R.SiiControl.BUSY
+    assert fprd(seg, ST, R.SII_DATA, 4).data == image[0x10:0x14]

@@ -111,10 +111,13 @@ def test_an_sm_over_the_registers_governs_nothing() -> None:
 
 
 def test_after_hostile_frames_a_fresh_master_brings_the_segment_to_op() -> None:
-    seg = parse_topology(TOPOLOGY).build()
+    # One clock for both: the hostile frames wrote the EEPROMs, and the
+    # master's pauses while they finish their write cycle pass for the slaves too.
+    clock = VirtualClock()
+    seg = parse_topology(TOPOLOGY).build(clock=clock)
     for frame in _hostile_frames():
         seg.process(frame)
-    m = Master(PairLink.responder_link(seg.process), clock=VirtualClock())
+    m = Master(PairLink.responder_link(seg.process), clock=clock)
     m.scan()
     assert [s.name.split()[0] for s in m.slaves] == ["PEC-CU4", "PEC-DO8", "PEC-DI8", "PEC-COEIO"]
     m.configure()

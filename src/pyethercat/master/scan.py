@@ -94,6 +94,12 @@ _SII_ACK_ERROR = int(SiiControl.ACK_ERROR)
 _SII_WE_ERROR = int(SiiControl.WRITE_ENABLE_ERROR)
 _SII_CMD_READ = int(SiiControl.CMD_READ)
 _SII_RETRIES = 3
+# A missing acknowledge is the EEPROM's internal write cycle (I2C EEPROMs
+# take up to 5-10 ms after a write; a real EK1100 refused commands 2.95 ms
+# after one): retried at SOEM's pace (ecx_readeepromFP sleeps 1 ms after
+# a NACK), for up to 10 ms.
+_SII_NACK_RETRIES = 10
+_SII_NACK_PAUSE = 0.001
 #: Most SII reads of one slave chained in one frame (each a command and its read-back).
 _SII_CHAIN = 16
 # ESC identification block 0x0000-0x0009.
@@ -239,6 +245,7 @@ class _Reader:
     done: bool = False
     waiting: bool = False  # command issued, result not seen yet
     failures: int = 0
+    polls: int = 0  # busy read-backs in a row
     error: str | None = None
 
     @property
@@ -290,7 +297,6 @@ def read_sii_batch(scheduler: Scheduler, accesses: Sequence[SiiAccess], *,
         return sii_bytes_needed(data, max_bytes=max_bytes)
 
     readers = [_Reader(a, target=needed(b"") or 0) for a in accesses]
-    polls = 0
     chain = True
     window = _SII_WINDOW
     while True:
@@ -330,7 +336,7 @@ def read_sii_batch(scheduler: Scheduler, accesses: Sequence[SiiAccess], *,
                     datagrams.append(r.access.rd(SII_CONTROL, window))
                     slots.append((r, j, True))
         replies = scheduler.transact(datagrams)
-        any_busy = False
+        nacked = False
         # Readers whose remaining chained steps in this frame are void.
         skip: set[int] = set()
         for slot, reply in zip(slots, replies, strict=True):
@@ -358,12 +364,18 @@ def read_sii_batch(scheduler: Scheduler, accesses: Sequence[SiiAccess], *,
             ctrl, addr = struct.unpack_from("<HI", reply.data)
             if ctrl & _SII_BUSY:
                 # A real EEPROM: its command runs now; poll it, chain no more.
-                any_busy = True
                 chain = False
                 r.waiting = True
                 skip.add(id(r))
+                r.polls += 1
+                if r.polls > max_polls:
+                    # Counted per slave: slaves whose reads run staggered
+                    # keep some slave busy in every frame for the whole scan.
+                    r.done = True
+                    r.error = f"SII interface stays busy at word 0x{r.word:04X}"
                 continue
             r.waiting = False
+            r.polls = 0
             if ctrl & _SII_CMD_ERRORS or (addr & 0xFFFF) != r.word:
                 skip.add(id(r))
                 if j:
@@ -373,7 +385,9 @@ def read_sii_batch(scheduler: Scheduler, accesses: Sequence[SiiAccess], *,
                 what = ("missing acknowledge" if ctrl & _SII_ACK_ERROR else
                         "write-enable error" if ctrl & _SII_WE_ERROR else
                         f"address register shows word 0x{addr:04X}")
-                _fail(r, f"SII read at word 0x{r.word:04X}: {what} (status 0x{ctrl:04X})")
+                nacked = nacked or bool(ctrl & _SII_ACK_ERROR)
+                _fail(r, f"SII read at word 0x{r.word:04X}: {what} (status 0x{ctrl:04X})",
+                      _SII_NACK_RETRIES if ctrl & _SII_ACK_ERROR else _SII_RETRIES)
                 continue
             r.failures = 0
             r.data += reply.data[_SII_DATA_OFFSET:_SII_DATA_OFFSET + r.chunk]
@@ -385,18 +399,11 @@ def read_sii_batch(scheduler: Scheduler, accesses: Sequence[SiiAccess], *,
                     del r.data[length:]
             else:
                 r.target = max(r.target, need)
-        if any_busy:
-            polls += 1
-            if polls > max_polls:
-                for r in readers:
-                    if r.waiting and not r.done:
-                        r.done = True
-                        r.error = f"SII interface stays busy at word 0x{r.word:04X}"
-        else:
-            polls = 0
         # Clear error bits of slaves that will retry (the ESC refuses commands until then).
         clear = [r for r in readers if not r.done and r.failures and not r.waiting]
         if clear:
+            if nacked:
+                scheduler.sleep(_SII_NACK_PAUSE)
             scheduler.transact([r.access.wr(SII_CONTROL, b"\0\0") for r in clear])
     out: list[bytes | SiiError] = []
     for r in readers:
@@ -407,9 +414,9 @@ def read_sii_batch(scheduler: Scheduler, accesses: Sequence[SiiAccess], *,
     return out
 
 
-def _fail(r: _Reader, why: str) -> None:
+def _fail(r: _Reader, why: str, retries: int = _SII_RETRIES) -> None:
     r.failures += 1
-    if r.failures > _SII_RETRIES:
+    if r.failures > retries:
         r.done = True
         r.error = why
 

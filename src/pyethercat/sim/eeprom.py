@@ -124,6 +124,10 @@ class SiiInterface:
         regs.set_u16(R.DL_STATUS, dl)
         regs.host.invalidate(Dirty.ADDRESSING)
 
+    def busy(self) -> bool:
+        """A command is running (its busy time has not run out)."""
+        return bool(self.busy_until) and self.regs.host.now_ns() < self.busy_until
+
     def refresh(self) -> None:
         """Before a read of 0x0502: a command whose busy time ran out is done."""
         if self.busy_until and self.regs.host.now_ns() >= self.busy_until:

@@ -44,6 +44,7 @@ from pyethercat.wire.sii import SiiInfo
 __all__ = ["Esc"]
 
 _SM_MODE_MAILBOX = int(R.SmMode.MAILBOX)
+_SII_END = R.SII_DATA + 8
 _SM_MODE_BUFFERED = int(R.SmMode.BUFFERED)
 _SM_STATUS_BUFFER_NONE = 3 << R.SM_STATUS_BUFFER_SHIFT
 # Process RAM takes every byte and no write there has a register side effect
@@ -214,6 +215,12 @@ class Esc(EscRegisters):
             # Read-only registers: the write is not performed and not counted
             # (real ESCs answer e.g. a BWR of 0x092C with working counter 0).
             return False
+        if lo < _SII_END and hi > R.SII_CONTROL and self.eeprom.busy():
+            # While a command runs the SII registers keep their values (ET1100
+            # datasheet section II, 0x0502-0x050F: written only when not busy);
+            # the registers exist and are writable, so the access is counted.
+            w = w.copy()
+            w[max(R.SII_CONTROL - lo, 0): _SII_END - lo] = False
         row = self.row
         new = np.frombuffer(data, np.uint8)
         if hi > len(row):  # past the row: memory the chip lacks (nothing writable there)
