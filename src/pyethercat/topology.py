@@ -246,8 +246,9 @@ def parse_topology_text(text: str | dict[str, Any], source: str = "<topology>") 
     slaves = _table_list(raw, "slave", source)
     if not slaves:
         raise ConfigError(f"{source}: no [[slave]] tables: a segment needs at least one slave")
+    names: set[str] = set()
     for i, table in enumerate(slaves):
-        doc.slaves.append(_slave(table, i, doc))
+        doc.slaves.append(_slave(table, i, doc, names))
     if doc.slaves[0].parent is not None:
         raise ConfigError(f"{source}: slave {doc.slaves[0].name!r}: the first slave is connected "
                           "to the master, it has no parent")
@@ -267,7 +268,7 @@ def parse_topology_text(text: str | dict[str, Any], source: str = "<topology>") 
     return doc
 
 
-def _slave(raw: dict[str, Any], i: int, doc: TopologyDoc) -> SlaveEntry:
+def _slave(raw: dict[str, Any], i: int, doc: TopologyDoc, names: set[str]) -> SlaveEntry:
     src = doc.source
     label = f"{src}: slave #{i + 1}"
     name = _str(raw.get("name", ""), f"{label}: name") if "name" in raw else ""
@@ -275,8 +276,9 @@ def _slave(raw: dict[str, Any], i: int, doc: TopologyDoc) -> SlaveEntry:
         raise ConfigError(f"{label}: every [[slave]] needs a name")
     where = f"{src}: slave {name!r}"
     _check_keys(raw, _SLAVE_KEYS, where)
-    if any(s.name == name for s in doc.slaves):
+    if name in names:
         raise ConfigError(f"{where}: the name is used twice")
+    names.add(name)
     kinds = [k for k in ("device", "sii", "esi") if k in raw]
     if len(kinds) != 1:
         raise ConfigError(f"{where}: give exactly one of device = \"builtin:...\", sii = ..., esi = ...")

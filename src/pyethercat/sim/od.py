@@ -29,7 +29,6 @@ Modelling choices (public sources leave these open):
 
 from __future__ import annotations
 
-import copy
 import math
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
@@ -277,13 +276,18 @@ class SimOdObject:
 
     def copy(self) -> SimOdObject:
         """An independent copy (values copied, no hooks: the copy's owner attaches its own)."""
+        # Attribute copies without __post_init__ or copy.copy (a copy per slave
+        # of a kind with thousands of instances: this is the cost of each).
         entries = {}
+        new_entry = SimOdEntry.__new__
         for sub, e in self.entries.items():
-            c = copy.copy(e)
+            c = new_entry(SimOdEntry)
+            c.__dict__.update(e.__dict__)
             c.raw = bytearray(e.raw)
             c.on_read = c.on_write = None
             entries[sub] = c
-        obj = copy.copy(self)
+        obj = SimOdObject.__new__(SimOdObject)
+        obj.__dict__.update(self.__dict__)
         obj.entries = entries
         obj.check = obj.after = None
         return obj

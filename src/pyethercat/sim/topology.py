@@ -18,13 +18,13 @@ the slave (or wire/fault) it concerns.
 from __future__ import annotations
 
 import random
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from pyethercat.errors import ConfigError, SiiError
 from pyethercat.sim.devices import get_builtin
-from pyethercat.sim.devices.builtin import BuiltinDevice
+from pyethercat.sim.devices.builtin import BuiltinDevice, with_serial
 from pyethercat.sim.devices.esi_device import EsiSlave, load_esi_device
 from pyethercat.sim.eoe import EchoEndpoint, EoeSettings, eoe_server
 from pyethercat.sim.foe import FoeOptions
@@ -171,8 +171,9 @@ def parse_topology(
                     drift_ppm=doc.drift_ppm, drift_seed=doc.drift_seed,
                     ring=doc.ring)
     base = Path(base_dir)
+    parsed: dict[bytes, SiiInfo] = {}  # slaves of one image share its parse (read only)
     for entry in doc.slaves:
-        topo.slaves.append(_resolve_slave(entry, topo, base))
+        topo.slaves.append(_resolve_slave(entry, topo, base, parsed))
     _place(topo)
     for w in doc.wires:
         topo.wires.append(_check_wire(w, topo))
@@ -182,7 +183,8 @@ def parse_topology(
     return topo
 
 
-def _resolve_slave(entry: SlaveEntry, topo: Topology, base: Path) -> SlaveConfig:
+def _resolve_slave(entry: SlaveEntry, topo: Topology, base: Path,
+                   parsed: dict[bytes, SiiInfo]) -> SlaveConfig:
     where = f"{topo.source}: slave {entry.name!r}"
     builtin: BuiltinDevice | None = None
     sii_path: Path | None = None
@@ -208,10 +210,18 @@ def _resolve_slave(entry: SlaveEntry, topo: Topology, base: Path) -> SlaveConfig
         except ConfigError as exc:
             raise ConfigError(f"{where}: {exc}") from exc
         image = esi_slave.sii
-    try:
-        info = parse_sii(image)
-    except SiiError as exc:
-        raise ConfigError(f"{where}: SII image {entry.written_source} is unusable: {exc}") from exc
+    # Slaves whose images differ only in the serial number share one parse.
+    key = with_serial(image, 0) if len(image) >= 0x20 else image
+    info = parsed.get(key)
+    if info is None:
+        try:
+            info = parsed[key] = parse_sii(key)
+        except SiiError as exc:
+            raise ConfigError(f"{where}: SII image {entry.written_source} is unusable: {exc}") from exc
+    if len(image) >= 0x20:
+        serial = int.from_bytes(image[0x1C:0x20], "little")
+        if serial != info.serial:
+            info = replace(info, serial=serial)
     profile_name = entry.profile if entry.profile is not None else default_profile(builtin, info)
     if profile_name.upper() not in PROFILES:
         raise ConfigError(

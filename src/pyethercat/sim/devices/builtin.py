@@ -286,8 +286,25 @@ class BuiltinDevice:
         return info
 
     def sii_image(self, serial: int = 0, alias: int = 0) -> bytes:
-        """The EEPROM image bytes (checksum set, padded with 0xFF to 2 KiB)."""
-        return build_sii(self.sii_info(serial=serial, alias=alias))
+        """The EEPROM image bytes (checksum set, padded with 0xFF to 2 KiB).
+
+        Built once per alias, then the serial number is put in: a segment of
+        thousands of one kind builds one image (the serial, words 0x0E-0x0F,
+        lies outside the checksummed words 0-6)."""
+        images: dict[int, bytes] = self.__dict__.setdefault("_sii_images", {})
+        image = images.get(alias)
+        if image is None:
+            image = images[alias] = build_sii(self.sii_info(serial=0, alias=alias))
+        return with_serial(image, serial)
+
+
+def with_serial(image: bytes, serial: int) -> bytes:
+    """``image`` with SII words 0x0E-0x0F (the serial number) set to ``serial``."""
+    return image[:_SERIAL] + (serial & 0xFFFFFFFF).to_bytes(4, "little") + image[_SERIAL + 4:]
+
+
+#: Byte offset of the serial number in an SII image (word 0x0E).
+_SERIAL = 0x1C
 
 
 def _bits(prefix: int, count: int, name: str, sm: int, obj_base: int) -> tuple[BuiltinPdo, ...]:

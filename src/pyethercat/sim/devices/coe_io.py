@@ -174,10 +174,18 @@ class CoeIoModel(CoeModel):
     def __init__(self) -> None:
         super().__init__(self._dictionary, details=_COE_ALL, capacity_out=_PD_CAPACITY,
                          capacity_in=_PD_CAPACITY, fields=((0x8000, 2), (0x8000, 3)))
+        # One dictionary built per identity, copied per instance (a segment of
+        # thousands of coe-io slaves would spend seconds building each anew).
+        self._templates: dict[tuple[int, int, int], SimObjectDictionary] = {}
 
-    @staticmethod
-    def _dictionary(info: SiiInfo, app: MailboxDevice) -> SimObjectDictionary:
-        return coe_io_dictionary(info.vendor_id, info.product_code, info.revision, info.serial)
+    def _dictionary(self, info: SiiInfo, app: MailboxDevice) -> SimObjectDictionary:
+        key = (info.vendor_id, info.product_code, info.revision)
+        template = self._templates.get(key)
+        if template is None:
+            template = self._templates[key] = coe_io_dictionary(*key)
+        od = template.copy()
+        od.set_value(_STD.IDENTITY, 4, info.serial)
+        return od
 
     def compute(self, instances: I64) -> None:
         f, r = self.field, self.rows(instances)
