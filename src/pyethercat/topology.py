@@ -246,19 +246,19 @@ def parse_topology_text(text: str | dict[str, Any], source: str = "<topology>") 
     slaves = _table_list(raw, "slave", source)
     if not slaves:
         raise ConfigError(f"{source}: no [[slave]] tables: a segment needs at least one slave")
-    names: set[str] = set()
+    seen: set[str] = set()
     for i, table in enumerate(slaves):
-        doc.slaves.append(_slave(table, i, doc, names))
+        doc.slaves.append(_slave(table, i, doc, seen))
     if doc.slaves[0].parent is not None:
         raise ConfigError(f"{source}: slave {doc.slaves[0].name!r}: the first slave is connected "
                           "to the master, it has no parent")
-    names = [s.name for s in doc.slaves]
-    if isinstance(doc.ring, tuple) and doc.ring[0] not in names:
+    position = {s.name: i for i, s in enumerate(doc.slaves)}
+    if isinstance(doc.ring, tuple) and doc.ring[0] not in position:
         raise ConfigError(f"{source}: [segment] ring: no slave named {doc.ring[0]!r}")
     for i, s in enumerate(doc.slaves):
-        if s.parent is not None and s.parent not in names[:i]:
+        if s.parent is not None and position.get(s.parent, i) >= i:
             where = f"{source}: slave {s.name!r}"
-            if s.parent in names:
+            if s.parent in position:
                 raise ConfigError(f"{where}: parent {s.parent!r} must come earlier in the file")
             raise ConfigError(f"{where}: parent {s.parent!r} is not a slave of this file")
     for i, table in enumerate(_table_list(raw, "wire", source)):
