@@ -382,8 +382,7 @@ def test_safeop_or_op_to_boot_is_refused_to_safeop() -> None:
 
 def sii_cmd(seg: Segment, command: int, word: int) -> int:
     """Start an SII command and read the status once the EEPROM is done with it
-    (the generic profiles take the datasheets' read and write times and the
-    EEPROM's write cycle: 7 ms of segment time covers all of them)."""
+    (7 ms of segment time cover any profile's read, write and write cycle)."""
     fpwr(seg, ST, R.SII_CONTROL, struct.pack("<HI", command, word))
     seg.clock.advance(7_000_000)  # type: ignore[attr-defined]
     return u16(fprd(seg, ST, R.SII_CONTROL, 2))

@@ -45,7 +45,7 @@ def _sii_word(seg: object, pos: int, word: int) -> int:
     # APWR SII address + read command, then APRD the data
     cmd = struct.pack("<HI", 0x0100, word)
     assert _one(seg, _ap(Command.APWR, pos, SII_CONTROL, cmd)).wkc == 1
-    seg.clock.advance(1_000_000)  # the ET1200's read time (datasheet: ~680 us for 4 words)
+    seg.clock.advance(1_000_000)  # any profile's EEPROM read is done
     data = _one(seg, _ap(Command.APRD, pos, SII_DATA, bytes(4))).data
     return int(struct.unpack_from("<H", data)[0])
 
