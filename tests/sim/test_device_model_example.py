@@ -84,14 +84,14 @@ def test_the_example_kind_runs_under_our_master(registry: DeviceRegistry) -> Non
     m = Master(PairLink.responder_link(seg.process), clock=VirtualClock())
     m.scan()
     m.configure()
-    m.run(cycle=0.001, seconds=0.01)  # to OP
+    m.run(cycle=0.001, seconds=0.01, clock=VirtualClock())  # to OP
     assert all(s.al_state == AlState.OP for s in m.slaves)
     inv = [s for s in m.slaves if s.name.startswith("PEC-INV8")]
     assert len(inv) == 3
     for value in (0x00, 0x5A, 0xFF, 0x81):
         for k, s in enumerate(inv):
             s.outputs["Out"] = (value + k) & 0xFF
-        m.run(cycle=0.001, seconds=0.003)  # the inputs follow one frame later
+        m.run(cycle=0.001, seconds=0.003, clock=VirtualClock())  # inputs follow a frame later
         assert [s.inputs["In"] for s in inv] == [~(value + k) & 0xFF for k in range(3)]
     model = next(x for x in seg.apps.models if isinstance(x, InverterModel))
     assert model.count == 3 and (model.received[: model.count] > 0).all()
@@ -105,10 +105,10 @@ def test_one_call_per_frame_for_all_instances(registry: DeviceRegistry,
     m = Master(PairLink.responder_link(seg.process), clock=VirtualClock())
     m.scan()
     m.configure()
-    m.run(cycle=0.001, seconds=0.01)
+    m.run(cycle=0.001, seconds=0.01, clock=VirtualClock())
     model = next(x for x in seg.apps.models if isinstance(x, InverterModel))
     calls: list[int] = []
     original = model.on_outputs
     monkeypatch.setattr(model, "on_outputs", lambda inst: (calls.append(len(inst)), original(inst)))
-    m.run(cycle=0.001, seconds=0.005)
+    m.run(cycle=0.001, seconds=0.005, clock=VirtualClock())
     assert calls and set(calls) == {50}  # every frame: one call for the 50 instances
