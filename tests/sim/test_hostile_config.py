@@ -121,10 +121,13 @@ def test_after_hostile_frames_a_fresh_master_brings_the_segment_to_op() -> None:
     m.scan()
     assert [s.name.split()[0] for s in m.slaves] == ["PEC-CU4", "PEC-DO8", "PEC-DI8", "PEC-COEIO"]
     m.configure()
-    m.run(cycle=0.001, seconds=0.05)
+    # To OP with the loop on the shared virtual clock, then frames stepped by hand: a
+    # run(seconds=...) ends in the orderly stop (PREOP) and counts its seconds in real time.
+    runner = m.start(cycle=0.001, clock=clock)
+    runner.halt()
     assert all(s.al_state == AlState.OP for s in m.slaves)
     assert [int(sl.al_state) for sl in seg.slaves] == [int(AlState.OP)] * 4
     # the process image works: an output reaches the wired input
     m.slaves[1].outputs["Output 1"] = 1
-    m.run(cycle=0.001, seconds=0.01)
+    assert runner.exchange_once() and runner.exchange_once()
     assert m.slaves[2].inputs["Input 1"] == 1
