@@ -157,8 +157,9 @@ class CycleExchange:
                 img.inputs_valid = True
             return True, False, back, now_ns() - t0, names
         # Inputs only from the groups whose exchange came back whole; the others keep
-        # their last good inputs, which age.
-        spoilt = (bad or set()) | (missing or set())
+        # their last good inputs, which age. A count short only by the share of slaves
+        # known to be gone (set_absent) is whole for the slaves that are there.
+        spoilt = (short or set()) | (missing or set())
         for p, raw in came:
             for g, buf, lo, hi, at in p.copies:
                 if g not in spoilt:
