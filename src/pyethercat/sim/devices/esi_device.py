@@ -246,18 +246,22 @@ class EsiCoeModel(CoeModel):
     def _dictionary(self, info: SiiInfo, app: MailboxDevice) -> SimObjectDictionary:
         if self._template is None:
             self._template = esi_dictionary(self.slave.device, vendor_id=self.slave.vendor_id)
-        od = self._template.copy()
-        serial = od.get(StandardObject.IDENTITY).entries.get(IdentitySub.SERIAL_NUMBER)
-        if serial is not None and serial.data_type.byte_size == 4:
-            serial.raw[:] = info.serial.to_bytes(4, "little")
-        return od
-
+        return _instance_dictionary(self._template, info)
 
     def instance_app(self, info: SiiInfo) -> tuple[int, MailboxDevice]:
         """An instance; it speaks EoE too (with a diagnostic page) when its ESI lists EoE."""
         instance, app = super().instance_app(info)
         _with_eoe(app, info)
         return instance, app
+
+
+def _instance_dictionary(template: SimObjectDictionary, info: SiiInfo) -> SimObjectDictionary:
+    """One instance's copy of a device's dictionary, with the instance's serial number."""
+    od = template.copy()
+    serial = od.get(StandardObject.IDENTITY).entries.get(IdentitySub.SERIAL_NUMBER)
+    if serial is not None and serial.data_type.byte_size == 4:
+        serial.raw[:] = info.serial.to_bytes(4, "little")
+    return od
 
 
 def _with_eoe(app: MailboxDevice, info: SiiInfo) -> None:
@@ -289,11 +293,7 @@ class EsiDriveModel(Cia402Model):
             od = esi_dictionary(self.slave.device, vendor_id=self.slave.vendor_id)
             add_cia402_objects(od)
             self._template = od
-        od = self._template.copy()
-        serial = od.get(StandardObject.IDENTITY).entries.get(IdentitySub.SERIAL_NUMBER)
-        if serial is not None and serial.data_type.byte_size == 4:
-            serial.raw[:] = info.serial.to_bytes(4, "little")
-        return od
+        return _instance_dictionary(self._template, info)
 
     def instance_app(self, info: SiiInfo) -> tuple[int, MailboxDevice]:
         """An instance; it speaks EoE too when its ESI lists EoE."""
