@@ -309,10 +309,15 @@ def coe_segment(count: int = 1, mailbox_size: int = 128,
     """A segment of ``count`` MiniCoe slaves and the master's end of the link."""
     seg = Segment()
     made: list[MiniCoe] = []
+    # The two mailboxes lie in the chip's process RAM: an ET1200's 1 KiB holds two of
+    # 128 bytes but not two of 800 (a real one refuses PREOP with 0x0016), an ET1100's 8 KiB does.
+    profile = PROFILES[AI2.profile]
+    if AI2.sii_info().rx_mailbox_offset + 2 * mailbox_size > profile.ram_end:
+        profile = PROFILES["ET1100"]
     for i in range(count):
         app = apps[i] if apps is not None else MiniCoe(mailbox_size=mailbox_size)
         made.append(app)
-        seg.add_slave(SimSlaveSpec(f"coe{i}", coe_sii(mailbox_size), PROFILES[AI2.profile], app))
+        seg.add_slave(SimSlaveSpec(f"coe{i}", coe_sii(mailbox_size), profile, app))
     drop = DropFilter(seg.process)
     drop.ticks = [a.tick for a in made]
     link = PairLink.responder_link(drop)
