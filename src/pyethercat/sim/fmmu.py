@@ -271,6 +271,30 @@ class LogicalMap:
 
     # --- execution --------------------------------------------------------------------
 
+    def plan_keys(self) -> list[tuple[int, int, bool, bool]]:
+        """The datagram shapes (address, length, reads, writes) planned so far."""
+        return list(self._plans)
+
+    def span_key(self) -> tuple[int, int, bool, bool] | None:
+        """The shape of one LRW over every mapped byte (what most masters send), or None."""
+        if self.empty:
+            return None
+        lo = int(self.f_lo.min())
+        return lo, int((self.f_lo + self.f_len).max()) - lo, True, True
+
+    def prepare(self, keys: list[tuple[int, int, bool, bool]]) -> list[I64]:
+        """Plan these datagram shapes now (those a previous map had seen); returns the
+        sets of slaves whose write SMs each of them completes."""
+        done: list[I64] = []
+        for key in keys[:_PLAN_CACHE]:
+            plan = self._plans.get(key)
+            if plan is None:
+                plan = self._plans[key] = self._plan(*key)
+                self._plan_entries += plan.size
+            if len(plan.done):
+                done.append(plan.done)
+        return done
+
     def run(self, flat: U8, lo: int, data: U8, reads: bool, writes: bool) -> tuple[int, I64, bool]:
         """Apply a logical datagram: (working counter, slaves whose write SM completed,
         whether an ECAT event request bit was cleared).

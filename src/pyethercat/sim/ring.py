@@ -202,6 +202,55 @@ class RingMixin:
                 setattr(self, flag, True)
 
 
+    @property
+    def unsettled(self) -> bool:
+        """Whether the walk, SM areas, addresses or logical map must be compiled again."""
+        return (self.topology_dirty or self.sm_dirty or self._addressing_dirty
+                or self._fmmu_dirty or self._lmap is None)
+
+    def settle(self) -> None:
+        """Compile now what the next frames would compile after a change of the segment.
+
+        A pulled cable, a port fault or a slave switched off changes the walk of
+        every frame, and with it the addresses, the logical map and the IRQ
+        field the frame path uses. Compiled lazily, that work falls on the first
+        frames after the change (more than a millisecond for a few slaves, in
+        Python): a 1 kHz master then sees a frame come back late although a real
+        cable change costs the ESCs nothing. The control channel calls this
+        between frames, so the next frame finds everything ready, including the
+        logical plans of the datagrams each master port carried before.
+        """
+        # A datagram seen at either port: after a cable change each port's copy passes
+        # slaves it did not pass before, so every port plans every shape.
+        seen: dict[tuple[int, int, bool, bool], None] = {}
+        for saved in self._saved.values():
+            if saved[1] is not None:
+                seen.update(dict.fromkeys(saved[1].plan_keys()))
+        if self._lmap is not None:
+            seen.update(dict.fromkeys(self._lmap.plan_keys()))
+        keys = list(seen)
+        entry = self._entry
+        self.route  # noqa: B018  (the new walks)
+        if self.sm_dirty:
+            self._refresh_sm_state()
+        for port in range(len(self._routes)):
+            if port != self._entry:
+                self._use_entry(port)
+            if self._addressing_dirty:
+                self._refresh_addressing()
+            if self._fmmu_dirty or self._lmap is None:
+                self._refresh_fmmus()
+                lmap = self._lmap
+                assert lmap is not None
+                span = lmap.span_key()
+                # Before any process data, the likely first datagram: one LRW over the map.
+                for slaves in lmap.prepare(keys or ([span] if span is not None else [])):
+                    self.sm.prepare_publish(slaves)
+            if self._irq_dirty:
+                self._refresh_irq()
+        if self._entry != entry:
+            self._use_entry(entry)
+
     # --- route-dependent compiled state per master port --------------------------------
 
     @property

@@ -338,7 +338,7 @@ class Segment(RingMixin):
                 self._entry = PORT_A
             self._route = self._routes[self._entry]
             self.topology_dirty = False
-            self.addressing_dirty = self.fmmu_dirty = self.irq_dirty = self.sm_dirty = True
+            self.addressing_dirty = self.fmmu_dirty = self.irq_dirty = True
             self._bplan.clear()
         return self._route
 

@@ -78,6 +78,9 @@ __all__ = ["ServerStats", "SimProcess", "SimServer", "open_link", "start_sim_pro
 
 #: Default period of the segment's periodic work (watchdogs, SYNC), seconds.
 DEFAULT_TICK_S = 0.001
+#: Control commands that change the walk of frames (cables, power, slaves plugged).
+_CHANGES_WALK = frozenset({"break_link", "restore_link", "power_off", "power_on", "port_fault",
+                           "remove", "insert"})
 #: Default time the serve loop polls for the next frame before blocking, seconds.
 DEFAULT_BUSY_POLL_S = 0.0001
 
@@ -246,6 +249,12 @@ class SimServer:
         if now >= self._next_tick:
             if self._tick is not None:
                 self._tick()
+            seg = self.segment
+            if getattr(seg, "unsettled", False):
+                # Compile between frames what the master's configuration changed (at
+                # most once a tick), not on the first cyclic frame, which a real ESC
+                # answers as fast as any other.
+                seg.settle()
             self._next_tick = now + self.tick_s
 
     def _drain(self, port: int) -> int:
@@ -418,6 +427,14 @@ class SimServer:
         seg = self.segment
         if cmd == "ping":
             return {}
+        answer = self._command(cmd, request)
+        settle = getattr(seg, "settle", None)
+        if cmd in _CHANGES_WALK and settle is not None:
+            settle()  # between frames, as a real cable change costs the next frame nothing
+        return answer
+
+    def _command(self, cmd: object, request: dict[str, Any]) -> dict[str, Any]:
+        seg = self.segment
         if cmd == "slaves":
             return {"slaves": [{"index": s.index, "name": s.name,
                                 "al_status": s.u16(AL_STATUS)} for s in seg.slaves]}
