@@ -24,6 +24,7 @@ from collections.abc import Sequence
 import numpy as np
 import numpy.typing as npt
 
+from pyethercat.sim.cache import ArrayKeyCache
 from pyethercat.sim.device import DeviceApp
 from pyethercat.sim.model import DeviceModel
 from pyethercat.wire.al import AlState
@@ -49,7 +50,7 @@ class DeviceApps:
         self.wants_outputs = np.zeros(0, bool)
         self._output_models: list[int] = []
         self._sync_models: list[int] = []
-        self._groups: dict[bytes, _Groups] = {}
+        self._groups: ArrayKeyCache[_Groups] = ArrayKeyCache()
         self._pulses: dict[int, tuple[list[I64], int]] = {}
 
     def add(self, app: DeviceApp | None, model: DeviceModel | None, instance: int) -> None:
@@ -80,17 +81,14 @@ class DeviceApps:
         return self.models.index(model)
 
     def _group(self, slaves: I64) -> _Groups:
-        key = slaves.tobytes()
-        groups = self._groups.get(key)
+        groups = self._groups.get(slaves)
         if groups is None:
             mids = self.model_id[slaves]
             models = tuple((self.models[m], np.sort(self.instance[slaves[mids == m]]))
                            for m in self._output_models if (mids == m).any())
             legacy = tuple(slaves[self.wants_outputs[slaves]].tolist())
             groups = (models, legacy)
-            if len(self._groups) > 1024:
-                self._groups.clear()
-            self._groups[key] = groups
+            self._groups.put(slaves, groups)
         return groups
 
     def outputs_completed(self, slaves: I64) -> None:

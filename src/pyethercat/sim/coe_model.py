@@ -35,10 +35,12 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from pyethercat.sim.cache import ArrayKeyCache
 from pyethercat.sim.coe import CoeServer
 from pyethercat.sim.mailbox import MailboxDevice
 from pyethercat.sim.model import DeviceModel
 from pyethercat.sim.od import SimObjectDictionary
+from pyethercat.sim.pdio import ProcessIo
 from pyethercat.sim.pdo_mapping import MappedEntry, PdoMapping
 from pyethercat.wire.al import AlState
 from pyethercat.wire.mailbox.coe import ObjectAccess
@@ -52,6 +54,7 @@ __all__ = ["CoeModel"]
 I64 = npt.NDArray[np.int64]
 U8 = npt.NDArray[np.uint8]
 Key = tuple[int, int]
+_EMPTY = np.zeros(0, np.int64)
 
 #: numpy types of the CoE basic data types (little endian), for typed image columns.
 _NUMPY: dict[DataType, str] = {
@@ -141,15 +144,47 @@ class _Layout:
 
 
 class _Group:
-    """Instances sharing one layout, with their index arrays (cached per instance set)."""
+    """Instances sharing one layout, with their index arrays (cached per instance set).
 
-    __slots__ = ("layout", "rows", "slaves", "full")
+    ``out_src``/``out_dst`` move the mapped output bytes from the PDI's buffers
+    straight into the image (one gather, one scatter), ``in_src``/``in_dst`` the
+    input entries from the image into the input buffers: flat indices fused
+    from the layout and the SM positions (``ProcessIo.plan``) while ``version``
+    is the ProcessIo's; None where the layout or a buffer needs the general path
+    (bit-sized entries, gaps, a buffer not enabled)."""
+
+    __slots__ = ("layout", "rows", "slaves", "full", "version", "out_src", "out_dst",
+                 "in_src", "in_dst", "in_status")
 
     def __init__(self, layout: _Layout, rows: I64, slaves: I64, full: bool) -> None:
         self.layout = layout
         self.rows = rows
         self.slaves = slaves
         self.full = full
+        self.version = -1
+        self.out_src: I64 | None = None
+        self.out_dst: I64 | None = None
+        self.in_src: I64 | None = None
+        self.in_dst: I64 | None = None
+        self.in_status: I64 = _EMPTY
+
+    def fuse(self, io: ProcessIo, width: int) -> None:
+        """The fused index arrays for the SM configuration of ``io`` now."""
+        lay = self.layout
+        self.version = io.version
+        self.out_src = self.out_dst = self.in_src = self.in_dst = None
+        base = self.rows[:, None] * width
+        if lay.out_len and lay.out_bits is None:
+            g = io.plan(self.slaves, lay.out_len, True)
+            if g.all_valid:
+                self.out_src = g.idx[:, lay.out_buf].ravel()
+                self.out_dst = (base + lay.out_img).ravel()
+        if lay.in_len and lay.in_direct:
+            g = io.plan(self.slaves, lay.in_len, False)
+            if g.all_valid:
+                self.in_src = (base + lay.in_img).ravel()
+                self.in_dst = g.idx.ravel()
+                self.in_status = g.status
 
 
 class CoeModel(DeviceModel):
@@ -175,7 +210,10 @@ class CoeModel(DeviceModel):
         self.fields: dict[Key, _Field] = {}
         self.width = 0
         self.image: U8 = np.zeros((0, 0), np.uint8)
+        #: The image as one flat view (the fused index arrays address it).
+        self._flat: U8 = self.image.reshape(-1)
         self._views: dict[Key, npt.NDArray[Any]] = {}
+        self._column_sets: dict[tuple[Key, ...], tuple[npt.NDArray[Any], ...]] = {}
         self.layout_id = self.array("layout_id", np.int32, -1)
         self.last_out_ns = self.array("last_out_ns", np.int64, -1)
         self.prev_out_ns = self.array("prev_out_ns", np.int64, -1)
@@ -183,7 +221,7 @@ class CoeModel(DeviceModel):
         self._mappings: list[PdoMapping] = []
         self._layouts: list[_Layout] = []
         self._layout_ids: dict[tuple[Any, ...], int] = {}
-        self._groups: dict[bytes, tuple[_Group, ...]] = {}
+        self._groups: ArrayKeyCache[tuple[_Group, ...]] = ArrayKeyCache(256)
 
     # --- instances ---------------------------------------------------------------------
 
@@ -223,13 +261,17 @@ class CoeModel(DeviceModel):
                 offset += size
         self.width = max(1, offset)
         self.image = np.zeros((len(self.slaves), self.width), np.uint8)
+        self._flat = self.image.reshape(-1)
 
     def _grow(self, capacity: int) -> None:
         super()._grow(capacity)
         image = np.zeros((capacity, self.width), np.uint8)
         image[: len(self.image)] = self.image
         self.image = image
+        self._flat = image.reshape(-1)
         self._views.clear()
+        self._column_sets.clear()
+        self._groups.clear()
 
     def _hook(self, instance: int, od: SimObjectDictionary) -> None:
         """The instance's image entries read and write its image row."""
@@ -293,6 +335,14 @@ class CoeModel(DeviceModel):
             self._views[key] = view
         return view
 
+    def fields_of(self, keys: tuple[Key, ...]) -> tuple[npt.NDArray[Any], ...]:
+        """The columns of several entries (:meth:`field` each), looked up once and cached:
+        a ``compute`` that names its entries in a constant tuple pays one lookup per frame."""
+        cols = self._column_sets.get(keys)
+        if cols is None:
+            cols = self._column_sets[keys] = tuple(self.field(i, s) for i, s in keys)
+        return cols
+
     def rows(self, instances: I64) -> I64 | slice:
         """``instances`` as an index: a slice when it is every instance (views, not copies)."""
         n = len(instances)
@@ -301,8 +351,7 @@ class CoeModel(DeviceModel):
     # --- the frame path ----------------------------------------------------------------------
 
     def _grouped(self, instances: I64) -> tuple[_Group, ...]:
-        key = instances.tobytes()
-        groups = self._groups.get(key)
+        groups = self._groups.get(instances)
         if groups is None:
             lids = self.layout_id[instances]
             out = []
@@ -311,9 +360,7 @@ class CoeModel(DeviceModel):
                 full = len(rows) == self.count  # (unique instances: all of them, in order)
                 out.append(_Group(self._layouts[lid], rows, self.slaves[rows], full))
             groups = tuple(out)
-            if len(self._groups) > 256:
-                self._groups.clear()
-            self._groups[key] = groups
+            self._groups.put(instances, groups)
         return groups
 
     def _unpack(self, instances: I64) -> tuple[_Group, ...]:
@@ -325,6 +372,11 @@ class CoeModel(DeviceModel):
         for g in groups:
             lay = g.layout
             if not lay.out_len:
+                continue
+            if g.version != io.version:
+                g.fuse(io, self.width)
+            if g.out_src is not None:
+                self._flat[g.out_dst] = io.memory.shadow_flat[g.out_src]
                 continue
             out = io.outputs(g.slaves, lay.out_len)
             rows: I64 | slice = slice(0, self.count) if g.full else g.rows[:, None]
@@ -343,6 +395,12 @@ class CoeModel(DeviceModel):
             lay = g.layout
             if not lay.in_len:
                 continue
+            if g.version != io.version:
+                g.fuse(io, self.width)
+            if g.in_src is not None:
+                io.memory.flat[g.in_dst] = self._flat[g.in_src]
+                io.inputs_written(g.in_status)
+                continue
             img = self.image[: self.count] if g.full else self.image[g.rows]
             if lay.in_direct:
                 data = img[:, lay.in_img]
@@ -357,9 +415,14 @@ class CoeModel(DeviceModel):
     def on_outputs(self, instances: I64) -> None:
         self._unpack(instances)
         if self.io is not None:
-            r = self.rows(instances)
-            self.prev_out_ns[r] = self.last_out_ns[r]
-            self.last_out_ns[r] = self.io.now_ns()
+            now = self.io.now_ns()
+            if len(instances) == self.count:
+                # Every instance: the arrays trade places (one fill, no copy).
+                self.prev_out_ns, self.last_out_ns = self.last_out_ns, self.prev_out_ns
+                self.last_out_ns[: self.count] = now
+            else:
+                self.prev_out_ns[instances] = self.last_out_ns[instances]
+                self.last_out_ns[instances] = now
         self.compute(instances)
         self.publish(instances)
 

@@ -225,12 +225,14 @@ class _Plan:
         self.ordered = False
         self.done: I64 = np.zeros(0, np.int64)
         self.r_phys: I64 | None = None
-        self.r_rel: I64 | None = None
+        #: Window offsets of the gathered bytes: a slice where they are one run
+        #: (the usual image: a view of the datagram, not a gather of its bytes).
+        self.r_rel: I64 | slice | None = None
         self.t_pbyte: I64 | None = None
         self.t_shift: I64 | None = None
         self.t_rel: I64 | None = None
         self.w_phys: I64 | None = None
-        self.w_rel: I64 | None = None
+        self.w_rel: I64 | slice | None = None
         self.b_pbyte: I64 | None = None
         self.b_shift: I64 | None = None
         self.b_clear: U8 | None = None
@@ -471,12 +473,12 @@ class LogicalMap:
         if plan.ordered:
             plan.entries = e
         if len(e.rb_rel):
-            plan.r_phys, plan.r_rel = e.rb_phys, e.rb_rel
+            plan.r_phys, plan.r_rel = e.rb_phys, _run(e.rb_rel)
         if len(e.rt_rel):
             plan.t_pbyte, plan.t_shift, plan.t_rel = e.rt_pbyte, e.rt_shift, e.rt_rel
         done_parts: list[I64] = []
         if len(e.wb_rel):
-            plan.w_phys, plan.w_rel = e.wb_phys, e.wb_rel
+            plan.w_phys, plan.w_rel = e.wb_phys, _run(e.wb_rel)
             done_parts.append(e.wb_slave[e.wb_done])
         if len(e.wt_rel):
             plan.b_pbyte, plan.b_shift, plan.b_rel = e.wt_pbyte, e.wt_shift, e.wt_rel
@@ -506,6 +508,14 @@ class LogicalMap:
             and_idx, hit = _combine(smr.ev_byte[ids][ev], smr.ev_bit[ids][ev], np.bitwise_or)
             plan.and_idx, plan.and_hit = and_idx, hit
             plan.and_val = (~hit).astype(np.uint8)
+
+
+def _run(rel: I64) -> I64 | slice:
+    """``rel`` as a slice when it is consecutive offsets, else itself."""
+    first = int(rel[0])
+    if int(rel[-1]) - first == len(rel) - 1 and bool((np.diff(rel) == 1).all()):
+        return slice(first, first + len(rel))
+    return rel
 
 
 def _ordered(e: _Entries) -> bool:

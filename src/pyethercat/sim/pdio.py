@@ -62,10 +62,21 @@ class ProcessIo:
         #: Whether a slave received a complete output buffer since it entered SAFEOP.
         self.has_outputs = has_outputs
         self._plans: dict[tuple[bytes, int, bool], _Gather] = {}
+        #: Counts the invalidations: index arrays a model derives from :meth:`plan`
+        #: (fused with its own) are good while this is unchanged.
+        self.version = 0
 
     def invalidate(self) -> None:
         """SM registers changed: index arrays are computed again when next used."""
         self._plans.clear()
+        self.version += 1
+
+    def plan(self, slaves: I64, length: int, outputs: bool) -> _Gather:
+        """The index arrays of ``slaves``' output (input) buffers, ``length`` bytes each:
+        ``idx`` (len(slaves), length) into the memory (:attr:`EscMemory.shadow_flat`
+        for outputs, :attr:`EscMemory.flat` for inputs), ``valid`` where a buffer
+        byte is, ``status`` the input SMs' status bytes. Good until :attr:`version` moves."""
+        return self._plan(slaves, length, outputs)
 
     def _plan(self, slaves: I64, length: int, outputs: bool) -> _Gather:
         key = (slaves.tobytes(), length, outputs)
@@ -113,6 +124,11 @@ class ProcessIo:
             flat[plan.idx] = data
         else:
             flat[plan.idx[plan.valid]] = data[plan.valid]
-        st = plan.status
-        if len(st):
-            flat[st] = _AFTER_PDI_WRITE[flat[st]]
+        self.inputs_written(plan.status)
+
+    def inputs_written(self, status: I64) -> None:
+        """The PDI wrote the last byte of the input buffers whose SM status bytes are ``status``
+        (indices into :attr:`EscMemory.flat`): buffer index and write event advance."""
+        if len(status):
+            flat = self.memory.flat
+            flat[status] = _AFTER_PDI_WRITE[flat[status]]

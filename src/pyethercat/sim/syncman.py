@@ -25,6 +25,7 @@ import numpy as np
 import numpy.typing as npt
 
 from pyethercat.sim.access import buffer_written
+from pyethercat.sim.cache import ArrayKeyCache
 from pyethercat.sim.esc import Esc
 from pyethercat.sim.fmmu import LogicalMap, SmReads, parse_fmmus
 from pyethercat.sim.memory import EscMemory
@@ -74,7 +75,7 @@ class SmAreas:
         self._status = _EMPTY
         self._al: U8 = np.zeros(0, np.uint8)
         self._wd = np.zeros(0, bool)
-        self._plans: dict[bytes, _Plan] = {}
+        self._plans: ArrayKeyCache[_Plan] = ArrayKeyCache()
 
     def compile(self, escs: Sequence[Esc]) -> None:
         """Recompile from the SM registers of every powered slave."""
@@ -159,13 +160,10 @@ class SmAreas:
         status (buffer index, write event) and raises the AL events. Returns
         the slaves whose watchdog these writes trigger. The index arrays for a
         given set of slaves are computed once and cached."""
-        key = slaves.tobytes()
-        plan = self._plans.get(key)
+        plan = self._plans.get(slaves)
         if plan is None:
             plan = self._plan(slaves)
-            if len(self._plans) > 1024:
-                self._plans.clear()
-            self._plans[key] = plan
+            self._plans.put(slaves, plan)
         idx, st, al_idx, al_val, wd_slaves = plan
         flat = self.memory.flat
         self.memory.shadow_flat[idx] = flat[idx]

@@ -161,6 +161,11 @@ def coe_io_dictionary(vendor: int, product: int, revision: int, serial: int = 0)
     return od
 
 
+#: The entries CoeIoModel.compute reads and writes, in its order.
+_IO_COLUMNS = ((0x6000, 1), (0x6000, 2), (0x6000, 3), (0x6000, 4), (0x6000, 5),
+               (0x7000, 1), (0x7000, 2), (0x7000, 3), (0x7000, 4), (0x8000, 2), (0x8000, 3))
+
+
 class CoeIoModel(CoeModel):
     """``builtin:coe-io``: inputs echo outputs through the current PDO mapping.
 
@@ -188,13 +193,14 @@ class CoeIoModel(CoeModel):
         return od
 
     def compute(self, instances: I64) -> None:
-        f, r = self.field, self.rows(instances)
-        invert = f(0x8000, 3)[r] != 0
-        f(0x6000, 1)[r] = np.where(invert, ~f(0x7000, 1)[r], f(0x7000, 1)[r])
-        f(0x6000, 2)[r] = f(0x7000, 2)[r]
-        f(0x6000, 3)[r] = f(0x7000, 3)[r] + f(0x8000, 2)[r].view(np.uint32)
-        f(0x6000, 5)[r] = f(0x7000, 4)[r]
-        f(0x6000, 4)[r] += 1
+        di, v16i, v32i, count, bit_in, do, v16o, v32o, bit_out, offset, invert = self.fields_of(_IO_COLUMNS)
+        r = self.rows(instances)
+        # Inverted where 0x8000:03 is set: XOR with 0xFF (0 - True as uint8), not a select.
+        di[r] = do[r] ^ np.negative((invert[r] != 0).view(np.uint8))
+        v16i[r] = v16o[r]
+        v32i[r] = v32o[r] + offset[r].view(np.uint32)
+        bit_in[r] = bit_out[r]
+        count[r] += 1
 
 
 COE_IO = BuiltinDevice(
