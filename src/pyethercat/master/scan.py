@@ -100,6 +100,14 @@ _SII_RETRIES = 3
 # a NACK), for up to 10 ms.
 _SII_NACK_RETRIES = 10
 _SII_NACK_PAUSE = 0.001
+# A busy read-back means the ESC is still clocking the EEPROM (ET1100/ET1200
+# datasheets, section III, SII EEPROM interface: ~0.7 ms for a 4-word read).
+# When every reader of the frame was busy, pause before polling again, as
+# SOEM does (ecx_eeprom_waitnotbusyFP/AP in ethercatmain.c sleep EC_LOCALDELAY,
+# 200 us, before each poll after the first): back-to-back polls of a busy
+# EEPROM only fill the wire, and on a virtual clock each poll moves time by
+# a few microseconds (a hundred polls per word).
+_SII_BUSY_PAUSE = 200e-6
 #: Most SII reads of one slave chained in one frame (each a command and its read-back).
 _SII_CHAIN = 16
 # ESC identification block 0x0000-0x0009.
@@ -337,6 +345,7 @@ def read_sii_batch(scheduler: Scheduler, accesses: Sequence[SiiAccess], *,
                     slots.append((r, j, True))
         replies = scheduler.transact(datagrams)
         nacked = False
+        progressed = False
         # Readers whose remaining chained steps in this frame are void.
         skip: set[int] = set()
         for slot, reply in zip(slots, replies, strict=True):
@@ -390,6 +399,7 @@ def read_sii_batch(scheduler: Scheduler, accesses: Sequence[SiiAccess], *,
                       _SII_NACK_RETRIES if ctrl & _SII_ACK_ERROR else _SII_RETRIES)
                 continue
             r.failures = 0
+            progressed = True
             r.data += reply.data[_SII_DATA_OFFSET:_SII_DATA_OFFSET + r.chunk]
             need = needed(bytes(r.data))
             if need is None or (length is None and len(r.data) >= max_bytes):
@@ -399,6 +409,8 @@ def read_sii_batch(scheduler: Scheduler, accesses: Sequence[SiiAccess], *,
                     del r.data[length:]
             else:
                 r.target = max(r.target, need)
+        if not progressed and any(r.waiting and r.polls for r in active):
+            scheduler.sleep(_SII_BUSY_PAUSE)
         # Clear error bits of slaves that will retry (the ESC refuses commands until then).
         clear = [r for r in readers if not r.done and r.failures and not r.waiting]
         if clear:

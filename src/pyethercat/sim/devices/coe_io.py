@@ -161,6 +161,11 @@ def coe_io_dictionary(vendor: int, product: int, revision: int, serial: int = 0)
     return od
 
 
+#: XOR mask of the digital inputs by the value of 0x8000:03 (any non-zero value inverts).
+_INVERT_MASK = np.full(256, 0xFF, np.uint8)
+_INVERT_MASK[0] = 0
+#: (An array operand: a Python int scalar costs the ufunc a type promotion per call.)
+_ONE_U16 = np.ones(1, np.uint16)
 #: The entries CoeIoModel.compute reads and writes, in its order.
 _IO_COLUMNS = ((0x6000, 1), (0x6000, 2), (0x6000, 3), (0x6000, 4), (0x6000, 5),
                (0x7000, 1), (0x7000, 2), (0x7000, 3), (0x7000, 4), (0x8000, 2), (0x8000, 3))
@@ -195,12 +200,13 @@ class CoeIoModel(CoeModel):
     def compute(self, instances: I64) -> None:
         di, v16i, v32i, count, bit_in, do, v16o, v32o, bit_out, offset, invert = self.fields_of(_IO_COLUMNS)
         r = self.rows(instances)
-        # Inverted where 0x8000:03 is set: XOR with 0xFF (0 - True as uint8), not a select.
-        di[r] = do[r] ^ np.negative((invert[r] != 0).view(np.uint8))
+        # Inverted where 0x8000:03 is set: XOR with a mask looked up from it, not a select
+        # (each numpy call costs about a microsecond whatever the instance count).
+        di[r] = do[r] ^ _INVERT_MASK[invert[r]]
         v16i[r] = v16o[r]
         v32i[r] = v32o[r] + offset[r].view(np.uint32)
         bit_in[r] = bit_out[r]
-        count[r] += 1
+        count[r] += _ONE_U16
 
 
 COE_IO = BuiltinDevice(
