@@ -67,7 +67,9 @@ def main() -> int:
             t = time.perf_counter()
             with start_sim_process(topo, link=f"iface:{b}", ready_timeout=300.0):
                 figures["sim_ready_s"] = round(time.perf_counter() - t, 2)
-                with Master.open(iface=a, timeout=0.5) as m:
+                # A frame of AL control writes to hundreds of slaves keeps the simulator
+                # busy for tens of ms (one ESC after the other in Python): 2 s per try.
+                with Master.open(iface=a, timeout=2.0) as m:
                     t0 = time.perf_counter()
                     slaves = m.scan()
                     t1 = time.perf_counter()

@@ -249,6 +249,54 @@ def test_safeop_to_op_waits_for_outputs_then_watchdog_falls_back() -> None:
     assert u16(fprd(seg, ST, R.AL_STATUS, 2)) == AlState.OP
 
 
+class _SteppedClock:
+    """A clock that is not virtual (the segment does not move it per frame): it
+    moves when told, also while a frame is being processed, as real time does."""
+
+    def __init__(self) -> None:
+        self.ns = 0
+
+    def now_ns(self) -> int:
+        return self.ns
+
+
+class _SlowOutputs(DeviceApp):
+    """Spends ``cost_ns`` of the clock on each completed output buffer (a slow simulator)."""
+
+    wants_output_events = True
+
+    def __init__(self, clock: _SteppedClock) -> None:
+        super().__init__()
+        self.clock = clock
+        self.cost_ns = 0
+
+    def on_outputs(self) -> None:
+        self.clock.ns += self.cost_ns
+
+
+def test_time_spent_processing_a_frame_does_not_run_out_watchdogs() -> None:
+    """A real ESC answers within the frame's passage: a frame that kept the
+    simulator busy for 150 ms on real time is no silence of the master, so the
+    100 ms watchdog of outputs it delivered keeps running from the frame's time;
+    silence on the wire still runs it out."""
+    clock = _SteppedClock()
+    app = _SlowOutputs(clock)
+    seg = mbx_segment(app, out_bits=8)
+    seg.clock = clock
+    _to_safeop(seg)
+    assert request(seg, AlState.OP) == (AlState.SAFEOP, 0)
+    one(seg, Datagram.logical(Command.LWR, 0, b"\x01"))
+    assert u16(fprd(seg, ST, R.AL_STATUS, 2)) == AlState.OP
+    app.cost_ns = 150_000_000
+    one(seg, Datagram.logical(Command.LWR, 0, b"\x02"))  # returns 150 ms later
+    app.cost_ns = 0
+    clock.ns += 1_000_000
+    assert u16(fprd(seg, ST, R.AL_STATUS, 2)) == AlState.OP
+    clock.ns += 150_000_000  # the master silent for 150 ms
+    assert u16(fprd(seg, ST, R.AL_STATUS, 2)) == AlState.SAFEOP | R.AL_ERROR_FLAG
+    assert u16(fprd(seg, ST, R.AL_STATUS_CODE, 2)) == AlStatusCode.SM_WATCHDOG
+
+
 def test_app_check_and_state_callbacks() -> None:
     app = Recorder()
     seg = mbx_segment(app)

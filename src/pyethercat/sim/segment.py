@@ -110,6 +110,8 @@ _MIN_FRAME = ETH_HEADER_SIZE + ECAT_HEADER_SIZE
 _OR_REDUCE = np.bitwise_or.reduce
 _EMPTY = np.zeros(0, np.int64)
 _BELOW_SAFEOP = (AlState.INIT, AlState.PREOP, AlState.BOOT)
+#: Processing time of one frame past which watchdogs are paused by it (see process()).
+_SLOW_FRAME_NS = 1_000_000
 
 
 @dataclass
@@ -563,7 +565,14 @@ class Segment(RingMixin):
             _HEADER_TAIL.pack_into(buf, off + 2, address, lw, irq)
             wkc_off = doff + n
             _WKC.pack_into(buf, wkc_off, (_WKC.unpack_from(buf, wkc_off)[0] + add) & 0xFFFF)
-        if vclock is not None and self.advance_clock:
+        if vclock is None:
+            # On real time, a frame that kept the simulator busy long (AL control
+            # for a thousand slaves, one ESC after the other in Python) must not
+            # run out the watchdogs of slaves whose next outputs wait behind it.
+            spent = self._clock.now_ns() - now
+            if spent > _SLOW_FRAME_NS:
+                self.watchdogs.pause(spent)
+        elif self.advance_clock:
             walk = self._route
             if walk is None or self.topology_dirty:
                 walk = self.route

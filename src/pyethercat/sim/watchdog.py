@@ -84,6 +84,15 @@ class Watchdogs:
         self.deadline = int(expiry[rest].min()) if rest.any() else NEVER
         return out
 
+    def pause(self, ns: int) -> None:
+        """Every running watchdog loses ``ns`` (the simulator's own time on one frame:
+        a real ESC answers within the frame's passage, so those ``ns`` were no
+        silence of the master)."""
+        running = self.last >= 0
+        self.last[running] += ns
+        if self.deadline < NEVER:
+            self.deadline += ns
+
     def retrigger(self, slaves: I64, now: int) -> None:
         """Completed write buffers of ``slaves`` trigger their watchdogs."""
         self.last[slaves] = now
