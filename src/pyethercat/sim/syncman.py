@@ -147,11 +147,8 @@ class SmAreas:
 
     def prepare_publish(self, slaves: I64) -> None:
         """Compute now the index arrays :meth:`publish` will need for ``slaves``."""
-        key = slaves.tobytes()
-        if key not in self._plans:
-            if len(self._plans) > 1024:
-                self._plans.clear()
-            self._plans[key] = self._plan(slaves)
+        if self._plans.get(slaves) is None:
+            self._plans.put(slaves, self._plan(slaves))
 
     def publish(self, slaves: I64) -> I64:
         """The write SMs of ``slaves`` got their last byte: publish their buffers.
