@@ -92,6 +92,8 @@ __all__ = [
     "JITTER_BINS_US",
 ]
 
+_NONE: frozenset[int] = frozenset()
+
 @dataclass
 class Cycle:
     """What one cycle did (handed to the callback and yielded by ``cycles()``)."""
@@ -191,6 +193,10 @@ class CyclicRunner:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._cond = threading.Condition()
+        # Threads waiting on _cond for cycles (the loop notifies only when there are):
+        # a waiter counts itself before it looks at the loop's state, and the loop
+        # updates the state before it looks at the count, so no cycle goes unseen.
+        self._waiting = 0
         self.error: BaseException | None = None
         self.consumer_missed = 0
         self._every = tuple(g.every for g in self.groups)
@@ -374,11 +380,15 @@ class CyclicRunner:
         limit = time.monotonic() + timeout
         # The loop notifies this condition after every cycle.
         with self._cond:
-            while not done():
-                left = limit - time.monotonic()
-                if left <= 0 or not self.running:
-                    return False
-                self._cond.wait(min(left, 0.05))
+            self._waiting += 1
+            try:
+                while not done():
+                    left = limit - time.monotonic()
+                    if left <= 0 or not self.running:
+                        return False
+                    self._cond.wait(min(left, 0.05))
+            finally:
+                self._waiting -= 1
         return True
 
     def send_safe_outputs(self) -> None:
@@ -452,8 +462,9 @@ class CyclicRunner:
                     stats.restart_period()
             k += 1
             done += 1
-            with self._cond:
-                self._cond.notify_all()
+            if self._waiting:
+                with self._cond:
+                    self._cond.notify_all()
         shift = 0
         if self._dc is not None:
             shift, self._dc.shift = self._dc.shift, 0
@@ -532,6 +543,10 @@ class CyclicRunner:
     @property
     def recovering(self) -> frozenset[int]:
         """Slaves a recovery is bringing back now."""
+        if self.supervisor.recover_thread is None:
+            # (no recovery ever started: nothing can be "recovering"; no per-slave walk
+            # on the cycle's path, where the ring watch asks every cycle)
+            return _NONE
         return frozenset(p for p, h in self.health.items() if h.status == "recovering")
 
     # -- the link ---------------------------------------------------------------------------
@@ -589,11 +604,15 @@ def _snapshots(runner: CyclicRunner, timeout: float) -> Iterator[Cycle]:
     cond = runner._cond
     while True:
         with cond:
-            while runner.cycle.index == last or runner.stats.cycles == 0:
-                if not runner.running:
-                    return
-                if not cond.wait(timeout) and not runner.running:
-                    return
+            runner._waiting += 1  # noqa: SLF001 - (see CyclicRunner.__init__)
+            try:
+                while runner.cycle.index == last or runner.stats.cycles == 0:
+                    if not runner.running:
+                        return
+                    if not cond.wait(timeout) and not runner.running:
+                        return
+            finally:
+                runner._waiting -= 1  # noqa: SLF001
             c = runner.cycle
             snap = Cycle(c.index, c.deadline_ns, c.start_ns, c.round_trip_ns, c.wkc_ok,
                          c.lost, c.groups, c.link_up)

@@ -129,13 +129,16 @@ class FoeClient:
             msg: FoeMessage | None = sm.start(clock())
             try:
                 while True:
+                    reply = None
                     if msg is not None:
-                        mbx.send(MailboxType.FOE, msg.encode(), what=what,
-                                 timeout=sm.packet_timeout)
+                        # (the answer usually comes in the frame that carried the packet)
+                        reply = mbx.request(MailboxType.FOE, msg.encode(), _is_foe, what=what,
+                                            timeout=sm.packet_timeout)
                         packets += 1
                     if sm.done:
                         break
-                    reply = answer_by_deadline(mbx, _is_foe, what, sm, sm.packet_timeout)
+                    if reply is None:
+                        reply = answer_by_deadline(mbx, _is_foe, what, sm, sm.packet_timeout)
                     msg = sm.receive(decode_foe(reply.payload), clock())
                     if progress is not None:
                         progress(sm.progress)

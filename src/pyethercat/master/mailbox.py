@@ -324,6 +324,8 @@ class Mailbox:
         self._template: CyclicTemplate | None = None
         self._no_template = False
         self._tx = threading.Lock()
+        # Payload bytes of the message last written into the template (the rest is zero).
+        self._tail = 0
 
     # -- addresses -------------------------------------------------------------------
 
@@ -403,6 +405,24 @@ class Mailbox:
         ``fetch`` adds the speculative SM1 read to the same frame. Raises
         :class:`~pyethercat.errors.TimeoutError` when SM0 stays full.
         """
+        return self._send(mtype, payload, what, timeout, fetch, counter, None)[0]
+
+    def request(self, mtype: MailboxType | int, payload: bytes, accept: Accept, *,
+                what: str = "mailbox message", timeout: float | None = None,
+                ) -> ReceivedMessage | None:
+        """:meth:`send`, and the answer when the frame that carried the message brought it.
+
+        The speculative SM1 read of that frame finds the answer of a slave
+        that answers at once (a simulator, a fast slave); when ``accept``
+        takes it (and nothing older waits in the inbox) it comes back here
+        without going through the inbox. ``None``: wait for it with
+        :meth:`receive` as usual. Unsolicited messages still reach the handlers.
+        """
+        return self._send(mtype, payload, what, timeout, True, None, accept)[1]
+
+    def _send(self, mtype: MailboxType | int, payload: bytes, what: str,
+              timeout: float | None, fetch: bool, counter: int | None,
+              take: Accept | None) -> tuple[int, ReceivedMessage | None]:
         if len(payload) > self.max_payload:
             raise MailboxError(f"{self.label}: {what} needs {len(payload)} bytes, the mailbox "
                                f"carries {self.max_payload}")
@@ -411,17 +431,20 @@ class Mailbox:
         cnt = self.next_counter() if counter is None else counter
         if not 0 <= cnt <= 7:
             raise MailboxError(f"{self.label}: mailbox counter {cnt} out of range 0..7")
-        # mailbox header (ETG.1000.4) packed directly: the hot path of segmented transfers
-        frame = (_HEADER.pack(len(payload), 0, 0, (int(mtype) & 0x0F) | (cnt << 4)) + payload
-                 ).ljust(self.rx_size, b"\x00")
+        # mailbox header (ETG.1000.4) type and counter byte: the hot path of every
+        # transfer step writes header and payload straight into the prepared frame
+        kind = (int(mtype) & 0x0F) | (cnt << 4)
         limit = self.clock() + (self.timeout if timeout is None else timeout)
         waited = 0.0
         template = self._prepared() if fetch else None
-        write = None if template is not None else Datagram(Command.FPWR, 0, self._rx_address,
-                                                           frame)
+        write = None
+        if template is None:
+            frame = (_HEADER.pack(len(payload), 0, 0, kind) + payload).ljust(self.rx_size, b"\x00")
+            write = Datagram(Command.FPWR, 0, self._rx_address, frame)
+        taken = None
         while True:
             if template is not None:
-                wkc = self._write_and_read(template, frame, what)
+                wkc, taken = self._write_and_read(template, payload, kind, what, take)
             else:
                 assert write is not None
                 dgs = [write, self._read] if fetch else [write]
@@ -436,7 +459,7 @@ class Mailbox:
                 wkc = sent.reply.wkc
             if wkc == 1:
                 self.stats.sent += 1
-                return cnt
+                return cnt, taken
             self.stats.write_refused += 1
             now = self.clock()
             if now >= limit:
@@ -501,7 +524,11 @@ class Mailbox:
         limit = clock() + span
         answer = f"reply to {what}"
         with self.lock:
-            self.send(mtype, payload, what=what, timeout=span)
+            got = self._send(mtype, payload, what, span, True, None,
+                             _any if accept is None else accept)[1]
+            if got is not None:
+                self.synced = True  # (the answer came in the frame that carried the request)
+                return got
             if self.synced:
                 try:
                     return self._answer(accept, answer, limit - clock(), stale)
@@ -616,24 +643,37 @@ class Mailbox:
             self._template = template
         return template
 
-    def _write_and_read(self, template: CyclicTemplate, frame: bytes, what: str) -> int:
+    def _write_and_read(self, template: CyclicTemplate, payload: bytes, kind: int,
+                        what: str, take: Accept | None = None,
+                        ) -> tuple[int, ReceivedMessage | None]:
         """Send the SM0 write and the speculative SM1 read as one prepared frame.
 
-        The hot path of every transaction step: the message goes into the
-        template in place, only the frame index is patched, the reply is
-        read at known offsets (no datagram objects, no frame decode). A lost
+        The hot path of every transaction step: header and payload go into
+        the template in place (the bytes behind a shorter message than the
+        last are zeroed: the whole SM length is written), only the frame index
+        is patched, the reply is read at known offsets (no datagram objects,
+        no frame decode). A lost
         frame is sent again (the repeated write carries the same counter, so
         a slave that got the first one drops it); when an attempt may have
         emptied SM1 on its lost way back, a repeat request follows. Returns
-        the write's working counter.
+        the write's working counter, and the message read when ``take``
+        accepts it as the answer (only when the write was taken).
         """
         sched = self.scheduler
         at = template.data_offsets[0]
         attempts = 0
+        n = len(payload)
+        body = at + MAILBOX_HEADER_SIZE
         while True:
             attempts += 1
             with self._tx:
-                template.frame[at:at + len(frame)] = frame
+                buf = template.frame
+                _HEADER.pack_into(buf, at, n, 0, 0, kind)
+                buf[body:body + n] = payload
+                tail = self._tail
+                if tail > n:
+                    buf[body + n:body + tail] = bytes(tail - n)
+                self._tail = n
                 ticket = sched.send_prepared(template)
             raw = ticket.wait_raw()
             if raw is not None:
@@ -646,14 +686,16 @@ class Mailbox:
                     f"{self.label}: sending {what}: no reply to the mailbox frame (FPWR "
                     f"0x{self.rx_offset:04X} + FPRD 0x{self.tx_offset:04X}) after {attempts} "
                     f"attempts on {sched.link.name}")
+        wkc = template.wkc(raw, 0)
+        taken = None
         if template.wkc(raw, 1) == 1:
             self.stats.early_replies += 1
             start = template.data_offsets[1]
-            self._deliver(raw[start:start + self.tx_size])
+            taken = self._deliver(raw[start:start + self.tx_size], take if wkc == 1 else None)
         elif attempts > 1:
             # An earlier attempt may have read (and emptied) SM1; its frame was lost.
             self._lost = True
-        return template.wkc(raw, 0)
+        return wkc, taken
 
     def _read_datagram(self) -> Datagram:
         # One object for every SM1 read: the scheduler copies it into each frame.
@@ -705,7 +747,9 @@ class Mailbox:
         self._deliver(bytes(reply.data))
         return True
 
-    def _deliver(self, raw: bytes) -> None:
+    def _deliver(self, raw: bytes, take: Accept | None = None) -> ReceivedMessage | None:
+        """Check and dispatch a message read from SM1; returns it instead of queueing it
+        when ``take`` accepts it and the inbox is empty (older messages go first)."""
         try:
             header = MailboxHeader.decode(raw)
         except MailboxError as exc:
@@ -718,7 +762,7 @@ class Mailbox:
                 self.stats.duplicates += 1
                 _log.debug("%s: mailbox counter %d repeated, dropped", self.label,
                            header.counter)
-                return
+                return None
             self._last_in = header.counter
             self.stats.received += 1
             end = MAILBOX_HEADER_SIZE + header.length
@@ -730,12 +774,15 @@ class Mailbox:
                 except MailboxError as exc:
                     err = MailboxErrorReply(0, f"malformed error reply ({exc})")
                 self._inbox.append(err)
-                return
+                return None
             for handler in self._handler_list:
                 if handler(self, msg):
                     self.stats.unsolicited += 1
-                    return
+                    return None
+            if take is not None and not self._inbox and take(msg):
+                return msg
             self._inbox.append(msg)
+            return None
 
     def _from_inbox(self, accept: Accept | None, what: str,
                     stale: Accept | None = None) -> ReceivedMessage | None:
@@ -763,6 +810,10 @@ class Mailbox:
     def __repr__(self) -> str:
         return (f"<Mailbox {self.label} SM{self.rx_sm} 0x{self.rx_offset:04X}+{self.rx_size} "
                 f"SM{self.tx_sm} 0x{self.tx_offset:04X}+{self.tx_size}>")
+
+
+def _any(msg: ReceivedMessage) -> bool:
+    return True
 
 
 def _named(error: EtherCATError, where: str) -> EtherCATError:

@@ -225,9 +225,16 @@ def decode_foe(payload: bytes | bytearray | memoryview) -> FoeMessage:
     if opcode == FoeOpCode.WRQ:
         return FoeWriteRequest(_name_text(rest), word)
     if opcode == FoeOpCode.DATA:
-        return FoeData(word, rest)
+        # (the word is a u32 off the wire: in range; skip __post_init__, the hot path
+        # of every packet on both sides)
+        data = object.__new__(FoeData)
+        object.__setattr__(data, "packet", word)
+        object.__setattr__(data, "data", rest)
+        return data
     if opcode == FoeOpCode.ACK:
-        return FoeAck(word)
+        ack = object.__new__(FoeAck)
+        object.__setattr__(ack, "packet", word)
+        return ack
     if opcode == FoeOpCode.ERR:
         return FoeError(word, _name_text(rest))
     if opcode == FoeOpCode.BUSY:
@@ -267,6 +274,8 @@ def foe_packet_matches(expected: int, received: int) -> bool:
     devices in the field wrap at 256 (ribalda/ethercat issue 10): the number
     matches modulo 2^32, 2^16 or 2^8.
     """
+    if received == expected:
+        return True  # (the usual case, without the loop)
     return any(received == expected % m for m in _PACKET_WIDTHS)
 
 
