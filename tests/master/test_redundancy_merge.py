@@ -15,8 +15,12 @@ from pyethercat.master.redundancy import (
     PORT_B,
     Redundancy,
     copy_wkcs,
+    mark_for_port,
     merge_copies,
     order_dependent,
+    ring_gap,
+    sent_on,
+    split_counts,
 )
 from pyethercat.wire.datagram import Command, Datagram
 from pyethercat.wire.frame import decode_frame, encode_frame
@@ -186,3 +190,53 @@ def test_nothing_back_at_all_is_lost() -> None:
     sent = frame(Datagram.device(Command.BRD, 0, 0, 2))
     cs, _ = red.plan(sent)
     assert red.expired(cs, sent) is None
+
+
+# -- which slaves an open ring's copies did not reach (the cycle that shows a node gone) --
+
+SRC = bytes.fromhex("020000000001")
+
+
+def lrw_copy(wkc: int, port: int) -> bytes:
+    """One LRW frame from our master, as it comes back with ``wkc``, sent on ``port``."""
+    sent = bytearray(encode_frame([Datagram(Command.LRW, 0, 0x10000, bytes(4))], src=SRC))
+    sent[WKC_AT:WKC_AT + 2] = wkc.to_bytes(2, "little")
+    return mark_for_port(bytes(sent), port)
+
+
+WKC_AT = 14 + 2 + 10 + 4  # Ethernet, EtherCAT header, datagram header, 4 data bytes
+
+
+def test_copy_for_port_b_is_marked_and_slaves_do_not_hide_the_mark() -> None:
+    a, b = lrw_copy(0, PORT_A), lrw_copy(0, PORT_B)
+    assert a[6:12] == SRC and b[6:12] != SRC and b[6:8] == SRC[:2] and b[10:12] == SRC[4:]
+    assert sent_on(a, SRC) == PORT_A and sent_on(b, SRC) == PORT_B
+    # The first slave sets the locally administered bit of byte 0: the mark survives.
+    passed = bytes([b[0], b[1], b[2], b[3], b[4], b[5], b[6] | 0x02]) + b[7:]
+    assert sent_on(passed, SRC) == PORT_B
+
+
+def test_split_counts_from_copies_that_looped_back() -> None:
+    # Node 2 of 5 (shares 3, 1, 3, 1, 2) gone: A side counts 4, B side 3.
+    got = {PORT_A: lrw_copy(4, PORT_A), PORT_B: lrw_copy(3, PORT_B)}
+    assert split_counts(got, WKC_AT, SRC) == (4, 3)
+    assert ring_gap([3, 1, 3, 1, 2], 4, 3) == (2, 3)
+    # The first node gone: no copy at A (no link partner), the B side counts the rest.
+    assert split_counts({PORT_B: lrw_copy(7, PORT_B)}, WKC_AT, SRC) == (0, 7)
+    assert ring_gap([3, 1, 3, 1, 2], 0, 7) == (0, 1)
+    # The last node gone: the A side alone.
+    assert ring_gap([3, 1, 3, 1, 2], 8, 0) == (4, 5)
+
+
+def test_closed_ring_tells_nothing_about_who_is_missing() -> None:
+    # Sent on A, back on B (round the closed ring, short by a slave not in OP); the
+    # copy sent on B came back on A untouched.
+    got = {PORT_B: lrw_copy(8, PORT_A), PORT_A: lrw_copy(0, PORT_B)}
+    assert split_counts(got, WKC_AT, SRC) is None
+
+
+def test_counts_that_fit_no_prefix_and_suffix_say_nothing() -> None:
+    # A side 2 is no prefix of (3, 1, 3): a slave there counted short for another reason.
+    assert ring_gap([3, 1, 3], 2, 3) is None
+    assert ring_gap([3, 1, 3], 3, 2) is None
+    assert ring_gap([3, 1, 3], 4, 3) == (2, 2)  # nobody missing: an empty gap

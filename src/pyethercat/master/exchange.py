@@ -22,6 +22,7 @@ from pyethercat.master.cycleplan import FramePlan, GroupRuntime, Planned, plan_f
 from pyethercat.master.cyclestats import CycleStats
 from pyethercat.master.dc_loop import DcCycle, SyncEvent
 from pyethercat.master.linkwatch import LinkWatch
+from pyethercat.master.redundancy import ring_gap, split_counts
 from pyethercat.master.scheduler import CyclicFrame, Request, Scheduler
 
 __all__ = ["CycleExchange", "DcRider"]
@@ -59,6 +60,8 @@ class CycleExchange:
         self.last_plans: list[FramePlan] = []
         #: Slaves known to be gone: not expected in working counters.
         self.absent: frozenset[int] = frozenset()
+        #: Per (group, datagram): each slave's share of the count, in bus order.
+        self._shares: dict[tuple[int, int], list[int]] = {}
 
     def exchange(self, due: tuple[int, ...], deadline: int | None
                  ) -> tuple[bool, bool, int, int, tuple[str, ...]]:
@@ -142,7 +145,9 @@ class CycleExchange:
                 g.last_wkc[n] = wkc
                 if wkc != expected:
                     bad = {g} if bad is None else bad | {g}
-                    if wkc < expected - share or wkc > expected:
+                    if (wkc < expected - share or wkc > expected) and not (
+                            ticket is not None and ticket.copies is not None
+                            and self._split_explains(g, n, w, wkc, ticket.copies)):
                         short = {g} if short is None else short | {g}
             came.append((p, raw))
         if bad is None and missing is None:
@@ -216,6 +221,24 @@ class CycleExchange:
             self.absent = absent
             self._plans.clear()  # the loop plans its frames again with these expectations
             self._safe_plans.clear()
+
+    def _split_explains(self, g: GroupRuntime, n: int, w: int, wkc: int,
+                        copies: dict[int, bytes]) -> bool:
+        """Whether a ring's copies show the count short only by slaves neither side of a
+        break reached (a node gone): then it is whole for the slaves that are there.
+
+        The cycle that shows a node gone otherwise holds every present slave's inputs
+        (the count alone cannot say who is missing); the copies can, at once."""
+        counts = split_counts(copies, w, self.scheduler.core.src)
+        if counts is None or (counts[0] + counts[1]) & 0xFFFF != wkc:
+            return False
+        key = (id(g), n)
+        shares = self._shares.get(key)
+        if shares is None:
+            d = g.plan[n]
+            slaves = self.config.slaves
+            shares = self._shares[key] = [wkc_share(d, [slaves[p]]) for p in sorted(d.positions)]
+        return ring_gap(shares, *counts) is not None
 
     def _absent_share(self, d: CyclicDatagram) -> int:
         # The share of slaves known to be gone: short by that much is "incomplete only for

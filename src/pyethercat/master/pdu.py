@@ -56,7 +56,14 @@ from typing import Protocol
 
 from pyethercat.errors import EtherCATError, FrameError, FrameTooLargeError, LinkError
 from pyethercat.errors import TimeoutError as EcTimeoutError
-from pyethercat.master.redundancy import CopySet, Redundancy, hand_copies, ordered_command
+from pyethercat.master.redundancy import (
+    PORT_B,
+    CopySet,
+    Redundancy,
+    hand_copies,
+    mark_for_port,
+    ordered_command,
+)
 from pyethercat.wire.datagram import (
     HEADER_SIZE,
     LEN_MASK,
@@ -384,6 +391,8 @@ class PduCore:
         self.retries = retries
         self.max_in_flight = max_in_flight
         self.src = bytes(src)
+        #: Source MACs of our own frames: as sent on port A, and as marked for port B.
+        self._own = (self.src, mark_for_port(bytes(12) + self.src, PORT_B)[6:12])
         self.capacity = min(capacity, MAX_PAYLOAD)
         self.name = name
         # A frame that still carries our universal source MAC was not returned by a
@@ -699,7 +708,7 @@ class PduCore:
 
     def on_frame(self, raw: bytes, now: float, port: int = 0) -> bool:
         """Handle one received frame (on ``port`` of a ring); whether a request or ticket completed."""
-        if self.drop_own_frames and raw[6:12] == self.src:
+        if self.drop_own_frames and raw[6:12] in self._own:
             self.stats.looped_back += 1
             return False
         if self.redundancy is not None:

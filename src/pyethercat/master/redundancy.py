@@ -53,7 +53,13 @@ from typing import TYPE_CHECKING
 
 from pyethercat.errors import FrameError
 from pyethercat.wire.datagram import HEADER_SIZE, LEN_MASK, MORE_BIT, WKC_SIZE, Command
-from pyethercat.wire.frame import ECAT_HEADER_SIZE, NotEtherCATError, decode_frame, ecat_offset
+from pyethercat.wire.frame import (
+    ECAT_HEADER_SIZE,
+    SECONDARY_MARK,
+    NotEtherCATError,
+    decode_frame,
+    ecat_offset,
+)
 
 if TYPE_CHECKING:
     from pyethercat.master.pdu import CyclicFrame, Request
@@ -68,6 +74,10 @@ __all__ = [
     "hand_copies",
     "merge_copies",
     "order_dependent",
+    "mark_for_port",
+    "ring_gap",
+    "sent_on",
+    "split_counts",
     "ordered_command",
 ]
 
@@ -81,6 +91,8 @@ _ORDERED = frozenset({int(Command.APRD), int(Command.APWR), int(Command.APRW), i
 #: Commands whose ADP every processing slave increments.
 _ADP_GROWS = frozenset({int(Command.APRD), int(Command.APWR), int(Command.APRW),
                         int(Command.ARMW), int(Command.BRD), int(Command.BWR), int(Command.BRW)})
+#: Frame offset of bytes 2-3 of the source MAC (the mark of a copy sent on port B).
+_MARK_AT = 8
 _HEAD = struct.Struct("<BBHHHH")  # cmd, idx, adp, ado, length word, irq
 _U16 = struct.Struct("<H")
 
@@ -159,6 +171,81 @@ def merge_copies(sent: bytes | bytearray, copies: Sequence[bytes | bytearray]) -
         w = at + HEADER_SIZE + n
         _U16.pack_into(out, w, sum(_U16.unpack_from(c, w)[0] for c in copies) & 0xFFFF)
     return bytes(out)
+
+
+def mark_for_port(frame: bytes, port: int) -> bytes:
+    """The copy of ``frame`` to send on ``port``: a copy for port B has
+    ``SECONDARY_MARK`` XORed into bytes 2-3 of its source MAC, so a copy that
+    comes back tells which port it was sent on.
+
+    SOEM marks its secondary port's frames in the same word (``secMAC`` in
+    ``ecx_outframe_red``); slaves change only bit 1 of the first source-MAC
+    byte (the locally administered bit), never these two.
+    """
+    if port != PORT_B or len(frame) < _MARK_AT + 2:
+        return frame
+    mark = bytes((frame[_MARK_AT] ^ SECONDARY_MARK[0], frame[_MARK_AT + 1] ^ SECONDARY_MARK[1]))
+    return b"".join((frame[:_MARK_AT], mark, frame[_MARK_AT + 2:]))
+
+
+def sent_on(frame: bytes | bytearray, src: bytes) -> int:
+    """The port a copy was sent on (see :func:`mark_for_port`); ``src`` is the master's MAC."""
+    return PORT_A if frame[_MARK_AT:_MARK_AT + 2] == src[2:4] else PORT_B
+
+
+def split_counts(copies: dict[int, bytes], at: int, src: bytes) -> tuple[int, int] | None:
+    """One datagram's working counts from the slaves before and behind a break of the ring.
+
+    ``copies`` are a frame's copies by the port they came back on, ``at`` the
+    offset of the datagram's working counter. A copy that came back on the
+    port it was sent on looped back at a break: sent on A, it passed the slaves
+    from the first one up to the break; sent on B, those from the last one
+    back to it. A copy sent on A that came back on B went round a closed ring
+    (None: nothing to split); one sent on B that came back on A passed no
+    processing unit (it counts nothing). Returns (count from the A side,
+    count from the B side), or None when no copy looped back.
+    """
+    from_a = from_b = 0
+    looped = False
+    for port, frame in copies.items():
+        origin = sent_on(frame, src)
+        count = frame[at] | (frame[at + 1] << 8)
+        if origin == port:
+            looped = True
+            if port == PORT_A:
+                from_a = count
+            else:
+                from_b = count
+        elif origin == PORT_A:
+            return None  # round a closed ring: every slave had its turn
+    return (from_a, from_b) if looped else None
+
+
+def ring_gap(shares: Sequence[int], from_a: int, from_b: int) -> tuple[int, int] | None:
+    """The slaves an open ring's two sides did not reach, from one datagram's counts.
+
+    ``shares`` are what each slave of the datagram adds to its count, in bus
+    order; ``from_a``/``from_b`` the counts of the copies that looped back at
+    a break on the A side and on the B side (:func:`split_counts`). The A
+    side's count is the sum of a prefix of ``shares``, the B side's of a
+    suffix, when every slave a copy reached counted in (one fault at a time,
+    as a ring is built for). Returns ``(lo, hi)``: ``shares[lo:hi]`` are the
+    slaves neither side reached (a node switched off or unplugged), or None
+    when the counts fit no prefix and suffix.
+    """
+    lo, total = 0, 0
+    while lo < len(shares) and total + shares[lo] <= from_a:
+        total += shares[lo]
+        lo += 1
+    if total != from_a:
+        return None
+    hi, total = len(shares), 0
+    while hi > lo and total + shares[hi - 1] <= from_b:
+        total += shares[hi - 1]
+        hi -= 1
+    if total != from_b:
+        return None
+    return lo, hi
 
 
 def _worked(frame: bytes | bytearray) -> bool:

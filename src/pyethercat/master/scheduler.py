@@ -62,7 +62,7 @@ from pyethercat.master.pdu import (
     Request,
     describe_datagram,
 )
-from pyethercat.master.redundancy import Redundancy
+from pyethercat.master.redundancy import Redundancy, mark_for_port
 from pyethercat.master.stepping import Stepper
 from pyethercat.wire.datagram import MAX_PAYLOAD, Datagram
 from pyethercat.wire.frame import LOCALLY_ADMINISTERED_BIT, MASTER_MAC, MIN_FRAME_SIZE
@@ -385,7 +385,7 @@ class Scheduler:
         sent = False
         for port in core.route(idx, raw):
             try:
-                ring.send_on(port, raw)
+                ring.send_on(port, mark_for_port(raw, port))
                 sent = True
             except EtherCATError as exc:
                 core.port_refused(idx, port)

@@ -35,6 +35,7 @@ __all__ = [
     "MAX_FRAME_SIZE",
     "MIN_FRAME_SIZE",
     "SECONDARY_MAC",
+    "SECONDARY_MARK",
     "UDP_PORT",
     "EtherCATFrame",
     "FrameBuilder",
@@ -65,9 +66,13 @@ BROADCAST_MAC = b"\xff" * 6
 #: Unicast and not locally administered, so a returned frame (which slaves mark
 #: with the locally-administered bit) is told apart from our own. SOEM's
 #: 01:01:... defaults are group addresses, which Wireshark flags as invalid
-#: sources; the second 16-bit word differs between the two ports as in SOEM.
+#: sources; the second 16-bit word differs between the two ports as in SOEM
+#: (``priMAC``/``secMAC``): a ring master XORs ``SECONDARY_MARK`` into it in the
+#: copies it sends on its second port, so a copy that comes back tells which port
+#: it was sent on (slaves change only the locally administered bit of byte 0).
 MASTER_MAC = b"\x10\x10\x10\x10\x10\x10"
-SECONDARY_MAC = b"\x10\x10\x14\x14\x14\x14"
+SECONDARY_MARK = b"\x04\x04"
+SECONDARY_MAC = b"\x10\x10\x14\x14\x10\x10"
 ETH_HEADER_SIZE = 14
 ECAT_HEADER_SIZE = 2
 #: Minimum Ethernet frame without FCS; shorter frames are zero-padded.
