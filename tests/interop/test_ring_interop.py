@@ -276,7 +276,9 @@ def test_our_master_keeps_wkc_and_data_through_ten_cable_pulls(
                 got.append((sum(int(s[4].inputs[f"Input {i + 1}"]) << i for i in range(8)),
                             sum(int(s[2].inputs[f"Input {i + 1}"]) << i for i in range(8))))
                 if not cyc.wkc_ok:
-                    wrong.append((breaker.cycle, breaker.broken, list(runner.groups[0].last_wkc)))
+                    # (the loop may call this before start() has returned the runner)
+                    counts = list(m.runner.groups[0].last_wkc) if m.runner is not None else []
+                    wrong.append((breaker.cycle, breaker.broken, counts))
                 breaker.after_cycle()
             k[0] += 1
             p = ((k[0] * 37) & 0xFF, (k[0] * 91 + 5) & 0xFF)
