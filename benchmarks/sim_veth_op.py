@@ -25,6 +25,7 @@ import time
 import uuid
 from pathlib import Path
 
+from pyethercat.errors import EtherCATError
 from pyethercat.master import Master
 from pyethercat.sim.server import start_sim_process
 from pyethercat.wire.al import AlState
@@ -75,26 +76,38 @@ def main() -> int:
                     t1 = time.perf_counter()
                     cfg = m.configure()
                     t2 = time.perf_counter()
-                    with m.start(cycle=cycle, timeout=120.0) as runner:
-                        t3 = time.perf_counter()
-                        in_op = sum(s.al_state == AlState.OP for s in m.slaves)
-                        coe = [s for s in m.slaves if s.name.startswith("PEC-COEIO")]
-                        for k, s in enumerate(coe):
-                            s.outputs["Value 16"] = k
-                        time.sleep(10 * cycle)
-                        echoed = sum(s.inputs["Value 16"] == k for k, s in enumerate(coe))
-                        figures["wkc_errors"] = runner.stats.wkc_errors
-                    figures.update(found=len(slaves), in_op=in_op, coe_io=len(coe), echoed=echoed,
-                                   groups=len(cfg.groups), scan_s=round(t1 - t0, 2), configure_s=round(t2 - t1, 2),
-                                   to_op_s=round(t3 - t2, 2), startup_s=round(t3 - t0, 2))
+                    figures.update(found=len(slaves), groups=len(cfg.groups), scan_s=round(t1 - t0, 2),
+                                   configure_s=round(t2 - t1, 2))
+                    try:
+                        runner = m.start(cycle=cycle, timeout=120.0)
+                    except EtherCATError as exc:  # the phases so far are still figures
+                        figures["error"] = f"start: {type(exc).__name__}: {exc}"[:300]
+                        figures["failed_after_s"] = round(time.perf_counter() - t2, 2)
+                        runner = None
+                    if runner is not None:
+                        with runner:
+                            t3 = time.perf_counter()
+                            in_op = sum(s.al_state == AlState.OP for s in m.slaves)
+                            coe = [s for s in m.slaves if s.name.startswith("PEC-COEIO")]
+                            for k, s in enumerate(coe):
+                                s.outputs["Value 16"] = k
+                            time.sleep(10 * cycle)
+                            echoed = sum(s.inputs["Value 16"] == k for k, s in enumerate(coe))
+                            figures["wkc_errors"] = runner.stats.wkc_errors
+                        figures.update(in_op=in_op, coe_io=len(coe), echoed=echoed,
+                                       to_op_s=round(t3 - t2, 2), startup_s=round(t3 - t0, 2))
     finally:
         subprocess.run(["ip", "link", "del", a], check=False, capture_output=True)
     figures["load_average_end"] = " ".join(f"{x:.1f}" for x in os.getloadavg())
-    print(f"{n} slaves ({figures['coe_io']} coe-io): scan {figures['scan_s']} s, configure "
-          f"{figures['configure_s']} s, to OP {figures['to_op_s']} s; start-up {figures['startup_s']} s; "
-          f"{figures['in_op']} in OP, {figures['echoed']}/{figures['coe_io']} coe-io echo their outputs")
+    if "error" in figures:
+        print(f"{n} slaves: scan {figures['scan_s']} s, configure {figures['configure_s']} s, then "
+              f"{figures['error']} after {figures['failed_after_s']} s")
+    else:
+        print(f"{n} slaves ({figures['coe_io']} coe-io): scan {figures['scan_s']} s, configure "
+              f"{figures['configure_s']} s, to OP {figures['to_op_s']} s; start-up {figures['startup_s']} s; "
+              f"{figures['in_op']} in OP, {figures['echoed']}/{figures['coe_io']} coe-io echo their outputs")
     print(json.dumps(figures))
-    return 0 if figures["in_op"] == n == figures["found"] else 1
+    return 0 if figures.get("in_op") == n == figures.get("found") else 1
 
 
 if __name__ == "__main__":
