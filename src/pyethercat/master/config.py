@@ -690,6 +690,13 @@ def wkc_share(datagram: CyclicDatagram, slaves: Iterable[SlaveConfig]) -> int:
                          [(s.position, f) for s in slaves for f in s.fmmus])[0]
 
 
+def bus_shares(datagram: CyclicDatagram, slaves: Mapping[int, SlaveConfig]) -> list[tuple[int, int]]:
+    """(position, share of ``datagram``'s working counter) of each of its slaves, in bus order.
+
+    ``slaves``: by position (``ProcessDataConfig.slaves``)."""
+    return [(p, wkc_share(datagram, [slaves[p]])) for p in sorted(datagram.positions)]
+
+
 def _datagrams(base: int, out_bytes: int, in_bytes: int, lrw: bool,
                blocks: list[tuple[SlaveDescription, _Block]], fmmus: list[tuple[int, FmmuConfig]],
                limit: int) -> list[CyclicDatagram]:

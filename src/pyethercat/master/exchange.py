@@ -17,7 +17,7 @@ from collections.abc import Callable, Iterable
 
 from pyethercat.clock import Clock
 from pyethercat.errors import LinkError
-from pyethercat.master.config import CyclicDatagram, ProcessDataConfig, wkc_share
+from pyethercat.master.config import CyclicDatagram, ProcessDataConfig, bus_shares, wkc_share
 from pyethercat.master.cycleplan import FramePlan, GroupRuntime, Planned, plan_frames
 from pyethercat.master.cyclestats import CycleStats
 from pyethercat.master.dc_loop import DcCycle, SyncEvent
@@ -235,9 +235,7 @@ class CycleExchange:
         key = (id(g), n)
         shares = self._shares.get(key)
         if shares is None:
-            d = g.plan[n]
-            slaves = self.config.slaves
-            shares = self._shares[key] = [wkc_share(d, [slaves[p]]) for p in sorted(d.positions)]
+            shares = self._shares[key] = [s for _, s in bus_shares(g.plan[n], self.config.slaves)]
         return ring_gap(shares, *counts) is not None
 
     def _absent_share(self, d: CyclicDatagram) -> int:

@@ -41,7 +41,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from pyethercat.master.config import wkc_share
+from pyethercat.master.config import bus_shares
+from pyethercat.master.redundancy import ring_gap, split_counts
 from pyethercat.master.ring import Diagnosis, PendingDiagnosis, RingService
 from pyethercat.wire import registers as reg
 from pyethercat.wire.al import state_name
@@ -158,34 +159,33 @@ class RingWatch:
             self._evaluate(runner, pending)
 
     def _gap(self, runner: Any, tickets: list[CyclicFrame]) -> set[int]:
-        """Slaves whose share is missing between the copies back on A and on B (a split ring)."""
+        """Slaves neither side of a break reached, from the copies back on A and on B
+        (``master.redundancy.split_counts``/``ring_gap``)."""
         gap: set[int] = set()
+        src = self.ring.scheduler.core.src
         for plan, t in zip(getattr(runner, "last_plans", ()), tickets, strict=False):
             copies = t.copies
             if not copies or t.template is None:
                 continue
-            a, b = copies.get(0), copies.get(1)
             end = t.template.end
-            if (a is not None and len(a) < end) or (b is not None and len(b) < end):
+            if any(len(c) < end for c in copies.values()):
                 continue
             for take in plan.takes:
                 g, n, w = take[0], take[1], take[2]
-                # A port that brought nothing back reached no slave (its first slave failed).
-                wa = 0 if a is None else a[w] | (a[w + 1] << 8)
-                wb = 0 if b is None else b[w] | (b[w + 1] << 8)
-                if (a is not None and not wa) or (b is not None and not wb) or not (wa or wb):
-                    continue  # a closed ring (the copy back on A went through no slave)
+                counts = split_counts(copies, w, src)
+                if counts is None:
+                    continue  # a closed ring: every slave had its turn
                 shares = self._shares(runner, g, n)
-                gap |= _between(shares, wa, wb)
+                span = ring_gap([share for _, share in shares], *counts)
+                if span is not None:
+                    gap |= {p for p, share in shares[span[0]:span[1]] if share}
         return gap
 
     def _shares(self, runner: Any, group: Any, n: int) -> list[tuple[int, int]]:
         key = (group.name, n)
         got = self._share_cache.get(key)
         if got is None:
-            d = group.plan[n]
-            cfg = runner.config.slaves
-            got = self._share_cache[key] = [(p, wkc_share(d, [cfg[p]])) for p in sorted(d.positions)]
+            got = self._share_cache[key] = bus_shares(group.plan[n], runner.config.slaves)
         return got
 
     def _irq(self, ticket: CyclicFrame, raw: bytes) -> int:
@@ -237,24 +237,6 @@ class RingWatch:
             self.on_reading(result, absent)
         if back and self.recover and getattr(runner, "supervising", False):
             runner.request_recovery(back)
-
-
-def _between(shares: list[tuple[int, int]], wa: int, wb: int) -> set[int]:
-    """Slaves (bus order) with a share that neither the prefix summing to ``wa`` nor the
-    suffix summing to ``wb`` covers; empty when the sums do not fit."""
-    total, front = 0, 0
-    while front < len(shares) and total < wa:
-        total += shares[front][1]
-        front += 1
-    if total != wa:
-        return set()
-    total, back = 0, len(shares)
-    while back > front and total < wb:
-        back -= 1
-        total += shares[back][1]
-    if total != wb:
-        return set()
-    return {p for p, share in shares[front:back] if share}
 
 
 def _changes(position: int, old: tuple[int | None, int | None, int | None],
