@@ -212,3 +212,27 @@ def test_many_drives_move_together() -> None:
     assert rec is not None
     assert np.abs(g.positions_actual() - goal).max() <= 1
     assert rec.commanded.shape == (len(rec.commanded), 20)
+
+
+def test_homing_on_the_current_position_holds_there_and_can_be_repeated() -> None:
+    """Method 37 takes the encoder's count as home and holds it, even while the axis still
+    settles from a move; a second homing is not mistaken for done by the first one's bits."""
+    rig = Rig(drives(1))
+    d = rig.group.drive(0)
+    model = rig.model()
+    rig.m.slaves[0].sdo_write(0x6067, 0, 5000, "uint32")  # a wide position window: the move
+    rig.m.slaves[0].sdo_write(0x6068, 0, 0, "uint16")     # is reached while the axis still runs
+    d.enable()
+    d.move_to(d.actual_position + 20_000, velocity=400_000, acceleration=4_000_000)
+    d.home(37)
+    assert d.mode == OperationMode.HOMING
+    assert d.statusword & 0x3400 == 0x1400                   # attained, target reached, no error
+    assert float(model.origin[0]).is_integer()               # a whole count, as the encoder's
+    rig.group.step(300)                                      # the axis settles where it was homed
+    assert d.actual_position == 0 and model.g_p[0] == model.origin[0]
+    d.move_to(1_000)
+    assert d.actual_position == pytest.approx(1_000, abs=5000)
+    rig.group.step(300)
+    d.home(37)                                               # "attained" from before: not done yet
+    rig.group.step(300)
+    assert d.actual_position == 0

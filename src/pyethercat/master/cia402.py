@@ -264,6 +264,8 @@ class DriveGroup:
         self._prev = cw
         self._pp = np.zeros(n, np.int64)
         self._hm = np.zeros(n, np.int64)
+        #: Exchanges that carried the homing start bit (controlword bit 4) so far.
+        self._hm_sent = np.zeros(n, np.int64)
         self._stream: tuple[I64, _Column, MotionRecord | None] | None = None
         self._row = 0
         self._last_emcy: dict[int, int] = {}
@@ -364,6 +366,8 @@ class DriveGroup:
                 self._target.set(self._pos.get(), idle)
         self._cw.set(out & 0xFFFF)  # type: ignore[union-attr]
         self._prev = out
+        if self._hm.any():
+            self._hm_sent += (self._hm == _SEND) & ((out & 0x10) != 0)
 
     def _handshakes(self, sw: I64) -> None:
         """Profile position (bit 4 until acknowledged) and homing (bit 4 until attained)."""
@@ -376,8 +380,15 @@ class DriveGroup:
             pp[done] = _DONE
             self._bits = np.where(pp == _SEND, self._bits | 0x10, self._bits & ~0x10)
         if hm.any():
-            attained = (hm == _SEND) & ((sw & 0x1000) != 0) & ((sw & 0x0400) != 0)
-            failed = (hm == _SEND) & ((sw & 0x2000) != 0)
+            # A drive homed before still shows "homing attained" (bits 12 and 10) and one
+            # that failed "homing error" (bit 13) until it sees the new start, and a method
+            # without motion (35, 37) may finish in the cycle it starts, so no statusword
+            # shows it running. Count statuswords only from the exchange after the first
+            # one that carried bit 4: the inputs of that one were latched before the drive
+            # read its outputs.
+            seen = (hm == _SEND) & (self._hm_sent >= 2)
+            attained = seen & ((sw & 0x1000) != 0) & ((sw & 0x0400) != 0)
+            failed = seen & ((sw & 0x2000) != 0)
             hm[attained] = _DONE
             hm[failed] = _FAILED
             self._bits = np.where(hm == _SEND, self._bits | 0x10, np.where(hm > _SEND,
@@ -681,6 +692,7 @@ class DriveGroup:
             self._sdo_params(sel, ((int(_O.HOMING_METHOD), method, "int8"),))
         if any(m != OM.HOMING for i, m in enumerate(self.modes()) if sel[i]):
             self.set_mode(OM.HOMING, drives=[int(i) for i in np.nonzero(sel)[0]])
+        self._hm_sent[sel] = 0
         self._hm[sel] = _SEND
 
         def finished() -> bool:

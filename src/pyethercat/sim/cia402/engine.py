@@ -503,8 +503,8 @@ class DriveEngine(AxisModel):
             new_p = np.where(m, p, new_p)
         m = running & (mode == OM.HOMING)
         if m.any():
-            new_p, new_v = self._homing(r, inst, m, halt, cw, prev, p, g_p, g_v, new_p, new_v,
-                                        dt, switches)
+            g_p, g_v, new_p, new_v = self._homing(r, inst, m, halt, cw, prev, p, g_p, g_v, new_p,
+                                                  new_v, dt, switches)
         # commit the plan
         self.plan_mode[r] = ctrl
         self.plan_from[r] = np.where(powered, g_p, p)
@@ -638,8 +638,12 @@ class DriveEngine(AxisModel):
 
     def _homing(self, r: Rows, inst: I64, m: B, halt: B, cw: I64, prev: I64, p: F64, g_p: F64,
                 g_v: F64, new_p: F64, new_v: F64, dt: F64,
-                switches: tuple[B, B, B]) -> tuple[F64, F64]:
-        """Homing: start on the rising edge of bit 4, run the method's program (``sim.cia402.homing``)."""
+                switches: tuple[B, B, B]) -> tuple[F64, F64, F64, F64]:
+        """Homing: start on the rising edge of bit 4, run the method's program (``sim.cia402.homing``).
+
+        Returns the demand at the start of the cycle (re-referenced where a method homed
+        on the current position) and at its end: (g_p, g_v, new_p, new_v).
+        """
         col = self.col
         neg, posl, home = switches
         phase = self.hm_phase[r].astype(np.int64)
@@ -678,8 +682,10 @@ class DriveEngine(AxisModel):
                                   col(AXIS_OBJECT, _AX.POSITIVE_LIMIT_SWITCH, r),
                                   col(AXIS_OBJECT, _AX.HOME_SWITCH, r)], axis=1)
             edge = positions[np.arange(len(p)), edge_sig]
+            # "current position": the encoder's count now, which the position actual value
+            # shows (the drive knows no finer position than its encoder's)
             edge = np.where(rule == _RU.EDGE, edge, np.where(rule == _RU.INDEX, np.where(
-                edge_sig > 0, edge, p), p))
+                edge_sig > 0, edge, p), self.enc_prev[r]))
             cpr = col(_O.POSITION_ENCODER_RESOLUTION, 1, r) / np.maximum(
                 col(_O.POSITION_ENCODER_RESOLUTION, 2, r), 1.0)
             idir = HOMING.index_dir[meth]
@@ -694,6 +700,12 @@ class DriveEngine(AxisModel):
             fin = ready & (rule == _RU.CURRENT)
             if fin.any():
                 self._home_found(inst[fin], home_at[fin], r, fin)
+                # Homing without motion: the drive holds the position it took as home. The
+                # demand of the mode before (a profile move's target the axis may still be
+                # settling onto, inside the position window) is dropped; kept, the axis
+                # would come to rest that far from home.
+                g_p = np.where(fin, home_at, g_p)
+                g_v = np.where(fin, 0.0, g_v)
         hm_home = self.hm_home[r]
         approach = m & (phase == _PH.APPROACH)
         idir = HOMING.index_dir[meth].astype(np.float64)
@@ -719,7 +731,7 @@ class DriveEngine(AxisModel):
         phase = np.where(done, _PH.DONE, phase)
         phase = np.where(stopped & aborted, _PH.IDLE, phase)
         self.hm_phase[inst[m]] = phase[m]
-        return new_p, new_v
+        return g_p, g_v, new_p, new_v
 
     def _home_found(self, sel: I64, home_raw: F64, r: Rows, mask: B) -> None:
         """Homing attained: user position of the home position = -home offset (IEC 61800-7-201:
