@@ -202,6 +202,55 @@ class _Chain:
             self.before(cycle)
 
 
+class _Handshakes:
+    """The controlword bit-4 handshakes of two modes, per drive: profile position (bit 4
+    until the set-point is acknowledged, then target reached) and homing (bit 4 until
+    homing attained or a homing error)."""
+
+    def __init__(self, n: int, bits: I64) -> None:
+        #: The mode-specific controlword bits 4-6, 8, 9 of every drive.
+        self.bits = bits
+        self.pp = np.zeros(n, np.int64)
+        self.hm = np.zeros(n, np.int64)
+        #: Exchanges that carried the homing start bit so far.
+        self.hm_sent = np.zeros(n, np.int64)
+
+    def on_statusword(self, sw: I64) -> None:
+        """Advance the handshakes with the statuswords of the last exchange."""
+        pp, hm = self.pp, self.hm
+        if pp.any():
+            ack = (sw & 0x1000) != 0
+            acked = (pp == _SEND) & ack
+            pp[acked] = _ACKED
+            done = (pp == _ACKED) & ~ack & ((sw & 0x0400) != 0)
+            pp[done] = _DONE
+            self.bits = np.where(pp == _SEND, self.bits | 0x10, self.bits & ~0x10)
+        if hm.any():
+            # A drive homed before still shows "homing attained" (bits 12 and 10) and one
+            # that failed "homing error" (bit 13) until it sees the new start, and a method
+            # without motion (35, 37) may finish in the cycle it starts, so no statusword
+            # shows it running. Count statuswords only from the exchange after the first
+            # one that carried bit 4: the inputs of that one were latched before the drive
+            # read its outputs.
+            seen = (hm == _SEND) & (self.hm_sent >= 2)
+            attained = seen & ((sw & 0x1000) != 0) & ((sw & 0x0400) != 0)
+            failed = seen & ((sw & 0x2000) != 0)
+            hm[attained] = _DONE
+            hm[failed] = _FAILED
+            self.bits = np.where(hm == _SEND, self.bits | 0x10,
+                                 np.where(hm > _SEND, self.bits & ~0x10, self.bits))
+
+    def sent(self, out: I64) -> None:
+        """The controlwords ``out`` go out with the next exchange."""
+        if self.hm.any():
+            self.hm_sent += (self.hm == _SEND) & ((out & 0x10) != 0)
+
+    def fail(self, i: int) -> None:
+        """Drive ``i`` went to Fault: a handshake under way failed."""
+        self.pp[i] = _FAILED if self.pp[i] in (_SEND, _ACKED) else self.pp[i]
+        self.hm[i] = _FAILED if self.hm[i] == _SEND else self.hm[i]
+
+
 class DriveGroup:
     """CiA 402 drives of one master, driven together (see the module docstring).
 
@@ -260,12 +309,8 @@ class DriveGroup:
         # the controlword the image holds goes on unchanged until the group is asked to act
         cw = self._cw.get()  # type: ignore[union-attr]
         self._dc = cw & _DEVICE_BITS              # device-control part of the controlword
-        self._bits = cw & ~_DEVICE_BITS & 0xFFFF  # mode-specific bits 4-6, 8, 9
+        self._hs = _Handshakes(n, cw & ~_DEVICE_BITS & 0xFFFF)
         self._prev = cw
-        self._pp = np.zeros(n, np.int64)
-        self._hm = np.zeros(n, np.int64)
-        #: Exchanges that carried the homing start bit (controlword bit 4) so far.
-        self._hm_sent = np.zeros(n, np.int64)
         self._stream: tuple[I64, _Column, MotionRecord | None] | None = None
         self._row = 0
         self._last_emcy: dict[int, int] = {}
@@ -344,8 +389,8 @@ class DriveGroup:
         reset = (st == S.FAULT) & self._reset
         dc = np.where(reset, np.where(self._prev & 0x80, 0, 0x80), dc)
         self._dc = dc
-        self._handshakes(sw)
-        out = (dc & _DEVICE_BITS) | self._bits
+        self._hs.on_statusword(sw)
+        out = (dc & _DEVICE_BITS) | self._hs.bits
         stream = self._stream
         if stream is not None:
             values, col, rec = stream
@@ -366,42 +411,14 @@ class DriveGroup:
                 self._target.set(self._pos.get(), idle)
         self._cw.set(out & 0xFFFF)  # type: ignore[union-attr]
         self._prev = out
-        if self._hm.any():
-            self._hm_sent += (self._hm == _SEND) & ((out & 0x10) != 0)
-
-    def _handshakes(self, sw: I64) -> None:
-        """Profile position (bit 4 until acknowledged) and homing (bit 4 until attained)."""
-        pp, hm = self._pp, self._hm
-        if pp.any():
-            ack = (sw & 0x1000) != 0
-            acked = (pp == _SEND) & ack
-            pp[acked] = _ACKED
-            done = (pp == _ACKED) & ~ack & ((sw & 0x0400) != 0)
-            pp[done] = _DONE
-            self._bits = np.where(pp == _SEND, self._bits | 0x10, self._bits & ~0x10)
-        if hm.any():
-            # A drive homed before still shows "homing attained" (bits 12 and 10) and one
-            # that failed "homing error" (bit 13) until it sees the new start, and a method
-            # without motion (35, 37) may finish in the cycle it starts, so no statusword
-            # shows it running. Count statuswords only from the exchange after the first
-            # one that carried bit 4: the inputs of that one were latched before the drive
-            # read its outputs.
-            seen = (hm == _SEND) & (self._hm_sent >= 2)
-            attained = seen & ((sw & 0x1000) != 0) & ((sw & 0x0400) != 0)
-            failed = seen & ((sw & 0x2000) != 0)
-            hm[attained] = _DONE
-            hm[failed] = _FAILED
-            self._bits = np.where(hm == _SEND, self._bits | 0x10, np.where(hm > _SEND,
-                                                                            self._bits & ~0x10,
-                                                                            self._bits))
+        self._hs.sent(out)
 
     def _faulted(self, idx: I64) -> None:
         """Drives that went to Fault: no goal any more (nothing re-enables them), an event."""
         codes = self._err.get() if self._err is not None else None
         for i in idx.tolist():
             self._goal[i] = _NO_GOAL
-            self._pp[i] = _FAILED if self._pp[i] in (_SEND, _ACKED) else self._pp[i]
-            self._hm[i] = _FAILED if self._hm[i] == _SEND else self._hm[i]
+            self._hs.fail(i)
             pos = self.positions[i]
             code = int(codes[i]) if codes is not None and codes[i] else self._last_emcy.get(pos)
             text = emergency_error_name(code) if code else "fault"
@@ -677,11 +694,11 @@ class DriveGroup:
                 self.master.slaves[self.positions[i]].sdo_write(int(_O.TARGET_POSITION), 0,
                                                                int(tgt[i]), "int32")
         extra = (0x20 if immediate else 0) | (0x40 if relative else 0)
-        self._bits = np.where(sel, (self._bits & ~0x60) | extra, self._bits)
-        self._pp[sel] = _SEND
-        self._wait(lambda: bool((self._pp[sel] == _DONE).all()), timeout, "profile position move",
+        self._hs.bits = np.where(sel, (self._hs.bits & ~0x60) | extra, self._hs.bits)
+        self._hs.pp[sel] = _SEND
+        self._wait(lambda: bool((self._hs.pp[sel] == _DONE).all()), timeout, "profile position move",
                    sel)
-        self._pp[sel] = _IDLE
+        self._hs.pp[sel] = _IDLE
 
     def home(self, method: int | None = None, timeout: float = 30.0,
              drives: Sequence[int] | None = None) -> None:
@@ -692,18 +709,18 @@ class DriveGroup:
             self._sdo_params(sel, ((int(_O.HOMING_METHOD), method, "int8"),))
         if any(m != OM.HOMING for i, m in enumerate(self.modes()) if sel[i]):
             self.set_mode(OM.HOMING, drives=[int(i) for i in np.nonzero(sel)[0]])
-        self._hm_sent[sel] = 0
-        self._hm[sel] = _SEND
+        self._hs.hm_sent[sel] = 0
+        self._hs.hm[sel] = _SEND
 
         def finished() -> bool:
-            states = self._hm[sel]
+            states = self._hs.hm[sel]
             if (states == _FAILED).any():
-                i = int(np.nonzero(sel & (self._hm == _FAILED))[0][0])
+                i = int(np.nonzero(sel & (self._hs.hm == _FAILED))[0][0])
                 raise DriveError(f"{self._name(i)}: homing error ({self._describe(i)})")
             return bool((states == _DONE).all())
 
         self._wait(finished, timeout, "homing", sel)
-        self._hm[sel] = _IDLE
+        self._hs.hm[sel] = _IDLE
 
     # --- error history ----------------------------------------------------------------------
 
