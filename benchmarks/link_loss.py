@@ -26,26 +26,16 @@ import json
 import subprocess
 import sys
 import time
-import uuid
 from collections.abc import Callable
 from pathlib import Path
+
+from common import veth
 
 from pyethercat.master.cyclic import CyclicRunner
 from pyethercat.master.master import Master
 from pyethercat.sim.server import start_sim_process
 
 DEMO = Path(__file__).resolve().parents[1] / "examples" / "demo.toml"
-
-
-def veth() -> tuple[str, str]:
-    tag = uuid.uuid4().hex[:6]
-    a, b = f"pyecat-{tag}a", f"pyecat-{tag}b"
-    subprocess.run(["ip", "link", "add", a, "type", "veth", "peer", "name", b], check=True)
-    for name in (a, b):
-        subprocess.run(["sysctl", "-qw", f"net.ipv6.conf.{name}.disable_ipv6=1"], check=False)
-        subprocess.run(["ip", "link", "set", name, "up"], check=True)
-    time.sleep(0.5)  # the carrier
-    return a, b
 
 
 def wait_for(cond: Callable[[], bool], seconds: float) -> float | None:

@@ -25,8 +25,9 @@ import subprocess
 import sys
 import tempfile
 import time
-import uuid
 from pathlib import Path
+
+from common import veth
 
 from pyethercat.master.master import Master
 from pyethercat.sim.server import start_sim_process
@@ -36,16 +37,6 @@ BIG = 0x2003
 BIG_SIZE = 65536
 #: The FoE file: bytes that compress badly, so nothing on the way can cheat.
 FOE_FILE = bytes((i * 2654435761 >> 13) & 0xFF for i in range(256 * 1024))
-
-
-def veth() -> tuple[str, str]:
-    tag = uuid.uuid4().hex[:6]
-    a, b = f"pyecat-{tag}a", f"pyecat-{tag}b"
-    subprocess.run(["ip", "link", "add", a, "type", "veth", "peer", "name", b], check=True)
-    for name in (a, b):
-        subprocess.run(["sysctl", "-qw", f"net.ipv6.conf.{name}.disable_ipv6=1"], check=False)
-        subprocess.run(["ip", "link", "set", name, "up"], check=True)
-    return a, b
 
 
 def bench_ours(iface: str, rounds: int, uploads: int, foe_size: int) -> dict[str, float]:

@@ -45,10 +45,10 @@ import subprocess
 import sys
 import tempfile
 import time
-import uuid
 from pathlib import Path
 
 import numpy as np
+from common import Soem, veth
 
 from pyethercat.master.master import Master
 from pyethercat.sim.server import start_sim_process
@@ -66,53 +66,17 @@ def topology(n: int) -> str:
     return "\n".join(parts + wires)
 
 
-def veth() -> tuple[str, str]:
-    tag = uuid.uuid4().hex[:6]
-    a, b = f"pyecat-{tag}a", f"pyecat-{tag}b"
-    subprocess.run(["ip", "link", "add", a, "type", "veth", "peer", "name", b], check=True)
-    for name in (a, b):
-        subprocess.run(["sysctl", "-qw", f"net.ipv6.conf.{name}.disable_ipv6=1"], check=False)
-        subprocess.run(["ip", "link", "set", name, "up"], check=True)
-    return a, b
-
-
 def pct(samples: list[float], q: float) -> float:
     return float(np.percentile(np.asarray(samples), q)) if samples else float("nan")
 
 
 def bench_soem(iface: str, rounds: int) -> dict[str, object]:
-    import pysoem
-
-    m = pysoem.Master()
-    m.open(iface)
+    soem = Soem(iface)
     try:
-        t0 = time.perf_counter()
-        count = m.config_init()
-        m.config_map()
-        m.state_check(pysoem.SAFEOP_STATE, 2_000_000)
-        m.state = pysoem.OP_STATE
-        m.write_state()
-        for _ in range(5000):
-            m.send_processdata()
-            m.receive_processdata(10000)
-            if m.state_check(pysoem.OP_STATE, 1000) == pysoem.OP_STATE:
-                break
-        startup = time.perf_counter() - t0
-        ok = m.state_check(pysoem.OP_STATE, 1000) == pysoem.OP_STATE
-        for _ in range(100):
-            m.send_processdata()
-            m.receive_processdata(10000)
-        rtts = []
-        for _ in range(rounds):
-            t = time.perf_counter_ns()
-            m.send_processdata()
-            m.receive_processdata(10000)
-            rtts.append((time.perf_counter_ns() - t) / 1000)
-        m.state = pysoem.INIT_STATE
-        m.write_state()
-        return {"slaves": count, "startup_s": startup, "op": ok, "rtts": rtts}
+        return {"slaves": soem.slaves, "startup_s": soem.startup_s, "op": soem.op,
+                "rtts": soem.rtts(rounds)}
     finally:
-        m.close()
+        soem.close()
 
 
 def bench_ours(iface: str, rounds: int, loop_seconds: float) -> dict[str, object]:
@@ -201,8 +165,6 @@ def run_soem(iface: str, seconds: float, load: bool, priority: int) -> dict[str,
 
     import pysoem
     from hostile import HostileLoad
-    from sim_rtt import Soem
-
     m = Soem(iface).m  # (in OP)
     try:
         # The working counter of a whole exchange, as the slaves give it (SOEM's own

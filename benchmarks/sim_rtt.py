@@ -39,7 +39,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from master_cycle import veth
+from common import Soem, veth
 
 ROOT = Path(__file__).resolve().parents[1]
 CORPUS = ROOT.parent / "shared" / "corpus" / "esi"
@@ -67,52 +67,6 @@ ECHO = textwrap.dedent("""
 
 def chrt(priority: int) -> list[str]:
     return ["chrt", "-f", str(priority)] if priority else []
-
-
-class Soem:
-    """A pysoem master that brought the segment to OP; ``rtts(n)`` times process-data cycles."""
-
-    def __init__(self, iface: str) -> None:
-        import pysoem
-
-        self.pysoem = pysoem
-        self.m = m = pysoem.Master()
-        m.open(iface)
-        self.slaves = m.config_init()
-        if self.slaves <= 0:
-            m.close()
-            raise RuntimeError(f"SOEM found no slaves on {iface}")
-        m.config_map()
-        m.state_check(pysoem.SAFEOP_STATE, 2_000_000)
-        m.state = pysoem.OP_STATE
-        m.write_state()
-        for _ in range(5000):
-            m.send_processdata()
-            m.receive_processdata(10000)
-            if m.state_check(pysoem.OP_STATE, 1000) == pysoem.OP_STATE:
-                break
-        self.op = m.state_check(pysoem.OP_STATE, 1000) == pysoem.OP_STATE
-        self.wkc = 0
-
-    def rtts(self, rounds: int) -> list[float]:
-        m = self.m
-        for _ in range(200):
-            m.send_processdata()
-            self.wkc = m.receive_processdata(10000)
-        out = []
-        clock = time.perf_counter_ns
-        for _ in range(rounds):
-            t = clock()
-            m.send_processdata()
-            m.receive_processdata(10000)
-            out.append((clock() - t) / 1000)
-        return out
-
-    def close(self) -> None:
-        m = self.m
-        m.state = self.pysoem.INIT_STATE
-        m.write_state()
-        m.close()
 
 
 def wait_line(proc: subprocess.Popen[str], want: str, seconds: float = 30.0) -> None:

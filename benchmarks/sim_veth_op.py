@@ -22,8 +22,9 @@ import subprocess
 import sys
 import tempfile
 import time
-import uuid
 from pathlib import Path
+
+from common import veth
 
 from pyethercat.errors import EtherCATError
 from pyethercat.master import Master
@@ -35,21 +36,6 @@ def topology(n: int) -> str:
     kinds = ["coupler"] + ["coe-io" if i % 10 in (1, 4, 7) else ("do8" if i % 2 else "di8")
                            for i in range(1, n)]
     return "".join(f'[[slave]]\nname = "s{i}"\ndevice = "builtin:{k}"\n' for i, k in enumerate(kinds))
-
-
-def veth() -> tuple[str, str]:
-    tag = uuid.uuid4().hex[:6]
-    a, b = f"pyecat-{tag}a", f"pyecat-{tag}b"
-    subprocess.run(["ip", "link", "add", a, "type", "veth", "peer", "name", b], check=True)
-    for name in (a, b):
-        subprocess.run(["sysctl", "-qw", f"net.ipv6.conf.{name}.disable_ipv6=1"], check=False)
-        subprocess.run(["ip", "link", "set", name, "up"], check=True)
-    limit = time.monotonic() + 5.0
-    while time.monotonic() < limit:
-        if all(Path(f"/sys/class/net/{x}/operstate").read_text().strip() == "up" for x in (a, b)):
-            break
-        time.sleep(0.01)
-    return a, b
 
 
 def main() -> int:

@@ -42,7 +42,7 @@ from __future__ import annotations
 
 import tomllib
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, Generic, Literal, Protocol, TypeVar
 
 from pyethercat.errors import ConfigError
 
@@ -50,6 +50,7 @@ __all__ = [
     "DEFAULT_DRIFT_PPM",
     "FAULT_KINDS",
     "FaultEntry",
+    "SegmentDoc",
     "SlaveEntry",
     "TopologyDoc",
     "WireEntry",
@@ -143,13 +144,26 @@ class FaultEntry:
     count: int = 1
 
 
+class _Named(Protocol):
+    @property
+    def name(self) -> str: ...
+
+
+SlaveT = TypeVar("SlaveT", bound=_Named)
+WireT = TypeVar("WireT")
+
+
 @dataclass
-class TopologyDoc:
-    """A checked topology document."""
+class SegmentDoc(Generic[SlaveT, WireT]):
+    """A topology's slaves, wires and faults with the segment-wide settings.
+
+    As the file writes it (:class:`TopologyDoc`) or resolved by the simulator
+    (``pyethercat.sim.topology.Topology``), which keep the same settings.
+    """
 
     source: str
-    slaves: list[SlaveEntry] = field(default_factory=list)
-    wires: list[WireEntry] = field(default_factory=list)
+    slaves: list[SlaveT] = field(default_factory=list)
+    wires: list[WireT] = field(default_factory=list)
     faults: list[FaultEntry] = field(default_factory=list)
     drop_probability: float = 0.0
     seed: int | None = None
@@ -159,11 +173,16 @@ class TopologyDoc:
     ring: bool | tuple[str, int] = False
 
     def index(self, name: str) -> int:
-        """Position of slave ``name`` in the file (0 = first)."""
+        """Position of slave ``name`` (0 = first slave)."""
         for i, s in enumerate(self.slaves):
             if s.name == name:
                 return i
         raise ConfigError(f"{self.source}: no slave named {name!r}")
+
+
+@dataclass
+class TopologyDoc(SegmentDoc[SlaveEntry, WireEntry]):
+    """A checked topology document."""
 
 
 # --- values ----------------------------------------------------------------------------

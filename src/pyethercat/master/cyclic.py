@@ -59,7 +59,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypedDict
 
 from pyethercat.clock import Clock, PerfClock
 from pyethercat.errors import ConfigError
@@ -141,6 +141,30 @@ class GroupStatus:
         return self.input_age > 0 or not self.inputs_valid
 
 
+class RunnerOptions(TypedDict, total=False):
+    """The keyword options of :class:`CyclicRunner`, for runners built on it to pass on."""
+
+    cycle: float
+    clock: Clock | None
+    callback: Callable[[Cycle], None] | None
+    check_interval: float
+    target: AlState
+    recover: Callable[[list[int]], None] | None
+    groups: Sequence[str] | None
+    late_fraction: float
+    frame_timeout: float | None
+    link_timeout: float | None
+    state_timeout: float | None
+    leave: LeaveFn | None
+    final_state: AlState | str
+    safe_cycles: int
+    dc: DcCycle | None
+
+
+DEFAULT_CYCLE = 0.001
+DEFAULT_CHECK_INTERVAL = 0.1
+
+
 class CyclicRunner:
     """The cyclic loop over one or more groups (see the module text).
 
@@ -155,9 +179,9 @@ class CyclicRunner:
 
     def __init__(self, scheduler: Scheduler, config: ProcessDataConfig,
                  images: dict[str, ProcessImage], slaves: Sequence[object], *,
-                 cycle: float = 0.001, clock: Clock | None = None,
+                 cycle: float = DEFAULT_CYCLE, clock: Clock | None = None,
                  callback: Callable[[Cycle], None] | None = None,
-                 check_interval: float = 0.1, target: AlState = AlState.OP,
+                 check_interval: float = DEFAULT_CHECK_INTERVAL, target: AlState = AlState.OP,
                  recover: Callable[[list[int]], None] | None = None,
                  groups: Sequence[str] | None = None, late_fraction: float = 0.25,
                  frame_timeout: float | None = None, link_timeout: float | None = None,

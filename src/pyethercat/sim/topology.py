@@ -31,8 +31,8 @@ from pyethercat.sim.foe import FoeOptions
 from pyethercat.sim.profiles import DEVICE_PROFILES, PROFILES, EscProfile
 from pyethercat.sim.protocols import MailboxOptions
 from pyethercat.topology import (
-    DEFAULT_DRIFT_PPM,
     FaultEntry,
+    SegmentDoc,
     SlaveEntry,
     WireEntry,
     parse_topology_text,
@@ -110,37 +110,13 @@ class WireConfig:
     bits: int
 
 
-@dataclass(frozen=True)
-class FaultConfig:
-    """One ``[[fault]]`` applied at build time."""
-
-    kind: str
-    slave: str
-    port: int = 0
-    count: int = 1
+FaultConfig = FaultEntry
+"""One ``[[fault]]`` applied at build time (the file's entry as it is)."""
 
 
 @dataclass
-class Topology:
+class Topology(SegmentDoc[SlaveConfig, WireConfig]):
     """A parsed topology file. :meth:`build` makes the :class:`Segment`."""
-
-    source: str  # file name (for messages)
-    slaves: list[SlaveConfig] = field(default_factory=list)
-    wires: list[WireConfig] = field(default_factory=list)
-    faults: list[FaultConfig] = field(default_factory=list)
-    drop_probability: float = 0.0
-    seed: int | None = None
-    drift_ppm: float = DEFAULT_DRIFT_PPM
-    drift_seed: int = 0
-    #: Cable redundancy: master port B cabled to the last slave (True) or to (slave, port).
-    ring: bool | tuple[str, int] = False
-
-    def index(self, name: str) -> int:
-        """Position of slave ``name`` (0 = first slave)."""
-        for i, s in enumerate(self.slaves):
-            if s.name == name:
-                return i
-        raise ConfigError(f"{self.source}: no slave named {name!r}")
 
     def build(self, clock: TimeSource | None = None) -> Segment:
         """Build the segment (see :func:`build_segment`)."""
@@ -179,7 +155,7 @@ def parse_topology(
         topo.wires.append(_check_wire(w, topo))
     for i, f in enumerate(doc.faults):
         _check_fault(f, i, topo)
-        topo.faults.append(FaultConfig(f.kind, f.slave, f.port, f.count))
+        topo.faults.append(f)
     return topo
 
 

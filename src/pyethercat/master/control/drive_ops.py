@@ -19,7 +19,6 @@ from pyethercat.errors import ConfigError, EtherCATError
 from pyethercat.master.cia402 import DriveGroup
 from pyethercat.master.control.handlers import MasterContext, handler
 from pyethercat.master.control.protocol import Reply, Request, request
-from pyethercat.wire.al import AlState
 from pyethercat.wire.cia402 import DriveState, OperationMode, decode_state, parse_mode
 from pyethercat.wire.mailbox.coe import emergency_error_name
 from pyethercat.wire.mailbox.objects import Cia402Object
@@ -137,13 +136,7 @@ def _status(position: int, sw: int, mode: int, actual: int | None, fe: int | Non
 
 def _by_sdo(ctx: MasterContext, position: int) -> DriveStatus:
     s = ctx.slave(position)
-    if s.coe is None:
-        raise ConfigError(f"{s.describe()} has no mailbox: not a CiA 402 drive over CoE")
-    if s.al_state in (AlState.INIT, AlState.BOOT, AlState.NONE):
-        if not ctx.direct:
-            raise ConfigError(f"{s.describe()} is in {s.al_state_name}: no mailbox there "
-                              "(the running master keeps it in that state)")
-        ctx.master.set_state(AlState.PREOP, [s])  # a slave in INIT has no mailbox
+    ctx.coe(position, "CoE: not a CiA 402 drive")
 
     def read(index: int, kind: str) -> int | None:
         try:

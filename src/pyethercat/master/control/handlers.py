@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 from pyethercat.errors import ConfigError, SdoAbort
 from pyethercat.master import diag
 from pyethercat.master.bootstrap import bootstrap_update, foe_client
+from pyethercat.master.coe import CoeClient
 from pyethercat.master.control import messages as msg
 from pyethercat.master.control.protocol import PROTOCOL_VERSION, Request
 from pyethercat.master.control.snapshot import snapshot
@@ -109,6 +110,32 @@ class MasterContext:
         if not 0 <= position < count:
             raise ConfigError(_no_slave(position, count))
         return position
+
+    def mailbox_slave(self, position: int, what: str, *, boot: bool = False) -> Slave:
+        """The slave at ``position`` with a usable mailbox (``what``: the protocol wanted).
+
+        Direct (no running master), a slave in INIT (or in BOOT, unless ``boot`` says
+        the protocol works there, as FoE does) is taken to PRE-OP first: it has no
+        mailbox before (the sync managers come from its SII). A running master keeps
+        its slaves where they are.
+        """
+        s = self.slave(position)
+        if not s.has_mailbox:
+            raise ConfigError(f"{s.describe()} has no mailbox: no {what}")
+        if s.al_state in ((AlState.INIT, AlState.NONE) if boot
+                          else (AlState.INIT, AlState.BOOT, AlState.NONE)):
+            if not self.direct:
+                raise ConfigError(f"{s.describe()} is in {s.al_state_name}: no mailbox there "
+                                  "(the running master keeps it in that state)")
+            self.master.set_state(AlState.PREOP, [s])
+        return s
+
+    def coe(self, position: int, what: str = "CoE") -> CoeClient:
+        """The CoE client of the slave at ``position`` (see :meth:`mailbox_slave`)."""
+        s = self.mailbox_slave(position, what)
+        if s.coe is None:
+            raise ConfigError(f"{s.describe()} has no mailbox: no {what}")
+        return s.coe
 
     @property
     def runner(self) -> CyclicRunner | None:
@@ -282,35 +309,22 @@ def _alias(ctx: MasterContext, req: msg.SetAlias) -> msg.SiiWriteResult:
 # --- CoE ------------------------------------------------------------------------------------
 
 
-def _coe(ctx: MasterContext, position: int) -> Any:
-    s = ctx.slave(position)
-    if s.coe is None:
-        raise ConfigError(f"{s.describe()} has no mailbox: no CoE")
-    if s.al_state in (AlState.INIT, AlState.BOOT, AlState.NONE):
-        if not ctx.direct:
-            raise ConfigError(f"{s.describe()} is in {s.al_state_name}: no mailbox there "
-                              "(the running master keeps it in that state)")
-        # A slave in INIT has no mailbox: PRE-OP first (mailbox sync managers from SII).
-        ctx.master.set_state(AlState.PREOP, [s])
-    return s.coe
-
-
 @handler(msg.SdoUpload)
 def _upload(ctx: MasterContext, req: msg.SdoUpload) -> msg.Data:
-    client = _coe(ctx, req.position)
+    client = ctx.coe(req.position)
     return msg.Data(client.upload(req.index, req.subindex, complete_access=req.complete_access))
 
 
 @handler(msg.SdoDownload)
 def _download(ctx: MasterContext, req: msg.SdoDownload) -> msg.Done:
-    client = _coe(ctx, req.position)
+    client = ctx.coe(req.position)
     client.download(req.index, req.subindex, req.data, complete_access=req.complete_access)
     return msg.Done()
 
 
 @handler(msg.SdoEntryType)
 def _entry_type(ctx: MasterContext, req: msg.SdoEntryType) -> msg.EntryType:
-    client = _coe(ctx, req.position)
+    client = ctx.coe(req.position)
     try:
         desc = client.entry_description(req.index, req.subindex, value_info=0)
         return msg.EntryType(int(DataType(desc.data_type)))
@@ -322,7 +336,7 @@ def _entry_type(ctx: MasterContext, req: msg.SdoEntryType) -> msg.EntryType:
 
 @handler(msg.SdoList)
 def _sdo_list(ctx: MasterContext, req: msg.SdoList) -> msg.SdoObjects:
-    client = _coe(ctx, req.position)
+    client = ctx.coe(req.position)
     od = client.od
     out: list[msg.SdoObjectInfo] = []
     for index in od:
@@ -491,21 +505,9 @@ def _eoe_set_ip(ctx: MasterContext, req: msg.EoeSetIp) -> msg.Done:
 # --- FoE and SoE ----------------------------------------------------------------------------
 
 
-def _mailbox_slave(ctx: MasterContext, position: int, what: str) -> Slave:
-    s = ctx.slave(position)
-    if not s.has_mailbox:
-        raise ConfigError(f"{s.describe()} has no mailbox: no {what}")
-    if s.al_state in (AlState.INIT, AlState.NONE):
-        if not ctx.direct:
-            raise ConfigError(f"{s.describe()} is in {s.al_state_name}: no mailbox there "
-                              "(the running master keeps it in that state)")
-        ctx.master.set_state(AlState.PREOP, [s])
-    return s
-
-
 @handler(msg.FoeRead)
 def _foe_read(ctx: MasterContext, req: msg.FoeRead) -> msg.Data:
-    s = _mailbox_slave(ctx, req.position, "FoE")
+    s = ctx.mailbox_slave(req.position, "FoE", boot=True)
     data = foe_client(ctx.master.scheduler, s).read(
         req.name, password=req.password, max_size=req.max_size,
         progress=ctx.transfer_progress)
@@ -519,7 +521,7 @@ def _foe_write(ctx: MasterContext, req: msg.FoeWrite) -> msg.Done:
         bootstrap_update(ctx.master, ctx.slave(req.position), req.data, name=req.name,
                          password=req.password, progress=ctx.transfer_progress)
         return msg.Done()
-    s = _mailbox_slave(ctx, req.position, "FoE")
+    s = ctx.mailbox_slave(req.position, "FoE", boot=True)
     foe_client(ctx.master.scheduler, s).write(req.name, req.data, password=req.password,
                                               progress=ctx.transfer_progress)
     telemetry_of(ctx.master).record_foe(req.position, req.name, len(req.data), "write")
@@ -527,12 +529,7 @@ def _foe_write(ctx: MasterContext, req: msg.FoeWrite) -> msg.Done:
 
 
 def _soe(ctx: MasterContext, position: int) -> SoeClient:
-    s = _mailbox_slave(ctx, position, "SoE")
-    if s.al_state == AlState.BOOT:
-        if not ctx.direct:
-            raise ConfigError(f"{s.describe()} is in BOOT: no SoE there")
-        ctx.master.set_state(AlState.PREOP, [s])
-    return s.client(SoeClient)
+    return ctx.mailbox_slave(position, "SoE").client(SoeClient)
 
 
 @handler(msg.SoeRead)

@@ -34,20 +34,21 @@ import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
-from typing import Any
+from typing import Any, Unpack
 
-from pyethercat.clock import Clock, PerfClock
+from pyethercat.clock import PerfClock
 from pyethercat.errors import ConfigError, EngineDiedError, EtherCATError, LinkError
 from pyethercat.link.base import Link
 from pyethercat.master.config import GroupConfig, ProcessDataConfig
 from pyethercat.master.cyclic import (
+    DEFAULT_CHECK_INTERVAL,
+    DEFAULT_CYCLE,
     Cycle,
     CycleStats,
     CyclicRunner,
     GroupStatus,
-    LeaveFn,
+    RunnerOptions,
 )
-from pyethercat.master.dc_loop import DcCycle
 from pyethercat.master.engine.channel import recv_message, send_message
 from pyethercat.master.engine.plan import EnginePlan, dumps
 from pyethercat.master.engine.readout import EngineReadout, Lifeline
@@ -61,7 +62,6 @@ from pyethercat.master.engine.status import (
 )
 from pyethercat.master.image import PdoValue, ProcessImage
 from pyethercat.master.scheduler import Scheduler
-from pyethercat.wire.al import AlState
 
 __all__ = ["EngineImageSync", "IsolatedRunner", "Lifeline"]
 
@@ -147,6 +147,10 @@ class SharedImage(ProcessImage):
         pass
 
 
+def _names(groups: Sequence[str] | None) -> list[str] | None:
+    return list(groups) if groups is not None else None
+
+
 class IsolatedRunner(EngineReadout, CyclicRunner):
     """The cyclic loop in a process of its own (see the module text).
 
@@ -158,31 +162,16 @@ class IsolatedRunner(EngineReadout, CyclicRunner):
     """
 
     def __init__(self, scheduler: Scheduler, config: ProcessDataConfig,
-                 images: dict[str, ProcessImage], slaves: Sequence[object], *,
-                 cycle: float = 0.001, clock: Clock | None = None,
-                 callback: Callable[[Cycle], None] | None = None,
-                 check_interval: float = 0.1, target: AlState = AlState.OP,
-                 recover: Callable[[list[int]], None] | None = None,
-                 groups: Sequence[str] | None = None, late_fraction: float = 0.25,
-                 frame_timeout: float | None = None, link_timeout: float | None = None,
-                 state_timeout: float | None = None, leave: LeaveFn | None = None,
-                 final_state: AlState | str = AlState.PREOP, safe_cycles: int = 3,
-                 dc: DcCycle | None = None, priority: int = 0, cpu: int | None = None, lock_memory: bool = False,
-                 spin: float = 0.0001,
-                 use_images: Callable[[dict[str, ProcessImage]], None] | None = None) -> None:
+                 images: dict[str, ProcessImage], slaves: Sequence[object], *, priority: int = 0,
+                 cpu: int | None = None, lock_memory: bool = False, spin: float = 0.0001,
+                 use_images: Callable[[dict[str, ProcessImage]], None] | None = None,
+                 **options: Unpack[RunnerOptions]) -> None:
+        clock = options.get("clock")
         if clock is not None and not isinstance(clock, PerfClock):
             raise ConfigError("the isolated engine keeps its own time (a PerfClock): give no clock")
-        super().__init__(scheduler, config, images, slaves, cycle=cycle, clock=clock,
-                         callback=callback, check_interval=check_interval, target=target,
-                         recover=recover, groups=groups, late_fraction=late_fraction,
-                         frame_timeout=frame_timeout, link_timeout=link_timeout,
-                         state_timeout=state_timeout, leave=leave, final_state=final_state,
-                         safe_cycles=safe_cycles, dc=dc)
-        self._link_timeout = link_timeout
-        self._state_timeout = state_timeout
-        self._check_interval = check_interval
-        self._cycle_s = cycle
-        self._group_names = list(groups) if groups is not None else None
+        super().__init__(scheduler, config, images, slaves, **options)
+        #: What the engine's own runner is built with (the plan carries it over).
+        self._options = options
         self._private = images
         self._use_images = use_images
         self.priority = priority
@@ -249,15 +238,16 @@ class IsolatedRunner(EngineReadout, CyclicRunner):
         frames, engine_frames = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         try:
             plan = EnginePlan(
-                link=link, config=self.config, groups=self._group_names, cycle=self._cycle_s,
+                link=link, config=self.config, groups=_names(self._options.get("groups")),
+                cycle=self._options.get("cycle", DEFAULT_CYCLE),
                 slaves=[(int(getattr(s, "position")), int(getattr(s, "station_address")))  # noqa: B009
                         for s in self.slaves],
                 area_path=area.path, layout=layout, stats_fields=stats_names,
                 control_fd=engine_control.fileno(), frames_fd=engine_frames.fileno(),
-                parent_pid=os.getpid(), target=self.target, check_interval=self._check_interval,
+                parent_pid=os.getpid(), target=self.target, check_interval=self._options.get("check_interval", DEFAULT_CHECK_INTERVAL),
                 late_fraction=self.late_threshold_ns / self.period_ns,
-                frame_timeout=self.frame_timeout, link_timeout=self._link_timeout,
-                state_timeout=self._state_timeout, dc=self.dc,
+                frame_timeout=self.frame_timeout, link_timeout=self._options.get("link_timeout"),
+                state_timeout=self._options.get("state_timeout"), dc=self.dc,
                 supervising=self._supervising_wish, safe_cycles=self.safe_cycles,
                 recover=self.supervisor.recover_fn is not None,
                 timeout=sched.timeout, retries=sched.retries, max_in_flight=sched.max_in_flight,

@@ -1,0 +1,83 @@
+"""What several benchmark scripts share: a pyecat- veth pair, and SOEM (pysoem) in OP.
+
+The scripts run as ``python benchmarks/NAME.py``, so this folder is on the
+import path and they ``from common import ...``.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import time
+import uuid
+from pathlib import Path
+from typing import Any
+
+
+def veth() -> tuple[str, str]:
+    """A fresh veth pair ``pyecat-<tag>a/b``, up and with carrier (the caller removes it)."""
+    tag = uuid.uuid4().hex[:6]
+    a, b = f"pyecat-{tag}a", f"pyecat-{tag}b"
+    subprocess.run(["ip", "link", "add", a, "type", "veth", "peer", "name", b], check=True)
+    for name in (a, b):
+        subprocess.run(["sysctl", "-qw", f"net.ipv6.conf.{name}.disable_ipv6=1"], check=False)
+        subprocess.run(["ip", "link", "set", name, "up"], check=True)
+    limit = time.monotonic() + 5.0
+    while time.monotonic() < limit:
+        if all(Path(f"/sys/class/net/{x}/operstate").read_text().strip() == "up" for x in (a, b)):
+            break
+        time.sleep(0.01)
+    return a, b
+
+
+class Soem:
+    """A pysoem master that brought the segment to OP; ``rtts(n)`` times process-data cycles.
+
+    ``startup_s``: from opening the interface to OP (config_init, config_map,
+    SAFE-OP, then process data until OP shows).
+    """
+
+    def __init__(self, iface: str) -> None:
+        import pysoem
+
+        self.pysoem: Any = pysoem
+        self.m = m = pysoem.Master()
+        t0 = time.perf_counter()
+        m.open(iface)
+        self.slaves = m.config_init()
+        if self.slaves <= 0:
+            m.close()
+            raise RuntimeError(f"SOEM found no slaves on {iface}")
+        m.config_map()
+        m.state_check(pysoem.SAFEOP_STATE, 2_000_000)
+        m.state = pysoem.OP_STATE
+        m.write_state()
+        for _ in range(5000):
+            m.send_processdata()
+            m.receive_processdata(10000)
+            if m.state_check(pysoem.OP_STATE, 1000) == pysoem.OP_STATE:
+                break
+        self.startup_s = time.perf_counter() - t0
+        self.op = m.state_check(pysoem.OP_STATE, 1000) == pysoem.OP_STATE
+        self.wkc = 0
+
+    def rtts(self, rounds: int) -> list[float]:
+        """``rounds`` process-data cycles (send + receive) after a warm-up, in microseconds."""
+        m = self.m
+        for _ in range(200):
+            m.send_processdata()
+            self.wkc = m.receive_processdata(10000)
+        out = []
+        clock = time.perf_counter_ns
+        for _ in range(rounds):
+            t = clock()
+            m.send_processdata()
+            m.receive_processdata(10000)
+            out.append((clock() - t) / 1000)
+        return out
+
+    def close(self) -> None:
+        """Back to INIT, interface closed."""
+        m = self.m
+        m.state = self.pysoem.INIT_STATE
+        m.write_state()
+        m.close()
