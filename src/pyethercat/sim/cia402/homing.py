@@ -136,9 +136,9 @@ SG = ints(Signal)
 # --- the homing mode of a drive's cycle ------------------------------------------------------
 
 
-def run_homing(eng: DriveEngine, r: Rows, inst: I64, m: B, halt: B, cw: I64, prev: I64, p: F64, g_p: F64,
-            g_v: F64, new_p: F64, new_v: F64, dt: F64,
-            switches: tuple[B, B, B]) -> tuple[F64, F64, F64, F64]:
+def run_homing(eng: DriveEngine, r: Rows, inst: I64, m: B, halt: B, cw: I64, prev: I64, p: F64,
+               g_p: F64, g_v: F64, new_p: F64, new_v: F64, dt: F64,
+               switches: tuple[B, B, B]) -> tuple[F64, F64, F64, F64]:
     """Homing: start on the rising edge of bit 4, run the method's program (``sim.cia402.homing``).
 
     Returns the demand at the start of the cycle (re-referenced where a method homed

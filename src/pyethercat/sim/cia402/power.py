@@ -66,7 +66,7 @@ POWERED[[DriveState.OPERATION_ENABLED, DriveState.QUICK_STOP_ACTIVE,
 
 
 def transitions(eng: DriveEngine, r: Rows, state: I64, cmd: I64, cw: I64, prev: I64, stopping: B,
-                 faulted: B | None) -> tuple[I64, I64]:
+                faulted: B | None) -> tuple[I64, I64]:
     """New states and the stops they start (-1: none; else a stop option)."""
     col = eng.col
     new = TRANSITIONS[state, cmd]

@@ -43,7 +43,7 @@ __all__ = ["acc_dec", "max_velocity", "plan", "plan_csp", "profile_position", "s
 
 
 def plan(eng: DriveEngine, r: Rows, inst: I64, state: I64, mode: I64, cw: I64, prev: I64, dt: F64,
-          safe_dt: F64, start_stop: I64 | None, switches: tuple[B, B, B]) -> None:
+         safe_dt: F64, start_stop: I64 | None, switches: tuple[B, B, B]) -> None:
     """The next cycle's plan of every axis (see :class:`~pyethercat.sim.cia402.axis.AxisModel`)."""
     if (start_stop is None and (state == S.OPERATION_ENABLED).all()
             and (mode == OM.CYCLIC_SYNC_POSITION).all()
@@ -209,8 +209,8 @@ def stop_deceleration(eng: DriveEngine, r: Rows, option: I64) -> F64:
 
 
 def profile_position(eng: DriveEngine, r: Rows, inst: I64, m: B, halt: B, cw: I64, prev: I64,
-                      g_p: F64, g_v: F64, new_p: F64, new_v: F64, dt: F64, lo: F64, hi: F64,
-                      limits: B) -> tuple[F64, F64, B]:
+                     g_p: F64, g_v: F64, new_p: F64, new_v: F64, dt: F64, lo: F64, hi: F64,
+                     limits: B) -> tuple[F64, F64, B]:
     """Profile position: set-point handshake (bits 4, 5, 6, 9 / status bit 12) and the move."""
     col = eng.col
     origin = eng.origin[r]

@@ -45,7 +45,7 @@ _FALSE = np.zeros(1 << 16, bool)
 
 
 def statusword(eng: DriveEngine, r: Rows, state: I64, mode: I64, cw: I64, fe: F64, v_act: F64,
-                dt: F64) -> None:
+               dt: F64) -> None:
     col, f = eng.col, eng.field
     sw = _STATE_BITS[state] | _VOLTAGE_REMOTE
     warn, limited = eng.warn[r], eng.limited[r]
