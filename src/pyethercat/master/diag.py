@@ -1,8 +1,8 @@
 """Diagnostics: the "multiple read" service and the error-counter report.
 
-Seed 000 describes MRD, a read of one register from many slaves with one
-datagram. The standard command set has no such command, so the intent is
-served with standard datagrams: one FPRD per slave, all queued at once, so
+A "multiple read" (MRD) reads one register from many slaves with one
+datagram. The command set of ETG.1000.4 (5.4, the EtherCAT commands) has no
+such command, so the intent is served with standard datagrams: one FPRD per slave, all queued at once, so
 the scheduler packs them into as few frames as fit (about 100 slaves per
 frame for a 2-byte register). Polling states and reading error counters of
 a whole segment therefore takes one or two round trips.

@@ -283,7 +283,9 @@ class Cia402Model(DriveEngine):
             self.sync_dc[instance] = self.started[instance] = self.fresh[instance] = False
             self.last_sync_sys[instance] = self.last_tick_ns[instance] = -1
             self.sync_errors[instance] = 0
-            self.apps[instance].waiting_since = -1  # type: ignore[attr-defined]
+            app = self.apps[instance]
+            if isinstance(app, DriveApp):
+                app.waiting_since = -1
             if new == AlState.INIT:
                 self.user_sync[instance] = False
         if new in (AlState.SAFEOP, AlState.OP) and old not in (AlState.SAFEOP, AlState.OP):
