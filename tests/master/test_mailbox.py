@@ -250,6 +250,36 @@ def test_emergency_polled_without_transaction() -> None:
     assert m.emergencies.get_nowait().name == "device temperature"
 
 
+def test_poll_leaves_sm1_to_a_transaction_in_progress() -> None:
+    """A poll (a dashboard's, a drive group's) while another thread's transfer holds the
+    mailbox does not read SM1: two readers can deliver a segmented answer's pieces out of
+    order, and one can empty SM1 under the other, which then asks for a needless repeat."""
+    m, apps, _drop = _master()
+    box = m.mailboxes.mailbox_of(0)
+    assert box is not None
+    apps[0].emergency(0x4210)
+    held, release = threading.Event(), threading.Event()
+
+    def transfer() -> None:  # stands in for a segmented SDO upload between two steps
+        with box.lock:
+            held.set()
+            release.wait(10)
+
+    t = threading.Thread(target=transfer)
+    t.start()
+    try:
+        assert held.wait(10)
+        fetches = box.stats.fetches
+        assert m.poll_mailboxes() == 0
+        assert box.stats.fetches == fetches  # SM1 not read: the emergency waits there
+        assert m.emergencies.empty()
+    finally:
+        release.set()
+        t.join()
+    assert m.poll_mailboxes() == 1  # the transfer is over: the poll reads it
+    assert m.emergencies.get_nowait().name == "device temperature"
+
+
 def test_abort_from_slave_in_service_2() -> None:
     m, apps, _drop = _master()
     apps[0].aborts[(0x2000, 0)] = SdoAbortCode.READ_ONLY

@@ -575,11 +575,24 @@ class Mailbox:
         self._deliver(raw)
 
     def poll(self) -> bool:
-        """Fetch whatever the slave posted, without waiting; True when something came."""
-        status, _cyclic = self._status(0.0)
-        if status is not None and status & reg.SM_STATUS_MAILBOX_FULL:
-            return self.fetch()
-        return False
+        """Fetch whatever the slave posted, without waiting; True when something came.
+
+        Nothing while another thread's transaction holds :attr:`lock`: that
+        transaction reads SM1 itself (emergencies reach the handlers through
+        it). A second reader would race it: its fetch may come back after a
+        later one of the transaction's, so fragments reach the inbox out of
+        order, and a status byte seen "full" before the other read empties
+        SM1 makes the transaction ask for a repeat it did not need.
+        """
+        if not self.lock.acquire(blocking=False):
+            return False
+        try:
+            status, _cyclic = self._status(0.0)
+            if status is not None and status & reg.SM_STATUS_MAILBOX_FULL:
+                return self.fetch()
+            return False
+        finally:
+            self.lock.release()
 
     def drop(self, accept: Accept) -> int:
         """Throw away queued messages ``accept`` takes (late answers); returns how many."""
