@@ -12,7 +12,9 @@ end of a veth pair:
 (d) with ``--dashboard``: the same loop with and without the web dashboard
     open (``pyethercat web`` reaching the master through its control socket,
     two headless Chromium browsers on the Cycle page, the heaviest one), in
-    alternating windows; the jitter percentiles of both, pooled.
+    alternating windows; the jitter percentiles of both, pooled. First with
+    the loop in the isolated engine (what ``run --web`` does), then as a
+    thread of the master's process (the fallback where the link cannot move).
 
 ``--hostile``: the hostile user (benchmarks/hostile.py): 1 kHz for
 ``--hostile-seconds`` idle, then with four threads burning CPU in Python and
@@ -360,9 +362,12 @@ def _browsers(url: str, count: int, tmp: Path) -> list[object]:
     return out
 
 
-def bench_dashboard(iface: str, windows: int, window_s: float, priority: int
-                    ) -> dict[str, object]:
-    """(d): the 1 kHz loop's jitter in alternating windows without / with the dashboard open."""
+def bench_dashboard(iface: str, windows: int, window_s: float, priority: int,
+                    isolated: bool) -> dict[str, object]:
+    """(d): the 1 kHz loop's jitter in alternating windows without / with the dashboard open.
+
+    ``isolated``: the loop in the isolated engine (what ``run --web`` does where the
+    link can move), else a thread of this process, beside the control socket's."""
     from pyethercat.master.control.endpoint import link_spec
     from pyethercat.master.control.server import serve
 
@@ -371,7 +376,10 @@ def bench_dashboard(iface: str, windows: int, window_s: float, priority: int
         (Path(tmp) / "run").mkdir(mode=0o700)
         m.scan()
         m.configure()
-        runner = m.start(cycle=0.001, check_interval=0.1)  # under this thread's SCHED_FIFO
+        # Both at SCHED_FIFO ``priority`` (the thread inherits this thread's; the engine
+        # asks for it), below the simulator's.
+        runner = m.start(cycle=0.001, check_interval=0.1, isolated=isolated,
+                         realtime=priority if isolated else None)
         _normal_priority()
         server = serve(m, link_spec(iface=iface))
         samples: dict[str, list[np.ndarray]] = {"without": [], "with": []}
@@ -407,7 +415,7 @@ def bench_dashboard(iface: str, windows: int, window_s: float, priority: int
             runner.stop()
             m.set_state("INIT")
     out: dict[str, object] = {"windows": windows, "window_s": window_s, "snapshots": polls,
-                              "loadavg": os.getloadavg()}
+                              "loadavg": os.getloadavg(), "isolated": isolated}
     for mode, parts in samples.items():
         allj = np.concatenate(parts) / 1000.0
         out[mode] = {f"p{q:g}": float(np.percentile(allj, q)) for q in (50, 90, 99, 99.9)}
@@ -445,6 +453,8 @@ def main() -> None:
                     help="(d) only: loop jitter with and without the web dashboard open")
     ap.add_argument("--windows", type=int, default=6, help="(d): windows of each kind")
     ap.add_argument("--window", type=float, default=10.0, help="(d): seconds per window")
+    ap.add_argument("--dashboard-isolated-only", action="store_true",
+                    help="(d): only the isolated engine (not also the in-process loop)")
     args = ap.parse_args()
     if os.geteuid() != 0:
         print("needs root for the veth pair", file=sys.stderr)
@@ -477,7 +487,10 @@ def main() -> None:
     figures: dict[str, object] = {"loop_seconds": loop_s, "master_priority": args.realtime,
                                   "alternations": args.alternations, "pinned": args.pin}
     if args.dashboard:
-        for n in (int(x) for x in args.sizes.split(",")):
+        modes = [("isolated", True)] + ([] if args.dashboard_isolated_only
+                                        else [("in_process", False)])
+        for n, (mode_name, isolated) in ((int(x), m) for x in args.sizes.split(",")
+                                         for m in modes):
             a, b = veth()
             with tempfile.TemporaryDirectory() as tmp:
                 path = Path(tmp) / f"bench{n}.toml"
@@ -485,14 +498,17 @@ def main() -> None:
                 sim = start_sim_process(path, link=f"iface:{a}", realtime=10)
                 try:
                     load0 = os.getloadavg()
-                    res = bench_dashboard(b, args.windows, args.window, args.realtime)
+                    res = bench_dashboard(b, args.windows, args.window, args.realtime, isolated)
                 finally:
                     sim.stop()
                     subprocess.run(["ip", "link", "del", a], check=False, capture_output=True)
             w, wo = res["with"], res["without"]
             assert isinstance(w, dict) and isinstance(wo, dict)
-            print(f"--- (d) {n} slaves, 1 kHz loop, {args.windows} x {args.window:g} s windows "
-                  f"each (load average before {load0[0]:.2f}, after {res['loadavg'][0]:.2f})")  # type: ignore[index]
+            where = ("isolated engine (run --web)" if isolated
+                     else "in-process loop thread (run --web where the link cannot move)")
+            print(f"--- (d) {n} slaves, 1 kHz loop, {where}, {args.windows} x {args.window:g} s "
+                  f"windows each (load average before {load0[0]:.2f}, "
+                  f"after {res['loadavg'][0]:.2f})")  # type: ignore[index]
             for mode, r in (("without dashboard", wo), ("with dashboard", w)):
                 print(f"    {mode:<18} jitter us p50 {r['p50']:.1f}, p90 {r['p90']:.1f}, "
                       f"p99 {r['p99']:.1f}, p99.9 {r['p99.9']:.1f}, max {r['max']:.0f} "
@@ -502,7 +518,7 @@ def main() -> None:
                   f"p99.9 {w['p99.9'] / wo['p99.9']:.2f}; {res['snapshots']} telemetry snapshots")
             # The target: the p99 jitter with two browsers open within 10 % of without.
             print(f"    p99 within 10 % of without: {'yes' if ratio <= 1.10 else 'NO'}")
-            figures[f"dashboard_{n}"] = {**res, "loadavg_before": load0}
+            figures[f"dashboard_{n}_{mode_name}"] = {**res, "loadavg_before": load0}
         print(json.dumps(figures))
         return
     per_round = max(1, args.rounds // args.alternations)

@@ -210,6 +210,27 @@ def format_summary(runner: CyclicRunner) -> str:
     ] + ([dc] if (dc := runner.dc_status_line()) is not None else []))
 
 
+def _isolate_for_web(m: Master) -> bool:
+    """Whether ``run --web`` moves the loop into the isolated engine (it does when it can).
+
+    The dashboard's requests (telemetry snapshots, register reads, SDOs,
+    their JSON) are served by this process's control-socket thread. A loop
+    thread in the same interpreter waits for the GIL behind them: its p99
+    jitter went from 2 us to 3 ms with two browsers open. In a process of
+    its own the loop only carries their datagrams (docs/web.md).
+    """
+    from pyethercat.master.engine.launch import link_can_move
+
+    why = link_can_move(m.scheduler.link)
+    if why is None:
+        click.echo("run --web: the cyclic loop runs in a process of its own (as --isolated), "
+                   "out of reach of the dashboard's requests")
+        return True
+    click.echo(f"run --web: the cyclic loop stays in this process beside the dashboard's "
+               f"requests ({why}); its jitter rises while browsers are open")
+    return False
+
+
 def register(cli: click.Group) -> None:
     """Add ``pdos`` and ``run`` to the command line."""
 
@@ -357,6 +378,8 @@ def register(cli: click.Group) -> None:
                 m.dc.setup(DcSettings(trace_every=250 if plot else 0))
                 configure_sync_from_options(m, int(round(cycle * 1e9)), sync0_us, sync1_us,
                                             shift_us)
+            if web_access is not None and not isolated:
+                isolated = _isolate_for_web(m)
             runner = m.start(cycle, dc=dc_mode if dc else None, final_state=final_state.upper(),
                              isolated=isolated, realtime=priority, cpu=cpu)
             signals.cycling_with(runner)

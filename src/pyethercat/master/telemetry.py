@@ -44,6 +44,7 @@ import numpy as np
 from pyethercat.errors import EtherCATError
 from pyethercat.master import diag
 from pyethercat.master.cyclestats import JITTER_BINS_US, CycleStats
+from pyethercat.master.ringwatch import RingWatch
 from pyethercat.wire import registers as reg
 from pyethercat.wire.datagram import Command, Datagram
 from pyethercat.wire.dc import decode_time_difference
@@ -413,15 +414,19 @@ class Telemetry:
         reports a change (an event in the datagrams' IRQ field), and reading
         them here would clear the very events it waits for; so the watch's
         last diagnosis is taken, and only registers without side effects
-        (error counters, the DC difference) are read. Without a loop, the
-        ring service's diagnosis is run here.
+        (error counters, the DC difference) are read. Without a loop, or with
+        the loop in an isolated engine (no ring watch rides it), the ring
+        service's diagnosis is run here.
         """
         m = self.master
         ring = m.ring
         slaves = list(m.slaves)
         if not slaves:
             return _Reading(now, {})
-        watched = runner is not None and runner.running
+        # A ring watch rides an in-process loop only (an isolated engine's loop has none:
+        # its ``ring.last`` would stay what the last diagnosis found).
+        watched = (runner is not None and runner.running
+                   and any(isinstance(r, RingWatch) for r in getattr(runner, "riders", ())))
         dc_set_up = getattr(m.dc, "report", None) is not None
         try:
             result = ring.last if watched else None
@@ -506,6 +511,15 @@ class Telemetry:
         dc = runner.dc if runner is not None else None
         if dc is None:
             return DcTelemetry(True, report.reference, slaves)
+        engine = getattr(runner, "dc_status", None)
+        published = engine() if engine is not None else None
+        if published is not None:
+            # An isolated engine's loop: its lock and monitor, not this process's copy.
+            return DcTelemetry(True, report.reference, slaves, dc.mode.value,
+                               published["phase_error_ns"] if dc.lock is not None else None,
+                               published["locked"] if dc.lock is not None else None,
+                               published["last_ns"], published["worst_ns"],
+                               published["unstable"])
         lock = dc.lock
         mon = dc.monitor
         return DcTelemetry(True, report.reference, slaves, dc.mode.value,

@@ -17,7 +17,7 @@ from typing import Any
 from pyethercat.errors import EngineDiedError
 from pyethercat.master.cyclic import CycleStats, SlaveHealth
 from pyethercat.master.engine.shared import HEALTH_STATUS, SharedArea
-from pyethercat.master.engine.status import STATE_NAMES, load_stats, read_group
+from pyethercat.master.engine.status import NONE, STATE_NAMES, load_stats, read_group
 from pyethercat.master.supervision import Supervisor
 
 __all__ = ["EngineReadout", "Lifeline"]
@@ -78,6 +78,22 @@ class EngineReadout:
             if hasattr(g, "present_ok"):
                 g.present_ok = bool(c["present_ok"])
         return st
+
+    def dc_status(self) -> dict[str, Any] | None:
+        """The engine's phase lock and sync monitor as it published them last (None before
+        it started): ``phase_error_ns``, ``locked``, ``last_ns``, ``worst_ns``, ``unstable``
+        (the ``dc`` plan of this process is the copy the engine started from)."""
+        st = self.status()
+        if not st:
+            return None
+
+        def value(name: str) -> int | None:
+            v = st[name]
+            return None if v == NONE else int(v)
+
+        return {"phase_error_ns": value("dc_phase_ns"), "locked": bool(st["dc_locked"]),
+                "last_ns": value("dc_last_ns"), "worst_ns": int(st["dc_worst_ns"]),
+                "unstable": bool(st["dc_unstable"])}
 
     def _groups_list(self) -> list[Any]:
         return list(self._groups)
