@@ -243,9 +243,13 @@ function renderTopology() {
       const my = s.parent === null ? Y0 + H / 2 : me.y - GAP / 2 + (s.parent_port === 1 ? 0 : H / 2 + GAP / 2);
       const where = s.parent === null ? "master port A" : `#${s.parent} ${slaveName(s.parent)} port ${s.parent_port}`;
       marks.push(sv("text", { x: mx - 5, y: my + 5, class: "breaklabel" }, "✕"));
-      marks.push(sv("text", { x: X0 + maxDepth * INDENT + W + 16, y: my + 4, class: "breaklabel", id: "break-" + r.pos },
-        `✕ link down: ${where} → #${r.pos} ${s.name}`));
-      if (info.fault) marks.push(sv("text", { x: X0 + maxDepth * INDENT + W + 30, y: my + 18, class: "edgelabel" }, "located: " + info.fault));
+      /* beside the tree, one short line each (the svg grows to the longest, see below) */
+      const tx = X0 + maxDepth * INDENT + W + 16;
+      const text = sv("text", { x: tx, y: my + 4, class: "breaklabel", id: "break-" + r.pos });
+      text.append(sv("tspan", { x: tx }, `✕ link down: #${s.parent === null ? "master" : s.parent} port ${s.parent === null ? "A" : s.parent_port} → #${r.pos} port 0`));
+      text.append(sv("tspan", { x: tx + 14, dy: 14, class: "names" }, `${where} → #${r.pos} ${s.name}`));
+      marks.push(text);
+      if (info.fault) marks.push(sv("text", { x: tx + 14, y: my + 32, class: "edgelabel" }, "located: " + info.fault));
     }
   }
   if (S.segment.redundant && rows.length) {
@@ -289,6 +293,10 @@ function renderTopology() {
   for (const mk of marks) svg.append(mk);
   clear(host);
   host.append(svg);
+  /* long names or a long fault text: widen the drawing rather than clip it (the card scrolls) */
+  const bb = svg.getBBox();
+  const need = Math.ceil(bb.x + bb.width + 12);
+  if (need > width) { svg.setAttribute("width", need); svg.setAttribute("viewBox", `0 0 ${need} ${height}`); }
   const faults = live ? live.faults : [];
   const box = el("div", { class: "faults", id: "faults" });
   if (live && live.ring_state && S.segment.redundant) box.append(el("div", { class: "muted" }, "ring: " + live.ring_state));
@@ -494,6 +502,12 @@ function renderCycle() {
     axes: [{ label: "|period − nominal| (µs)", values: (u, ticks) => ticks.map((i) => (labels[i] !== undefined && Number.isInteger(i) ? labels[i] : "")), splits: () => xs }, { size: 60 }],
   });
   hist.setData([xs, c.histogram.map((v) => (v > 0 ? v : null))]);
+  /* A period is measured between two cycles on consecutive deadlines: one that spans
+     skipped deadlines (an overrun) is no jitter sample, so the bars sum to fewer than the
+     cycles when deadlines were skipped. */
+  const periods = c.histogram.reduce((a, b) => a + b, 0);
+  $("hist-note").textContent = `${periods.toLocaleString()} periods in ${c.cycles.toLocaleString()} cycles`
+    + (c.skipped ? `; periods across the ${c.skipped.toLocaleString()} skipped deadlines are not counted` : "");
   const gt = $("groups-table");
   clear(gt);
   gt.append(el("thead", null, el("tr", null, ...["Group", "WKC", "Expected", "State", "Exchanges", "WKC errors", "Lost"].map((h) => el("th", null, h)))));
