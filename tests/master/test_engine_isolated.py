@@ -297,3 +297,39 @@ def test_sdos_ride_in_the_engine_frames(veth_pair: tuple[str, str]) -> None:
             assert m.read(1, R.AL_STATUS, 2)[0] & 0x0F == int(AlState.OP)
         finally:
             r.stop()
+
+
+def test_telemetry_of_an_isolated_loop(demo_sim: tuple[SimProcess, str]) -> None:
+    """The dashboard's reader on a loop in the engine (``run --web``): no ring watch rides
+    that loop, so telemetry diagnoses the segment itself (a cut shows, and goes again), and
+    the DC figures are the engine's lock and monitor, not this process's unused copy."""
+    from pyethercat.master.telemetry import Telemetry
+
+    sim, iface = demo_sim
+    with Master.open(iface=iface, control=False, timeout=0.5) as m:
+        m.scan()
+        m.configure()
+        m.dc.setup()
+        r = m.start(cycle=0.001, isolated=True, dc="master", realtime=0)
+        try:
+            assert isinstance(r, IsolatedRunner) and not r.riders
+            tel = Telemetry(m, max_rate=0, register_rate=0)
+
+            def answering(snap: object) -> list[bool]:
+                return [s.answered for s in snap.slaves]  # type: ignore[attr-defined]
+
+            assert wait_for(lambda: all(answering(tel.snapshot())))
+            assert wait_for(lambda: r.status()["dc_last_ns"] != -(1 << 63))
+            dc = tel.snapshot().dc
+            assert dc.mode == "master" and r.dc_status() is not None
+            assert dc.monitor_last_ns is not None  # this process's copy never reads 0x092C
+            sim.control("break_link", slave="di8", port=1)
+            try:
+                assert wait_for(lambda: answering(tel.snapshot())[3:] == [False] * 3)
+                snap = tel.snapshot()
+                assert any(f.kind == "cut" and [2, 1] in f.ends for f in snap.faults)
+            finally:
+                sim.control("restore_link", slave="di8", port=1)
+            assert wait_for(lambda: all(answering(tel.snapshot())), 60)
+        finally:
+            r.stop()
