@@ -304,7 +304,9 @@ def register(cli: click.Group) -> None:
                   metavar="S", help="End with an error once no frame came back for S seconds "
                                     "(0: keep waiting).")
     @click.option("--web", "web", is_flag=True,
-                  help="Serve the diagnostics dashboard (see 'pyethercat web') beside the loop.")
+                  help="Serve the diagnostics dashboard (see 'pyethercat web') beside the "
+                       "loop; the loop then runs isolated (as --isolated) where the link "
+                       "can move.")
     @click.option("--web-bind", default="127.0.0.1:8080", show_default=True, metavar="HOST:PORT",
                   help="With --web: address to listen on.")
     @click.option("--web-token", default=None, metavar="TOKEN",
