@@ -497,7 +497,7 @@ function renderCycle() {
     .setData([cols[0], cols[6], cols[7], cols[8]]);
   const labels = c.bins_us.map((b) => "<" + b).concat(["≥" + c.bins_us[c.bins_us.length - 1]]);  /* µs */
   const xs = labels.map((_, i) => i);
-  const hist = chart("chart-hist", [{ label: "cycles", stroke: PALETTE[0], fill: "#2f6fde55", paths: uPlot.paths.bars({ size: [0.7, 60] }) }], {
+  const hist = chart("chart-hist", [{ label: "periods", stroke: PALETTE[0], fill: "#2f6fde55", paths: uPlot.paths.bars({ size: [0.7, 60] }) }], {
     scales: { x: { time: false, range: [-0.5, labels.length - 0.5] }, y: { distr: 3 } },
     axes: [{ label: "|period − nominal| (µs)", values: (u, ticks) => ticks.map((i) => (labels[i] !== undefined && Number.isInteger(i) ? labels[i] : "")), splits: () => xs }, { size: 60 }],
   });
