@@ -19,6 +19,18 @@ from pyethercat.sim.cia402.objects import AXIS_OBJECT, AxisSub
 from pyethercat.wire.cia402 import DriveErrorCode, DriveState, OperationMode, StopOption
 from pyethercat.wire.mailbox.objects import Cia402Object
 
+__all__ = [
+    "AX", "B", "DE", "F64", "I64", "K_CW", "K_DISABLE_OPTION", "K_ERROR",
+    "K_FAULT_OPTION", "K_FE", "K_FE_TIMEOUT", "K_FE_WINDOW", "K_HOME", "K_INPUTS",
+    "K_LIMIT_MAX", "K_LIMIT_MIN", "K_MODE", "K_MODE_DISPLAY", "K_NEG_LIMIT",
+    "K_POSITION", "K_POSITION_DEMAND", "K_POSITION_OFFSET", "K_POS_LIMIT",
+    "K_POS_WINDOW", "K_POS_WINDOW_TIME", "K_QS_OPTION", "K_RATED", "K_SHUTDOWN_OPTION",
+    "K_STATUSWORD", "K_TARGET_POSITION", "K_TARGET_VELOCITY", "K_TORQUE",
+    "K_TORQUE_DEMAND", "K_TORQUE_OFFSET", "K_VELOCITY", "K_VELOCITY_DEMAND",
+    "K_VELOCITY_OFFSET", "K_V_THRESHOLD", "K_V_THRESHOLD_TIME", "K_V_WINDOW",
+    "K_V_WINDOW_TIME", "NO_STOP", "OBJ", "OM", "S", "SO", "STAY", "THRESH_EPS", "ints",
+]
+
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
 B = npt.NDArray[np.bool_]
