@@ -7,6 +7,7 @@ import struct
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -14,6 +15,7 @@ from click.testing import CliRunner, Result
 
 from pyethercat.cli.main import cli
 from pyethercat.sim.firmware import build_firmware_image
+from pyethercat.sim.server import start_sim_process
 from pyethercat.wire.al import AlState
 
 TOPOLOGY = """
@@ -39,6 +41,25 @@ def topo(tmp_path: Path) -> str:
 
 def run(topo: str, *args: str, stdin: bytes | None = None) -> Result:
     return CliRunner().invoke(cli, ["--sim", topo, *args], input=stdin)
+
+
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@pytest.fixture
+def udp_sim(topo: str) -> Iterator[list[str]]:
+    """One simulator process for several commands (each its own master session):
+    the slaves keep their state, files and mailbox counters between commands."""
+    address = f"127.0.0.1:{_free_udp_port()}"
+    with start_sim_process(topo, link=f"udp:{address}"):
+        yield ["--udp", address]
+
+
+def on(link: list[str], *args: str) -> Result:
+    return CliRunner().invoke(cli, [*link, *args])
 
 
 def test_foe_write_then_read(topo: str, tmp_path: Path) -> None:
@@ -84,6 +105,35 @@ def test_foe_write_boot_updates_firmware(topo: str, tmp_path: Path) -> None:
     bad.write_bytes(build_firmware_image(1, 2, 3, "x", b""))
     r = run(topo, "foe_write", "-p", "0", "--boot", str(bad))
     assert r.exit_code == 1 and "FoE error 0x8004" in r.output and "image is for vendor" in r.output
+
+
+def test_sessions_back_to_back_on_one_simulator(udp_sim: list[str]) -> None:
+    """Each command is a new master whose first mailbox counter is 1; the one before ended
+    on 1 too (one FoE read request, one SoE read), so the slave drops the repetition and
+    only the same request sent again with counter 2 gets the answer."""
+    for _ in range(3):
+        r = on(udp_sim, "foe_read", "-p", "0", "nothere")
+        assert r.exit_code == 1 and "FoE error 0x8001 (slave says: not found)" in r.output, \
+            r.output
+    for _ in range(3):
+        r = on(udp_sim, "soe_read", "-p", "0", "1", "--type", "uint16")
+        assert r.exit_code == 0 and r.output == "0x03e8 1000\n", r.output
+
+
+def test_foe_write_boot_shows_the_new_revision(udp_sim: list[str], tmp_path: Path) -> None:
+    """The simulated slave lives on between commands: the update is visible to the next."""
+    r = on(udp_sim, "upload", "-p", "0", "0x1018", "3", "--type", "uint32")
+    assert r.exit_code == 0 and "0x00030000" not in r.output, r.output
+    image = tmp_path / "fw.efw"
+    image.write_bytes(build_firmware_image(0x00504543, 0x00050001, 0x00030000, "v3", bytes(900)))
+    r = on(udp_sim, "foe_write", "-p", "0", "--boot", str(image))
+    assert r.exit_code == 0, r.output
+    r = on(udp_sim, "upload", "-p", "0", "0x1018", "3", "--type", "uint32")
+    assert r.exit_code == 0 and r.output == "0x00030000 196608\n", r.output
+    r = on(udp_sim, "upload", "-p", "0", "0x100A", "0", "--type", "string")
+    assert r.exit_code == 0 and r.output.strip() == "v3", r.output
+    r = on(udp_sim, "slaves", "-p", "0", "-v")
+    assert r.exit_code == 0 and "0x00030000" in r.output, r.output
 
 
 def test_soe_read_and_write_as_igh(topo: str) -> None:

@@ -16,7 +16,11 @@
 - a packet without answer within ``packet_timeout`` raises
   :class:`~pyethercat.errors.FoeTimeoutError` (and the slave gets an ERR so it
   forgets the transfer). A reply frame lost on the wire is recovered by the
-  mailbox transport (repeat request), not by the FoE layer.
+  mailbox transport (repeat request), not by the FoE layer;
+- the first packet after the master took the mailbox over (a new session
+  on a slave an earlier one left in PRE-OP) is sent again with the next
+  counter when unanswered, as every mailbox request (``Mailbox.transact``):
+  the slave drops a packet whose counter repeats the last one it took.
 
 The client holds ``Mailbox.lock`` for the whole transfer, so nothing else
 interleaves within that slave's mailbox.
@@ -31,7 +35,7 @@ from typing import ClassVar, Self
 
 from pyethercat.errors import EtherCATError, FoeAbort, FoeTimeoutError, MailboxError
 from pyethercat.master.mailbox import ClientContext, Mailbox, ReceivedMessage
-from pyethercat.master.transfer import answer_by_deadline
+from pyethercat.master.transfer import answer_by_deadline, request_by_deadline
 from pyethercat.wire.mailbox.foe import FoeMessage, decode_foe
 from pyethercat.wire.mailbox.foe_transfer import (
     DEFAULT_PACKET_TIMEOUT,
@@ -129,16 +133,19 @@ class FoeClient:
             msg: FoeMessage | None = sm.start(clock())
             try:
                 while True:
-                    reply = None
-                    if msg is not None:
-                        # (the answer usually comes in the frame that carried the packet)
-                        reply = mbx.request(MailboxType.FOE, msg.encode(), _is_foe, what=what,
-                                            timeout=sm.packet_timeout)
-                        packets += 1
-                    if sm.done:
-                        break
-                    if reply is None:
+                    if msg is None:  # (a BUSY answered the write request: wait on)
                         reply = answer_by_deadline(mbx, _is_foe, what, sm, sm.packet_timeout)
+                    elif sm.done:
+                        # The ACK of a read's last packet: nothing answers it.
+                        mbx.send(MailboxType.FOE, msg.encode(), what=what,
+                                 timeout=sm.packet_timeout)
+                        packets += 1
+                        break
+                    else:
+                        # (the answer usually comes in the frame that carried the packet)
+                        reply = request_by_deadline(mbx, MailboxType.FOE, msg.encode(),
+                                                    _is_foe, what, sm, sm.packet_timeout)
+                        packets += 1
                     msg = sm.receive(decode_foe(reply.payload), clock())
                     if progress is not None:
                         progress(sm.progress)

@@ -218,9 +218,8 @@ class MailboxGateway:
         try:
             with mbx.lock:
                 mbx.drop(accept)
-                mbx.send(mtype, request.payload, what="gateway request", timeout=self.timeout)
-                answer = mbx.receive(accept, what="answer to a gateway request",
-                                     timeout=self.timeout)
+                answer = mbx.transact(mtype, request.payload, accept, what="gateway request",
+                                      timeout=self.timeout)
         except MailboxErrorReply as exc:
             return encode_mailbox(MailboxType.ERR, encode_mailbox_error(exc.code),
                                   address=request.address)

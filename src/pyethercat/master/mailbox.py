@@ -39,7 +39,10 @@ mailbox mode as the ET1100 datasheet section II "SyncManager" describes):
   (a new master, a reset at INIT, a drain, a repeat request),
   :meth:`Mailbox.transact` therefore sends a request that got no answer
   within half its timeout once more, with the next counter, which the slave
-  cannot have taken last. Once an answer came the counters are in sync and
+  cannot have taken last. Every request that expects an answer goes through
+  it (CoE, FoE packets, SoE requests, EoE, the mailbox gateway); plain
+  :meth:`Mailbox.send` is for messages nothing answers (an abort, an FoE
+  read's last ACK, the leading fragments of an SoE write). Once an answer came the counters are in sync and
   a request is never sent twice: a slow slave (writing flash for 0x1010)
   would execute it twice and answer twice. Before the first request,
   whatever an earlier master left in SM1 (a reply it never read) is read and
@@ -403,22 +406,11 @@ class Mailbox:
         """Write one message into SM0 (whole SM length); returns the counter used.
 
         ``fetch`` adds the speculative SM1 read to the same frame. Raises
-        :class:`~pyethercat.errors.TimeoutError` when SM0 stays full.
+        :class:`~pyethercat.errors.TimeoutError` when SM0 stays full. A message
+        that expects an answer goes through :meth:`transact` instead (the
+        take-over rule, see the module text).
         """
         return self._send(mtype, payload, what, timeout, fetch, counter, None)[0]
-
-    def request(self, mtype: MailboxType | int, payload: bytes, accept: Accept, *,
-                what: str = "mailbox message", timeout: float | None = None,
-                ) -> ReceivedMessage | None:
-        """:meth:`send`, and the answer when the frame that carried the message brought it.
-
-        The speculative SM1 read of that frame finds the answer of a slave
-        that answers at once (a simulator, a fast slave); when ``accept``
-        takes it (and nothing older waits in the inbox) it comes back here
-        without going through the inbox. ``None``: wait for it with
-        :meth:`receive` as usual. Unsolicited messages still reach the handlers.
-        """
-        return self._send(mtype, payload, what, timeout, True, None, accept)[1]
 
     def _send(self, mtype: MailboxType | int, payload: bytes, what: str,
               timeout: float | None, fetch: bool, counter: int | None,

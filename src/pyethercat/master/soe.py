@@ -6,7 +6,11 @@ slave's :class:`~pyethercat.master.mailbox.Mailbox`: reads of any element
 fragmented answers joined, fragmented writes sent fragment by fragment (the
 drive answers the last one), any drive number 0-7. A drive's refusal raises
 :class:`~pyethercat.errors.SoeAbort` with the SoE error code and its text; no
-answer in time :class:`~pyethercat.errors.SoeTimeoutError`.
+answer in time :class:`~pyethercat.errors.SoeTimeoutError`. Requests go
+through ``Mailbox.transact``: the first one after the master took the mailbox
+over is sent again with the next counter when unanswered (the drive drops a
+request whose counter repeats the last one it took, maybe an earlier
+session's).
 
 :meth:`SoeClient.read_value` and :meth:`SoeClient.write_value` convert values
 by the IDN's attribute (data type, length, list), as IgH's ``soe_read`` shows
@@ -20,7 +24,7 @@ from typing import ClassVar, Self
 
 from pyethercat.errors import ConfigError, MailboxError
 from pyethercat.master.mailbox import ClientContext, Mailbox, ReceivedMessage
-from pyethercat.master.transfer import answer_by_deadline
+from pyethercat.master.transfer import answer_by_deadline, request_by_deadline
 from pyethercat.wire.mailbox.header import MailboxType
 from pyethercat.wire.mailbox.soe import SoeElement, decode_soe, format_idn, parse_idn
 from pyethercat.wire.mailbox.soe_transfer import (
@@ -135,10 +139,12 @@ class SoeClient:
         what = f"SoE read of {format_idn(sm.idn)} (drive {drive})"
         with mbx.lock:
             mbx.drop(_is_soe)
-            mbx.send(MailboxType.SOE, sm.start(mbx.clock()).encode(), what=what,
-                     timeout=sm.timeout)
-            while not sm.done:
-                sm.receive(decode_soe(answer_by_deadline(mbx, _is_soe, what, sm, sm.timeout).payload), mbx.clock())
+            first = request_by_deadline(mbx, MailboxType.SOE, sm.start(mbx.clock()).encode(),
+                                        _is_soe, what, sm, sm.timeout)
+            sm.receive(decode_soe(first.payload), mbx.clock())
+            while not sm.done:  # the following fragments
+                more = answer_by_deadline(mbx, _is_soe, what, sm, sm.timeout)
+                sm.receive(decode_soe(more.payload), mbx.clock())
         return sm.data
 
     def write(self, idn: IdnLike, data: bytes, *, elements: int = SoeElement.VALUE,
@@ -150,11 +156,20 @@ class SoeClient:
         what = f"SoE write of {format_idn(sm.idn)} (drive {drive})"
         with mbx.lock:
             mbx.drop(_is_soe)
-            for frag in sm.start(mbx.clock()):
+            frags = sm.start(mbx.clock())
+            if len(frags) > 1 and not mbx.synced:
+                # Only the last fragment is answered, so only it could be sent again
+                # with the next counter; a first fragment the drive dropped (its
+                # counter repeated an earlier session's last) would be lost. One
+                # answered request first puts the counters in sync.
+                self.read(sm.idn, elements=SoeElement.ATTRIBUTE, drive=drive)
+            for frag in frags[:-1]:
                 # SM0 refuses the next fragment until the drive took the last one.
                 mbx.send(MailboxType.SOE, frag.encode(), what=what, timeout=sm.timeout)
             sm.deadline = mbx.clock() + sm.timeout
-            sm.receive(decode_soe(answer_by_deadline(mbx, _is_soe, what, sm, sm.timeout).payload), mbx.clock())
+            answer = request_by_deadline(mbx, MailboxType.SOE, frags[-1].encode(), _is_soe,
+                                         what, sm, sm.timeout)
+            sm.receive(decode_soe(answer.payload), mbx.clock())
 
     # -- typed access ------------------------------------------------------------------
 
