@@ -33,10 +33,16 @@ class Soem:
     """A pysoem master that brought the segment to OP; ``rtts(n)`` times process-data cycles.
 
     ``startup_s``: from opening the interface to OP (config_init, config_map,
-    SAFE-OP, then process data until OP shows).
+    SAFE-OP, then process data until OP shows). ``complete_access=False``
+    makes SOEM read the PDO assignment and mapping one subindex at a time
+    even where the SII announces SDO complete access: an emulator whose
+    complete-access answer does not pad subindex 0 to 16 bits (ETG.1000.6;
+    KickCAT's lib/src/ESI/Parser.cc puts 0x1C00:n at byte n) otherwise
+    misleads SOEM's ``config_map``, which reads the types from byte 2 on.
+    ``mapping``: output and input bytes per slave and SOEM's expected WKC.
     """
 
-    def __init__(self, iface: str) -> None:
+    def __init__(self, iface: str, *, complete_access: bool = True) -> None:
         import pysoem
 
         self.pysoem: Any = pysoem
@@ -47,7 +53,13 @@ class Soem:
         if self.slaves <= 0:
             m.close()
             raise RuntimeError(f"SOEM found no slaves on {iface}")
+        if not complete_access:
+            for s in m.slaves:
+                s._disable_complete_access()
         m.config_map()
+        self.mapping: dict[str, object] = {
+            "out_in_bytes": [[len(s.output), len(s.input)] for s in m.slaves],
+            "expected_wkc": m.expected_wkc}
         m.state_check(pysoem.SAFEOP_STATE, 2_000_000)
         m.state = pysoem.OP_STATE
         m.write_state()

@@ -18,6 +18,14 @@ pair brings them to OP and then times ``send_processdata`` +
   (``../shared/tools/build-kickcat.sh``; its binary and source tree are
   looked up at /tmp/kickcat-build and /tmp/kickcat-src, or ``--kickcat``).
 
+SOEM reads the PDO layout without SDO complete access on both simulators
+(``--soem-complete-access`` to let it): KickCAT's emulator answers a
+complete-access upload of 0x1C00 without padding subindex 0 to 16 bits, so
+SOEM took SM2 for a 3-byte input SM and dropped SM3 and every output, and
+the KickCAT figure was for a smaller exchange (expected WKC 2, not 6). Each
+segment's mapping (output/input bytes per slave, expected and seen WKC) is
+in the JSON line.
+
 The three alternate ``--alternations`` times so that the host's load hits
 them alike; medians and p99 are over the pooled samples. Printed: the
 figures, ours / KickCAT (target <= 1) and ours / echo. Needs root (veth
@@ -81,17 +89,18 @@ def wait_line(proc: subprocess.Popen[str], want: str, seconds: float = 30.0) -> 
     raise RuntimeError(f"{proc.args!r} did not say {want!r}")
 
 
-def ours_and_echo(iface_m: str, iface_s: str, topo: Path, rounds: int,
-                  priority: int) -> tuple[dict[str, object], list[float], list[float]]:
+def ours_and_echo(iface_m: str, iface_s: str, topo: Path, rounds: int, priority: int,
+                  ca: bool) -> tuple[dict[str, object], list[float], list[float]]:
     """pysoem through our simulator, then the same master's frames through the echo."""
     from pyethercat.sim.server import start_sim_process
 
     sim = start_sim_process(topo, link=f"iface:{iface_s}", realtime=priority)
     soem = None
     try:
-        soem = Soem(iface_m)
+        soem = Soem(iface_m, complete_access=ca)
         ours = soem.rtts(rounds)
-        info: dict[str, object] = {"slaves": soem.slaves, "op": soem.op, "wkc": soem.wkc}
+        info: dict[str, object] = {"slaves": soem.slaves, "op": soem.op, "wkc": soem.wkc,
+                                   **soem.mapping}
     finally:
         sim.stop()
     echo = subprocess.Popen([*chrt(priority), sys.executable, "-c", ECHO, iface_s],
@@ -107,7 +116,7 @@ def ours_and_echo(iface_m: str, iface_s: str, topo: Path, rounds: int,
 
 
 def kickcat(iface_m: str, iface_s: str, binary: Path, src: Path, rounds: int,
-            priority: int) -> tuple[dict[str, object], list[float]]:
+            priority: int, ca: bool) -> tuple[dict[str, object], list[float]]:
     proc = subprocess.Popen([*chrt(priority), str(binary), "-i", iface_s, "-s", *KICKCAT_CONFIGS],
                             cwd=src / "simulation", stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL)
@@ -115,9 +124,10 @@ def kickcat(iface_m: str, iface_s: str, binary: Path, src: Path, rounds: int,
         time.sleep(1.0)
         if proc.poll() is not None:
             raise RuntimeError(f"network_simulator exited ({proc.returncode})")
-        soem = Soem(iface_m)
+        soem = Soem(iface_m, complete_access=ca)
         try:
-            return {"slaves": soem.slaves, "op": soem.op, "wkc": soem.wkc}, soem.rtts(rounds)
+            rtts = soem.rtts(rounds)
+            return {"slaves": soem.slaves, "op": soem.op, "wkc": soem.wkc, **soem.mapping}, rtts
         finally:
             soem.close()
     finally:
@@ -140,6 +150,8 @@ def main() -> None:
     ap.add_argument("--kickcat", type=Path, default=Path("/tmp/kickcat-build/build/simulation/"
                                                          "network_simulator"))
     ap.add_argument("--kickcat-src", type=Path, default=Path("/tmp/kickcat-src"))
+    ap.add_argument("--soem-complete-access", action="store_true",
+                    help="let SOEM read the PDO layout with complete access (unequal on KickCAT)")
     args = ap.parse_args()
     if os.geteuid() != 0:
         print(json.dumps({"error": "needs root (veth pairs)"}))
@@ -161,7 +173,8 @@ def main() -> None:
             topo.write_text("".join(f'[[slave]]\nname = "s{i}"\nesi = "{CORPUS / d}"\n\n'
                                     for i, d in enumerate(DEVICES)))
             for k in range(args.alternations):
-                info, ours, floor = ours_and_echo(a, b, topo, args.rounds, args.priority)
+                info, ours, floor = ours_and_echo(a, b, topo, args.rounds, args.priority,
+                                                  args.soem_complete_access)
                 out["ours_segment"] = info
                 pooled["ours"] += ours
                 pooled["echo"] += floor
@@ -169,7 +182,7 @@ def main() -> None:
                         f"echo {np.median(floor):.1f} us")
                 if have_kickcat:
                     kinfo, kc = kickcat(a, b, args.kickcat, args.kickcat_src, args.rounds,
-                                        args.priority)
+                                        args.priority, args.soem_complete_access)
                     out["kickcat_segment"] = kinfo
                     pooled["kickcat"] += kc
                     line += f", KickCAT {np.median(kc):.1f} us"
@@ -190,6 +203,11 @@ def main() -> None:
                  f"({np.percentile(pooled['kickcat'], 99):.1f}); ours/KickCAT "
                  f"{out['ours_over_kickcat']:.2f} (target <= 1)")
     out["load_average_end"] = os.getloadavg()
+    for name in ("ours_segment", "kickcat_segment"):
+        seg = out.get(name)
+        if isinstance(seg, dict):  # the two must match for a like-for-like figure
+            print(f"{name}: out/in bytes per slave {seg['out_in_bytes']}, "
+                  f"WKC {seg['wkc']} (SOEM expects {seg['expected_wkc']})")
     print(text)
     print(f"load average {out['load_average_start']} -> {out['load_average_end']}")
     print(json.dumps(out))
