@@ -11,6 +11,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from pyethercat.master.redundancy import (
+    GIVE_UP_AFTER,
     PORT_A,
     PORT_B,
     Redundancy,
@@ -118,20 +119,68 @@ def test_order_dependent_frames() -> None:
 # -- routing decisions ---------------------------------------------------------------
 
 
-def test_both_ports_then_one_port_after_a_missing_copy() -> None:
+def test_a_port_is_given_up_only_after_copies_missing_in_a_row() -> None:
     red = Redundancy()
     sent = frame(Datagram.device(Command.BRD, 0, 0, 2))
-    cs, ports = red.plan(sent)
-    assert ports == [PORT_A, PORT_B] and cs.need == {PORT_A, PORT_B}
-    # port B dead: only the A copy (looped at the last slave) comes back
     looped = processed(sent, 0, wkc=5, adp_step=5)
-    assert red.arrived(cs, PORT_A, looped, sent)[0] == "wait"
-    assert decode_frame(red.expired(cs, sent)).datagrams[0].wkc == 5
-    assert red.state() == "port A only"
-    # the next frame is still sent on both ports, but only the A copy is awaited
+    # port B dead (its carrier unknown): only the A copy, looped at the last slave, comes
+    for n in range(1, GIVE_UP_AFTER + 1):
+        cs, ports = red.plan(sent)
+        assert ports == [PORT_A, PORT_B] and cs.need == {PORT_A, PORT_B}
+        assert red.arrived(cs, PORT_A, looped, sent)[0] == "wait"
+        assert decode_frame(red.expired(cs, sent)).datagrams[0].wkc == 5
+        assert cs.partial and red.misses[PORT_B] == n
+        assert red.state() == ("port A only" if n == GIVE_UP_AFTER else "redundant")
+        assert red.evidence(PORT_B) == ("" if n < GIVE_UP_AFTER else
+                                        f"no copy back on port B in {n} frames in a row")
+    # given up: still sent on both ports, but only the A copy is awaited
     cs2, ports2 = red.plan(sent)
     assert ports2 == [PORT_A, PORT_B] and cs2.need == {PORT_A}
-    assert red.arrived(cs2, PORT_A, looped, sent)[0] == "done"
+    assert red.arrived(cs2, PORT_A, looped, sent)[0] == "done" and not cs2.partial
+
+
+def test_one_late_copy_in_a_split_ring_leaves_both_ports_awaited() -> None:
+    red = Redundancy()
+    sent = frame(Datagram.device(Command.BRD, 0, 0, 2))
+    a_half = processed(sent, 0, wkc=3, adp_step=3)
+    b_half = mark_for_port(processed(sent, 0, wkc=2, adp_step=2), PORT_B)
+    cs, _ = red.plan(sent)
+    red.arrived(cs, PORT_A, a_half, sent)
+    red.expired(cs, sent)  # B's copy late: this frame is partial ...
+    assert cs.partial and red.returning == {PORT_A, PORT_B}
+    # ... the next one waits for both halves again
+    cs, _ = red.plan(sent)
+    assert red.arrived(cs, PORT_A, a_half, sent)[0] == "wait"
+    action, reply, _ = red.arrived(cs, PORT_B, b_half, sent)
+    assert action == "done" and decode_frame(reply).datagrams[0].wkc == 5
+    assert red.misses == [0, 0]
+
+
+def test_a_copy_looped_back_on_its_own_port_waits_for_a_port_that_came_back() -> None:
+    red = Redundancy()
+    red.returning = {PORT_A}  # B was given up ...
+    sent = frame(Datagram.device(Command.BRD, 0, 0, 2))
+    cs, _ = red.plan(sent)
+    assert cs.need == {PORT_A}
+    red.seen(PORT_B)  # ... and a frame came on B since this one was sent
+    # the ring is open (A's copy looped back on A): B's half is on its way
+    assert red.arrived(cs, PORT_A, processed(sent, 0, wkc=3, adp_step=3), sent)[0] == "wait"
+    b_half = mark_for_port(processed(sent, 0, wkc=2, adp_step=2), PORT_B)
+    assert red.arrived(cs, PORT_B, b_half, sent)[0] == "done"
+
+
+def test_frames_with_no_copy_back_give_up_no_port() -> None:
+    red = Redundancy()
+    sent = frame(Datagram.device(Command.BRD, 0, 0, 2))
+    for _ in range(5):  # a stalled host: nothing back at all
+        cs, _ = red.plan(sent)
+        assert red.expired(cs, sent) is None
+    assert red.returning == {PORT_A, PORT_B} and red.misses == [0, 0]
+    assert red.state() == "no port"
+    cs, _ = red.plan(sent)
+    assert cs.need == {PORT_A, PORT_B}
+    red.seen(PORT_A)
+    assert red.state() == "redundant"
 
 
 def test_untouched_copy_while_one_port_is_awaited_waits_for_the_other() -> None:
@@ -178,11 +227,15 @@ def test_chain_frame_goes_out_on_b_when_a_has_no_carrier() -> None:
 def test_forwarded_copy_lost_gives_the_half_that_came_back() -> None:
     red = Redundancy()
     sent = frame(Datagram.positional(Command.APRD, 0, 0x10, bytes(2)))
-    cs, _ = red.plan(sent)
     half = processed(sent, 0, b"\x01\x10", wkc=1, adp_step=2)
-    red.arrived(cs, PORT_A, half, sent)
-    assert red.expired(cs, sent) == half
-    assert PORT_B not in red.returning
+    for n in range(1, GIVE_UP_AFTER + 1):
+        cs, _ = red.plan(sent)
+        assert red.arrived(cs, PORT_A, half, sent)[0] == "forward"
+        assert red.expired(cs, sent) == half
+        assert (PORT_B in red.returning) == (n < GIVE_UP_AFTER)
+    # B given up: the next chain frame is done when it comes back on A
+    cs, _ = red.plan(sent)
+    assert red.arrived(cs, PORT_A, half, sent)[0] == "done"
 
 
 def test_nothing_back_at_all_is_lost() -> None:

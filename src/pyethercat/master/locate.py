@@ -15,7 +15,13 @@ In a ring (ports A and B; ETG.1000.4 section 5.4 on frame forwarding):
   answered on different sides is the broken link; a slave answering on
   neither side whose neighbours answered on both is a failed node;
 - only port B brings copies back, with every answer: port A's cable (or NIC)
-  failed; the same the other way round.
+  failed; the same the other way round. A master port is named only when
+  something confirms it: the master's own evidence (no carrier, or no copy
+  back on that port in several frames in a row; one late copy is a busy
+  host) or the DL status of the slave port at the cable's far end (no
+  link). A port whose copies go round the whole ring and come back on the
+  other port, while none come back on it, is named the same way (its
+  receive side failed); that needs the master's evidence.
 
 On a line (one port) and in branches off the ring a cut leaves the slaves
 behind it silent: the fault is on the cable into the silent part (or its
@@ -178,10 +184,13 @@ def _confirm(cable: Cable, readings: Mapping[int, SlaveReading]) -> str:
 
 
 def locate(cables: Sequence[Cable], readings: Sequence[SlaveReading], *, ring: bool,
-           returned: Sequence[str]) -> list[Fault]:
+           returned: Sequence[str], port_evidence: Mapping[str, str] | None = None,
+           ) -> list[Fault]:
     """The faults the readings show (see the module text).
 
-    ``returned``: the master ports copies came back on (``"A"``, ``"B"``).
+    ``returned``: the master ports copies came back on (``"A"``, ``"B"``);
+    ``port_evidence``: per master port, what the master saw of it being dead
+    (``"port A: no carrier"``; absent or empty: nothing).
     """
     by_pos = {r.position: r for r in readings}
 
@@ -196,18 +205,12 @@ def locate(cables: Sequence[Cable], readings: Sequence[SlaveReading], *, ring: b
     silent = sorted(r.position for r in readings if r.side is None)
     sides = {r.side for r in readings if r.side is not None}
     if ring:
-        if "A" not in returned and sides <= {"B"} and not silent:
-            a = next((c for c in cables if (MASTER, 0) in c.ends()), Cable((MASTER, 0), (0, 0)))
-            faults.append(Fault("port", f"master port A (its cable to {end_text(a.other((MASTER, 0)))})",
-                                a.ends(),
-                                detail=_confirm(a, by_pos) or "no frame back on port A"))
-        elif "B" not in returned and sides <= {"A"} and not silent:
-            b = next((c for c in cables if (MASTER, 1) in c.ends()), None)
-            where = "master port B" + (f" (its cable to {end_text(b.other((MASTER, 1)))})"
-                                       if b is not None else "")
-            faults.append(Fault("port", where, b.ends() if b is not None else ((MASTER, 1),),
-                                detail=(_confirm(b, by_pos) if b is not None else "")
-                                or "no frame back on port B"))
+        port_fault = None
+        if not silent:
+            port_fault = (_port_fault(0, cables, by_pos, sides, returned, port_evidence)
+                          or _port_fault(1, cables, by_pos, sides, returned, port_evidence))
+        if port_fault is not None:
+            faults.append(port_fault)
         elif sides == {"A", "B"} and not silent:
             for c in cables:
                 sa, sb = side_of(c.a), side_of(c.b)
@@ -247,6 +250,33 @@ def locate(cables: Sequence[Cable], readings: Sequence[SlaveReading], *, ring: b
                             detail=f"slaves {_span(members)} silent"
                             + (f"; {_confirm(c, by_pos)}" if _confirm(c, by_pos) else "")))
     return faults
+
+
+def _port_fault(port: int, cables: Sequence[Cable], by_pos: Mapping[int, SlaveReading],
+                sides: set[str], returned: Sequence[str],
+                evidence: Mapping[str, str] | None) -> Fault | None:
+    """Master port ``port`` failed, if the readings show it and something confirms it."""
+    name, other = "AB"[port], "BA"[port]
+    if name in returned or other not in returned:
+        return None
+    seen = (evidence or {}).get(name, "")
+    cable = next((c for c in cables if (MASTER, port) in c.ends()), None)
+    if cable is None and port == 0:
+        cable = Cable((MASTER, 0), (0, 0))
+    far = cable.other((MASTER, port)) if cable is not None else None
+    far_down = far is not None and bool(_link_down(by_pos.get(far[0]), far[1]))
+    if sides <= {other}:
+        # Every slave reached from the other port: this port's cable or NIC, if confirmed.
+        if not (seen or far_down):
+            return None
+    elif not (sides <= {name} and seen):
+        # (the copies this port sends go round and come back on the other: its receive)
+        return None
+    where = f"master port {name}" + (f" (its cable to {end_text(far)})" if far is not None else "")
+    detail = "; ".join(x for x in (_confirm(cable, by_pos) if cable is not None else "", seen)
+                       if x) or f"no frame back on port {name}"
+    return Fault("port", where, cable.ends() if cable is not None else ((MASTER, port),),
+                 detail=detail)
 
 
 def _groups(silent: Sequence[int], cables: Sequence[Cable]) -> list[set[int]]:

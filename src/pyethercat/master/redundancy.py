@@ -36,12 +36,23 @@ both copies' increments. This is exact whenever every slave processed one
 copy, which the ring guarantees for all but order-dependent datagrams (sent
 "chain").
 
-Which ports work ("returning") is learnt from the copies: a port that
-delivered no copy of a frame by its deadline stops being waited for, and
-any frame that arrives on a port brings it back; a port whose link says it
-has no carrier is not waited for either. A copy that went through no slave
-(working counters all 0) while only one copy was awaited makes the core
-wait for the other port too: the ring may have closed again.
+Which ports work ("returning") is learnt from the copies, with hysteresis:
+a port is given up (no longer waited for) when its link says it has no
+carrier, or when its copy missed :data:`GIVE_UP_AFTER` frames in a row
+while another copy of each came back. One late copy is a busy host, not a
+dead port: a frame handed out at its deadline with an awaited copy missing
+is *partial* (:attr:`CopySet.partial`), costs that frame only, and its
+copies say nothing about sides (diagnosis reads again). Any frame that
+arrives on a port brings it back. Frames with no copy back at all (the
+host stalled, or both cables are gone) give up neither port; they make
+:meth:`Redundancy.state` say ``no port`` after as many in a row.
+
+Two copies tell the core to wait for more than it planned: a copy that
+went through no slave (working counters all 0) while it was the only one
+awaited (the ring may have closed again: the processed copy comes on the
+other port), and a copy that came back on the port it was sent on (the
+ring is open: the slaves behind the break are served by the other port's
+copy, so every port still returning is waited for).
 """
 
 from __future__ import annotations
@@ -52,7 +63,14 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from pyethercat.errors import FrameError
-from pyethercat.wire.datagram import HEADER_SIZE, LEN_MASK, MORE_BIT, WKC_SIZE, Command
+from pyethercat.wire.datagram import (
+    HEADER_SIZE,
+    LEN_MASK,
+    MORE_BIT,
+    WKC_SIZE,
+    Command,
+    Datagram,
+)
 from pyethercat.wire.frame import (
     ECAT_HEADER_SIZE,
     SECONDARY_MARK,
@@ -68,7 +86,9 @@ __all__ = [
     "PORT_A",
     "PORT_B",
     "PORT_NAMES",
+    "GIVE_UP_AFTER",
     "CopySet",
+    "PortCopies",
     "Redundancy",
     "copy_wkcs",
     "hand_copies",
@@ -84,6 +104,9 @@ __all__ = [
 PORT_A = 0
 PORT_B = 1
 PORT_NAMES = ("A", "B")
+#: Frames in a row whose copy on a port must be missing (while another copy came back)
+#: before the port is given up (see the module text).
+GIVE_UP_AFTER = 3
 
 #: Commands whose result depends on which slaves processed the frame before.
 _ORDERED = frozenset({int(Command.APRD), int(Command.APWR), int(Command.APRW), int(Command.ARMW),
@@ -253,6 +276,26 @@ def _worked(frame: bytes | bytearray) -> bool:
     return any(copy_wkcs(frame))
 
 
+def _origin(copy: bytes | bytearray, sent: bytes | bytearray) -> int:
+    """The port a copy of ``sent`` (the frame as sent on A) was sent on (:func:`mark_for_port`)."""
+    return PORT_A if copy[_MARK_AT:_MARK_AT + 2] == sent[_MARK_AT:_MARK_AT + 2] else PORT_B
+
+
+class PortCopies(dict[int, Datagram]):
+    """One datagram as each copy of its ring frame brought it back, by the port the copy came
+    in on; ``origin[port]`` is the port that copy was sent on.
+
+    A slave reached from port A answers in the copy sent on A, wherever that copy
+    came back (on B round a closed ring, on A at a break), so the origin, not the
+    port of arrival, is the side a slave is reached from."""
+
+    __slots__ = ("origin",)
+
+    def __init__(self, origin: dict[int, int]) -> None:
+        super().__init__()
+        self.origin = origin
+
+
 @dataclass(slots=True)
 class CopySet:
     """The copies of one frame in flight (see :class:`Redundancy`)."""
@@ -264,8 +307,9 @@ class CopySet:
     #: Ports whose copy completes a "both" frame; ``need0``: as planned at sending.
     need: set[int] = field(default_factory=set)
     need0: frozenset[int] = frozenset()
-    #: Copies received, by the port they came in on.
+    #: Copies received, by the port they came in on; ``origin``: the port each was sent on.
     got: dict[int, bytes] = field(default_factory=dict)
+    origin: dict[int, int] = field(default_factory=dict)
     #: A chain frame was sent on through the other port; ``held`` is what came back first.
     forwarded: bool = False
     held: bytes | None = None
@@ -273,6 +317,9 @@ class CopySet:
     #: the ports tell nothing about sides (the copies are merged all the same).
     disturbed: bool = False
     extra: list[bytes] = field(default_factory=list)
+    #: Handed out at its deadline with a copy awaited missing (late, or its port just
+    #: died): the copies that came tell nothing about sides or about who is missing.
+    partial: bool = False
 
 
 @dataclass(slots=True)
@@ -292,13 +339,20 @@ class Redundancy:
     """Port state and the routing decisions of a ring master (see the module text).
 
     ``carrier[p]`` is what the link says (None: it cannot tell);
-    ``returning`` the ports that delivered frames lately.
+    ``returning`` the ports counted on (not given up); ``misses[p]`` the
+    frames in a row whose copy on port ``p`` was missing while another copy
+    came back; ``silent`` the frames in a row with no copy back at all.
     """
 
-    def __init__(self, ports: int = 2) -> None:
+    def __init__(self, ports: int = 2, give_up_after: int = GIVE_UP_AFTER) -> None:
+        if give_up_after < 1:
+            raise ValueError(f"give_up_after must be at least 1, not {give_up_after}")
         self.ports = ports
+        self.give_up_after = give_up_after
         self.carrier: list[bool | None] = [None] * ports
         self.returning: set[int] = set(range(ports))
+        self.misses = [0] * ports
+        self.silent = 0
         self.counters = [PortCounters() for _ in range(ports)]
         #: Frames whose copies were merged, completed with fewer copies than
         #: awaited (at their deadline), and chain frames passed on.
@@ -315,14 +369,35 @@ class Redundancy:
         ok = [p for p in alive if p in self.returning]
         return ok or alive or list(range(self.ports))
 
+    def returns(self, port: int) -> bool:
+        """Whether frames come back on ``port`` (as far as the master can tell)."""
+        return (self.carrier[port] is not False and port in self.returning
+                and self.silent < self.give_up_after)
+
     def state(self) -> str:
         """'redundant' (both ports work), 'port A only', 'port B only' or 'no port'."""
-        ok = [p for p in self._alive() if p in self.returning]
+        ok = [p for p in range(self.ports) if self.returns(p)]
         if len(ok) == self.ports:
             return "redundant"
         if not ok:
             return "no port"
         return f"port {PORT_NAMES[ok[0]]} only"
+
+    def evidence(self, port: int) -> str:
+        """What the master itself saw of a dead port: no carrier, or copies missing in a row
+        (empty: nothing; one late copy is no evidence)."""
+        if self.carrier[port] is False:
+            return f"port {PORT_NAMES[port]}: no carrier"
+        n = self.misses[port]
+        if n >= self.give_up_after:
+            return f"no copy back on port {PORT_NAMES[port]} in {n} frames in a row"
+        return ""
+
+    def _miss(self, port: int) -> None:
+        """A copy on ``port`` missed its frame's deadline while another copy came back."""
+        self.misses[port] += 1
+        if self.misses[port] >= self.give_up_after:
+            self.returning.discard(port)
 
     # -- sending ----------------------------------------------------------------------
 
@@ -355,11 +430,15 @@ class Redundancy:
         """A frame came in on ``port`` (any frame: the port works)."""
         self.counters[port].received += 1
         self.returning.add(port)
+        self.misses[port] = 0
+        self.silent = 0
 
     def arrived(self, copies: CopySet, port: int, raw: bytes,
                 sent: bytes) -> tuple[str, bytes | None, int]:
         """A copy came in on ``port``: ('done', reply, -1), ('forward', frame, port) or ('wait', None, -1)."""
         self.returning.add(port)
+        self.misses[port] = 0
+        self.silent = 0
         if copies.chain:
             if not copies.forwarded:
                 other = PORT_B if port == PORT_A else PORT_A
@@ -380,31 +459,42 @@ class Redundancy:
             copies.extra.append(raw)
         else:
             copies.got[port] = raw
-        if len(copies.need) == 1 and len(copies.got) == 1 and not _worked(raw):
-            # The only copy awaited went through no slave: the ring may be closed
-            # again, so the processed copy comes on the other port.
-            copies.need.update(self._alive())
+            copies.origin[port] = _origin(raw, sent)
+        if not _worked(raw):
+            if len(copies.need) == 1 and len(copies.got) == 1:
+                # The only copy awaited went through no slave: the ring may be closed
+                # again, so the processed copy comes on the other port.
+                copies.need.update(self._alive())
+        elif copies.origin.get(port) == port:
+            # Back on the port it was sent on: the ring is open, the slaves behind the
+            # break are served by the other ports' copies.
+            copies.need.update(p for p in self._alive() if p in self.returning)
         if copies.need <= copies.got.keys():
             return "done", self._merge(sent, copies), -1
         return "wait", None, -1
 
     def expired(self, copies: CopySet, sent: bytes) -> bytes | None:
         """The frame's deadline passed: the reply to hand out, or None (lost)."""
-        for p in (copies.need if not copies.chain else ()):
-            if p not in copies.got:
-                self.counters[p].missing += 1
-                self.returning.discard(p)
         if copies.chain:
             if copies.forwarded:
                 target = PORT_B if copies.tx == PORT_A else PORT_A
                 self.counters[target].missing += 1
-                self.returning.discard(target)
+                self._miss(target)
             return copies.held
+        missing = [p for p in copies.need if p not in copies.got]
+        for p in missing:
+            self.counters[p].missing += 1
         if not copies.got:
+            # Nothing back at all: a host that stalled, or no port works; it says
+            # nothing about one port.
+            self.silent += 1
             return None
+        for p in missing:
+            self._miss(p)
         if not copies.need0 <= copies.got.keys() and not any(map(_worked, copies.got.values())):
             return None  # the copies that came went through no slave: nothing learnt
         self.partial += 1
+        copies.partial = bool(missing)
         return self._merge(sent, copies)
 
     def _merge(self, sent: bytes, copies: CopySet) -> bytes | None:
@@ -418,8 +508,9 @@ def hand_copies(copies: CopySet, ticket: CyclicFrame | None, requests: Sequence[
     """Give a completed ring frame's ticket and requests its copies by port (for diagnostics).
 
     A chain frame passed every slave in one copy, a disturbed one came back twice on one
-    port: they tell nothing about sides."""
-    if copies.chain or copies.disturbed:
+    port, a partial one lacks a copy that was awaited (the slaves only that copy reached
+    would look gone): they tell nothing about sides, and get no copies."""
+    if copies.chain or copies.disturbed or copies.partial:
         return
     got = dict(copies.got)
     if ticket is not None:
@@ -434,5 +525,5 @@ def hand_copies(copies: CopySet, ticket: CyclicFrame | None, requests: Sequence[
             continue
         for r, d in zip(requests, dgs, strict=False):
             if r.copies is None:
-                r.copies = {}
+                r.copies = PortCopies(copies.origin)
             r.copies[port] = d

@@ -64,14 +64,18 @@ class PortStatus:
     received: int
     forwarded: int
     missing: int
+    #: Frames in a row whose copy on this port was missing while another copy came back
+    #: (a port is given up after ``Redundancy.give_up_after`` of them).
+    misses: int = 0
 
     @property
     def text(self) -> str:
         link = {True: "carrier", False: "NO CARRIER", None: "carrier unknown"}[self.carrier]
         back = ("frames come back" if self.returning and self.carrier is not False
                 else "NO FRAMES BACK")
+        row = f" ({self.misses} in a row)" if self.misses else ""
         return (f"port {self.name}: {link}, {back}; sent {self.sent}, received {self.received}, "
-                f"passed on {self.forwarded}, copies missing {self.missing}")
+                f"passed on {self.forwarded}, copies missing {self.missing}{row}")
 
 
 @dataclass(frozen=True)
@@ -223,8 +227,8 @@ class RingService:
         red = self.scheduler.core.redundancy
         if red is None:
             return ()
-        return tuple(PortStatus(PORT_NAMES[p], red.carrier[p], p in red.returning,
-                                c.sent, c.received, c.forwarded, c.missing)
+        return tuple(PortStatus(PORT_NAMES[p], red.carrier[p], red.returns(p),
+                                c.sent, c.received, c.forwarded, c.missing, red.misses[p])
                      for p, c in enumerate(red.counters))
 
     def state(self) -> str:
@@ -288,24 +292,24 @@ class RingService:
         count_req, requests = pending.requests[0], pending.requests[1:]
         positions, stride = pending.positions, 3 if pending.al else 2
         ring = self.redundant
+        red = self.scheduler.core.redundancy
         returned: set[int] = set()
-        a_worked = False
         # Reads that rode in frames sent one way round (with an auto-increment datagram
-        # of someone else's) passed every slave in bus order: they show no sides.
-        seen_sides = not ring or any(r.copies is not None for r in requests)
+        # of someone else's), came back twice on one port or lacked an awaited copy (a
+        # late copy: the slaves only it reached would look gone) show no sides; one
+        # such frame among the reading's makes the whole reading one without sides.
+        answered = [r for r in requests if r.reply is not None]
+        seen_sides = not ring or (bool(answered) and all(r.copies is not None for r in answered))
         for r in requests:
             if r.copies:
                 returned.update(r.copies)
-                got = r.copies.get(0)
-                a_worked = a_worked or (got is not None and got.wkc > 0)
         readings: list[SlaveReading] = []
         counters: dict[int, diag.SlaveCounters] = {}
-        a_returned = 0 in returned
         for i, pos in enumerate(positions):
             dl_req, ctr_req = requests[stride * i], requests[stride * i + 1]
-            side = _side(dl_req, ring, a_worked, a_returned)
+            side = _side(dl_req, ring)
             if side is None:
-                side = _side(ctr_req, ring, a_worked, a_returned)
+                side = _side(ctr_req, ring)
             dl = None
             if dl_req.reply is not None and dl_req.reply.wkc == 1:
                 dl = int.from_bytes(dl_req.reply.data[:_DL], "little")
@@ -331,8 +335,10 @@ class RingService:
             # Every slave answers a broadcast: the silent ones lost their address
             # (power-cycled, swapped); they are there, so the cables around them work.
             unaddressed = silent
+        evidence = {} if red is None else {
+            PORT_NAMES[p]: e for p in range(red.ports) if (e := red.evidence(p))}
         faults = locate(self.cables, [r for r in readings if r.position not in unaddressed],
-                        ring=ring and seen_sides, returned=ret)
+                        ring=ring and seen_sides, returned=ret, port_evidence=evidence)
         faults += [Fault("unaddressed", f"slave {p}", slaves=(p,),
                          detail="present but silent at its station address: power-cycled or "
                                 "replaced") for p in unaddressed]
@@ -385,17 +391,17 @@ class RingService:
                     _log.exception("fault event callback %r failed", fn)
 
 
-def _side(req: Request, ring: bool, a_worked: bool, a_returned: bool) -> str | None:
-    """The master port a slave's answer shows it is reached from (see ``master.locate``)."""
+def _side(req: Request, ring: bool) -> str | None:
+    """The master port a slave's answer shows it is reached from (see ``master.locate``):
+    the port the copy it answered in was sent on (round a closed ring the copy sent on
+    A comes back on B; at a break each copy comes back on its own port)."""
     if req.reply is None:
         return None
-    if not ring or req.copies is None:
+    copies = req.copies
+    if not ring or copies is None:
         return "A" if req.reply.wkc >= 1 else None
-    a, b = req.copies.get(0), req.copies.get(1)
-    if a is not None and a.wkc >= 1:
-        return "A"
-    if b is not None and b.wkc >= 1:
-        # In a whole ring the copy back on B is the one sent on A.
-        return "B" if a_worked or not a_returned else "A"
+    origin = getattr(copies, "origin", {})
+    for port in sorted(copies):
+        if copies[port].wkc >= 1:
+            return PORT_NAMES[origin.get(port, port)]
     return None
-

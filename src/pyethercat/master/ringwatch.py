@@ -160,7 +160,11 @@ class RingWatch:
 
     def _gap(self, runner: Any, tickets: list[CyclicFrame]) -> set[int]:
         """Slaves neither side of a break reached, from the copies back on A and on B
-        (``master.redundancy.split_counts``/``ring_gap``)."""
+        (``master.redundancy.split_counts``/``ring_gap``).
+
+        Frames handed out with an awaited copy missing (late: a busy host) carry no
+        copies (``master.redundancy.hand_copies``): the slaves only that copy reached
+        would look gone."""
         gap: set[int] = set()
         src = self.ring.scheduler.core.src
         for plan, t in zip(getattr(runner, "last_plans", ()), tickets, strict=False):
