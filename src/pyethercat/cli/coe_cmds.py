@@ -47,12 +47,14 @@ def format_sdos(objects: list[msg.SdoObjectInfo], quiet: bool = False) -> list[s
     """The ``sdos`` listing of one slave (IgH layout)."""
     lines: list[str] = []
     for obj in objects:
-        if obj.error is not None:
+        if obj.error is not None and not obj.name:
             lines.append(f"SDO 0x{obj.index:04X}, (no description: {obj.error})")
             continue
         lines.append(f"SDO 0x{obj.index:04X}, \"{obj.name}\"")
         if quiet:
             continue
+        if obj.error is not None:  # some entries not described
+            lines.append(f"  ({obj.error})")
         for e in obj.entries:
             lines.append(f"  0x{obj.index:04X}:{e.subindex:02X}, {e.access_text}, "
                          f"{type_name(e.data_type)}, {e.bit_length} bit, \"{e.name}\"")

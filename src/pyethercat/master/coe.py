@@ -248,6 +248,12 @@ def _is_info(msg: ReceivedMessage) -> bool:
     return _coe_service(msg) == CoeService.SDO_INFORMATION
 
 
+def _fragments_left(reply: ReceivedMessage) -> int:
+    """The fragments-left word of an SDO-information fragment (CoE header, opcode, reserved)."""
+    at = COE_HEADER_SIZE + 2
+    return int.from_bytes(reply.payload[at:at + 2], "little") if len(reply.payload) >= at + 2 else 0
+
+
 def _short_info_error(msg: ReceivedMessage) -> int | None:
     """The abort code of an SDO information error whose length word leaves the code out.
 
@@ -432,13 +438,13 @@ class CoeClient:
               subindex: int = 0, timeout: float | None = None) -> SdoInfoMessage:
         mbx = self.mailbox
         span = self.timeout if timeout is None else timeout
-        limit = mbx.clock() + span
         with mbx.lock:
             mbx.drop(_is_info)
             # The first fragment answers the request (sent again if unanswered).
             reply = mbx.transact(MailboxType.COE, request.encode(), _is_info, what=what,
                                  timeout=span, stale=_is_sdo)
             reasm = SdoInfoReassembler()
+            fragments = 1
             while True:
                 try:
                     got = reasm.feed(reply.payload)
@@ -448,8 +454,17 @@ class CoeClient:
                         raise MailboxError(f"{self.label}: {what}: {exc}") from None
                     got = SdoInfoError(code=code)
                 if got is None:
-                    reply = mbx.receive(_is_info, what=f"answer to {what}",
-                                        timeout=max(0.0, limit - mbx.clock()))
+                    # Each fragment gets the whole timeout from the one before: a long
+                    # answer (an OD list of hundreds of objects) may take many timeouts
+                    # in all while its slave answers every step in time.
+                    try:
+                        reply = mbx.receive(_is_info, what=f"answer to {what}", timeout=span)
+                    except EcTimeoutError:
+                        raise EcTimeoutError(
+                            f"{self.label}: {what}: fragment {fragments + 1} not received "
+                            f"within {span:g} s of fragment {fragments} (the slave announced "
+                            f"{_fragments_left(reply)} more)") from None
+                    fragments += 1
                     continue
                 if isinstance(got, SdoInfoError):
                     err = got.to_error(index, subindex)
@@ -690,10 +705,14 @@ class OdObject:
         return got
 
     @property
+    def subindices(self) -> Sequence[int]:
+        """The subindices a description may exist for: 0 for a VAR, else 0 to the maximum."""
+        return [0] if self.object_code == ObjectCode.VAR else range(self.max_subindex + 1)
+
+    @property
     def entries(self) -> list[OdEntry]:
         """Every described entry, subindex 0 to the maximum subindex."""
-        subs = [0] if self.object_code == ObjectCode.VAR else range(self.max_subindex + 1)
-        return [e for e in (self.entry(s) for s in subs) if e is not None]
+        return [e for e in (self.entry(s) for s in self.subindices) if e is not None]
 
     def __iter__(self) -> Iterator[OdEntry]:
         return iter(self.entries)

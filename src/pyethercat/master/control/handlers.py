@@ -22,7 +22,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
-from pyethercat.errors import ConfigError, SdoAbort
+from pyethercat.errors import ConfigError, EtherCATError, SdoAbort
+from pyethercat.errors import TimeoutError as EcTimeoutError
 from pyethercat.master import diag
 from pyethercat.master.bootstrap import bootstrap_update, foe_client
 from pyethercat.master.coe import CoeClient
@@ -48,6 +49,8 @@ __all__ = ["MasterContext", "handler", "dispatch"]
 
 Q = TypeVar("Q", bound=Request)
 _HANDLERS: dict[type[Request], Callable[[MasterContext, Any], Any]] = {}
+#: Timeouts in a row after which ``sdo_list`` stops asking the slave.
+_SDO_LIST_TIMEOUTS = 3
 #: Rate windows of ``master`` (seconds), as IgH's 10 s / 1 min / 5 min.
 RATE_WINDOWS = (10.0, 60.0, 300.0)
 
@@ -337,17 +340,45 @@ def _entry_type(ctx: MasterContext, req: msg.SdoEntryType) -> msg.EntryType:
 @handler(msg.SdoList)
 def _sdo_list(ctx: MasterContext, req: msg.SdoList) -> msg.SdoObjects:
     client = ctx.coe(req.position)
-    od = client.od
     out: list[msg.SdoObjectInfo] = []
-    for index in od:
-        try:
-            obj = od[index]
-        except (KeyError, SdoAbort) as exc:
-            out.append(msg.SdoObjectInfo(index, "", [], str(exc)))
+    # An object or entry the slave does not describe in time is reported with its
+    # error and the browse goes on (a busy slave, a lost answer); a slave that
+    # stopped answering altogether ends it after a few time-outs in a row, not one
+    # time-out per object.
+    timeouts = 0
+
+    def failed(exc: Exception) -> str:
+        nonlocal timeouts
+        timeouts = timeouts + 1 if isinstance(exc, EcTimeoutError) else 0
+        return str(exc.args[0]) if isinstance(exc, KeyError) and exc.args else str(exc)
+
+    for index in client.od:
+        if timeouts >= _SDO_LIST_TIMEOUTS:
+            out.append(msg.SdoObjectInfo(index, "", [], "not described: the slave stopped "
+                                         "answering"))
             continue
-        entries = [msg.SdoEntryInfo(e.subindex, e.access_text, e.data_type, e.bit_length, e.name)
-                   for e in obj.entries] if req.entries else []
-        out.append(msg.SdoObjectInfo(index, obj.name, entries))
+        try:
+            obj = client.od[index]
+        except (KeyError, EtherCATError) as exc:
+            out.append(msg.SdoObjectInfo(index, "", [], failed(exc)))
+            continue
+        timeouts = 0
+        entries: list[msg.SdoEntryInfo] = []
+        errors: list[str] = []
+        for sub in obj.subindices if req.entries else ():
+            if timeouts >= _SDO_LIST_TIMEOUTS:
+                errors.append("not all entries described: the slave stopped answering")
+                break
+            try:
+                e = obj.entry(sub)
+            except EtherCATError as exc:
+                errors.append(f"0x{index:04X}:{sub:02X} not described: {failed(exc)}")
+                continue
+            timeouts = 0
+            if e is not None:
+                entries.append(msg.SdoEntryInfo(e.subindex, e.access_text, e.data_type,
+                                                e.bit_length, e.name))
+        out.append(msg.SdoObjectInfo(index, obj.name, entries, "; ".join(errors) or None))
     return msg.SdoObjects(out)
 
 

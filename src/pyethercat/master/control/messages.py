@@ -273,7 +273,8 @@ class SdoObjectInfo:
     index: int
     name: str
     entries: list[SdoEntryInfo] = field(default_factory=list)
-    #: Why the object could not be described (its entries are then empty).
+    #: Why the object could not be described (its name and entries are then empty),
+    #: or, with a name, which of its entries could not be (the others are listed).
     error: str | None = None
 
 
