@@ -16,6 +16,7 @@ import pytest
 from conftest import wait_for
 from eoe_helpers import TOPOLOGY, arp_request, ping
 
+from pyethercat.errors import ConfigError
 from pyethercat.link.pair import PairLink
 from pyethercat.master.clients import registered_clients
 from pyethercat.master.eoe import EoeClient, EoeError, EoeService, eoe_client, eoe_clients
@@ -225,3 +226,44 @@ def test_service_rides_in_the_cyclic_frame_with_the_mapped_status_byte() -> None
                    and any(d.is_logical for d in f.datagrams) for f in frames)
     finally:
         runner.stop()
+
+
+def test_time_appended_flag_both_ways(
+        eoe: tuple[Master, dict[int, EoeClient], object, list[bytes]]) -> None:
+    """The master appends its time to a frame, then asks the slave (Set IP flag bit 16) to
+    append the slave's: each side takes the time off and passes the frame on unchanged."""
+    m, clients, seg, got = eoe
+    drive = clients[1]
+    server = eoe_server(seg.slaves[1].spec.app)  # type: ignore[attr-defined]
+    assert server is not None
+    mac = drive.get_ip().mac
+    assert mac is not None
+    with pytest.raises(ConfigError, match="32 bits"):
+        drive.send(ping(mac, bytes([10, 9, 0, 3]), 8, 1), timestamp=1 << 32)
+    svc = EoeService(m.scheduler, [drive]).start()
+    try:
+        # 300 bytes of ICMP data: a 342-byte frame, 4 fragments of the 128-byte mailbox
+        frame = ping(mac, bytes([10, 9, 0, 3]), 300, 1)
+        assert drive.send(frame, timestamp=0xA1B2C3D4)
+        assert wait_for(lambda: len(got) == 1)
+        assert server.receiver.timestamp == 0xA1B2C3D4
+        assert frame in server.endpoint.received  # type: ignore[attr-defined]
+        echo = got.pop()
+        assert drive.receiver.timestamp is None  # the slave appends nothing unless asked
+
+        drive.set_ip(EoeIpParameters(), append_timestamp=True)
+        assert server.append_timestamp
+        before = server.clock_ns() & 0xFFFF_FFFF
+        assert drive.send(ping(mac, bytes([10, 9, 0, 3]), 300, 2))
+        assert wait_for(lambda: len(got) == 1)
+        after = server.clock_ns() & 0xFFFF_FFFF
+        echo2 = got.pop()
+        stamp = drive.receiver.timestamp
+        assert stamp is not None and drive.last_timestamp == stamp
+        # the slave's clock when it sent the reply (32 bits: compared modulo 2**32)
+        assert (stamp - before) & 0xFFFF_FFFF <= (after - before) & 0xFFFF_FFFF
+        assert len(echo2) == len(echo) == len(frame)  # the 4 time bytes are not in the frame
+        assert echo2[42:] == ping(mac, bytes([10, 9, 0, 3]), 300, 2)[42:]
+        assert drive.stats.rx.errors == 0
+    finally:
+        svc.stop()

@@ -8,7 +8,9 @@ slave through its :class:`~pyethercat.master.mailbox.Mailbox`:
   are request/response transactions; a result code other than 0 raises
   :class:`EoeError` naming it. Set IP uses the fixed 58-byte layout IgH and
   TwinCAT send (``master/fsm_eoe.c``); slaves accept it and SOEM's packed one.
-- ``send(frame)`` queues an Ethernet frame; fragments go out one mailbox at a
+- ``send(frame)`` queues an Ethernet frame (``request_time``: the slave
+  answers with a timestamp response; ``timestamp``: a 32-bit time appended to
+  the last fragment with the time-appended flag); fragments go out one mailbox at a
   time (:class:`~pyethercat.wire.mailbox.eoe_stream.EoeSender`); frames the
   slave sends are rebuilt and checked
   (:class:`~pyethercat.wire.mailbox.eoe_stream.EoeReceiver`) and handed to
@@ -88,6 +90,9 @@ __all__ = ["EoeClient", "EoeError", "EoeService", "EoeStats", "eoe_client", "eoe
 
 _log = logging.getLogger("pyethercat.eoe")
 _MAX_FILTERS = 16
+#: Set IP parameter flag bit 16: the slave appends its time to the frames it sends
+#: (Wireshark's ``packet-ecatmb.c`` dissects it as "AppendTimeStamp").
+_APPEND_TIMESTAMP = 0x0001_0000
 
 
 class EoeError(MailboxError):
@@ -164,9 +169,19 @@ class EoeClient:
 
     # -- requests ----------------------------------------------------------------------
 
-    def set_ip(self, params: EoeIpParameters, *, timeout: float | None = None) -> None:
-        """Send Set IP parameter; raises :class:`EoeError` unless the slave reports success."""
-        msg = self.mailbox.transact(MailboxType.EOE, EoeSetIpRequest(params).encode(),
+    def set_ip(self, params: EoeIpParameters, *, append_timestamp: bool = False,
+               timeout: float | None = None) -> None:
+        """Send Set IP parameter; raises :class:`EoeError` unless the slave reports success.
+
+        ``append_timestamp`` sets the flag that asks the slave to append its time
+        to every frame it sends from now on (the client keeps the last one in
+        :attr:`last_timestamp`).
+        """
+        payload = bytearray(EoeSetIpRequest(params).encode())
+        if append_timestamp:  # the flag word follows the 4-byte EoE header
+            flags = int.from_bytes(payload[4:8], "little") | _APPEND_TIMESTAMP
+            payload[4:8] = flags.to_bytes(4, "little")
+        msg = self.mailbox.transact(MailboxType.EOE, bytes(payload),
                                     _is(EoeFrameType.SET_IP_RESPONSE), what="EoE set IP parameter",
                                     timeout=timeout)
         self._check(msg, "set IP parameter")
@@ -215,10 +230,21 @@ class EoeClient:
 
     # -- frames ------------------------------------------------------------------------
 
-    def send(self, frame: bytes, *, request_time: bool = False) -> bool:
-        """Queue an Ethernet frame for the slave; False when it was dropped (queue full)."""
+    def send(self, frame: bytes, *, request_time: bool = False,
+             timestamp: int | None = None) -> bool:
+        """Queue an Ethernet frame for the slave; False when it was dropped (queue full).
+
+        ``request_time`` sets the time-request flag: the slave answers with a
+        timestamp response (:attr:`last_timestamp`). ``timestamp`` (0..2**32-1,
+        e.g. the low 32 bits of the DC system time) is appended to the frame's
+        last fragment with the time-appended flag; the slave's IP side gets the
+        frame without it.
+        """
+        if timestamp is not None and not 0 <= timestamp <= 0xFFFF_FFFF:
+            raise ConfigError(f"an EoE timestamp is 32 bits (0..4294967295), got {timestamp}")
         with self._lock:
-            ok = self.sender.push(frame, time.monotonic(), request_time=request_time)
+            ok = self.sender.push(frame, time.monotonic(), request_time=request_time,
+                                  timestamp=timestamp)
         wake = self.wake
         if ok and wake is not None:
             wake(self)
