@@ -21,7 +21,7 @@ from pyethercat.link.pair import PairLink
 from pyethercat.master.config import CrossLink
 from pyethercat.master.cross import cross_links_from_eni
 from pyethercat.master.cyclic import CyclicRunner
-from pyethercat.master.esi_config import eni_from_master
+from pyethercat.master.esi_config import eni_from_master, start_from_eni
 from pyethercat.master.master import Master
 from pyethercat.sim.ring import ring_link
 from pyethercat.sim.topology import parse_topology
@@ -106,3 +106,25 @@ def test_cross_traffic_from_an_eni() -> None:
     _, m, _ = start()
     eni = parse_eni(build_eni(eni_from_master(m)))
     assert cross_links_from_eni(eni.slaves) == [CrossLink(1, 3, 8, 0)]
+
+
+def test_cross_traffic_configured_from_an_eni_flows_slave_to_slave() -> None:
+    """A master started from the ENI of another (its cross links among the slaves' Send
+    and Recv areas) passes the producer's inputs to the consumer's outputs in one frame."""
+    _, m, _ = start()
+    xml = build_eni(eni_from_master(m))
+    m.close()
+    clock = VirtualClock()
+    seg = parse_topology(dict(TOPO)).build(clock=clock)
+    m2 = Master(PairLink.responder_link(seg.process), clock=clock)
+    start_from_eni(m2, parse_eni(xml))
+    cfg = m2.configure()
+    m2.pd.bring_up(m2.slaves, 2.0)
+    r = CyclicRunner(m2.scheduler, cfg, m2.images, m2.slaves, clock=clock, check_interval=0)
+    r.run(cycles=3)
+    m2.set_state(AlState.OP)
+    for value in (0x5A, 0xA5, 0x3C):
+        set_src(seg, value)
+        r.run(cycles=1)
+        assert dst_outputs(seg) == value
+    assert r.stats.wkc_errors == 0 and r.groups[0].wkc_ok

@@ -120,6 +120,49 @@ def test_distributed_clock_of_the_device_plugged_back() -> None:
     assert diff & 0x7FFF_FFFF < 1000, f"system time difference {diff & 0x7FFFFFFF} ns"
 
 
+def test_coe_start_up_commands_are_applied_again_to_the_device_plugged_back() -> None:
+    from pyethercat.sim.topology import parse_topology
+
+    clock = VirtualClock()
+    doc = {"segment": {"ring": True},
+           "slave": [{"name": "coupler", "device": "builtin:coupler"},
+                     {"name": "io", "device": "builtin:coe-io"},
+                     {"name": "do", "device": "builtin:do8"}]}
+    seg = parse_topology(doc).build(clock=clock)
+    m = Master(ring_link(seg), clock=clock)
+    m.scan()
+    # A PRE-OP -> SAFE-OP start-up SDO (ESI InitCmd): the sync manager 2 cycle time.
+    m.add_startup_command(1, "PS", 0x10F1, 2, (1234).to_bytes(2, "little"))
+    cfg = m.configure()
+    m.pd.bring_up(m.slaves, 2.0)
+    r = CyclicRunner(m.scheduler, cfg, m.images, m.slaves, clock=clock, check_interval=0.05,
+                     recover=m.hotswap.recover)
+    m.pd.runner = r
+    r.riders.append(RingWatch(m.ring, log=r.log))
+    r.supervising = False
+    r.run(cycles=3)
+    m.set_state(AlState.OP)
+    r.supervising = True
+    r.run(cycles=20)
+
+    def value() -> int:
+        return int(seg.escs[1].app.protocols[3].od.value(0x10F1, 2))
+
+    assert value() == 1234
+    spec = device_spec("builtin:coe-io", "io-new", serial=77)
+    seg.remove_slave(1)
+    r.run(cycles=30)
+    seg.insert_slave(1, spec)
+    assert value() != 1234  # a fresh device: its own default
+    for _ in range(100):
+        r.run(cycles=1)
+        if seg.escs[1].al_state() == AlState.OP and r.groups[0].wkc_ok:
+            break
+    assert seg.escs[1].al_state() == AlState.OP
+    assert value() == 1234
+    assert [e.outcome for e in m.hotswap.events][-1] == "replaced"
+
+
 def test_a_hot_connect_group_goes_and_comes_back() -> None:
     from pyethercat.master.control import ring_ops
     from pyethercat.master.control.handlers import MasterContext, dispatch
