@@ -183,6 +183,9 @@ def test_twincat_eoe_set_ip_is_fixed_layout(corpus_dir: Path) -> None:
                 continue
             if isinstance(msg, EoeSetIpRequest):
                 assert header.length == 4 + 58 and not msg.packed
+                # its addresses are little-endian words: the mask reads as a mask
+                assert str(msg.params.subnet) == "255.255.255.0"
+                assert str(msg.params.gateway) == "192.168.0.139"
                 assert msg.encode() == data[6 : 6 + header.length]
                 found_ip = True
             if isinstance(msg, EoeFragment):

@@ -116,8 +116,8 @@ def test_set_ip_fixed_layout() -> None:
     assert len(body) == 58
     assert body[:4] == h("2F000000")  # MAC, IP, subnet, gateway, DNS name
     assert body[4:10] == h("020000000001")
-    assert body[10:14] == h("C0A8010A")  # network byte order
-    assert body[14:18] == h("FFFFFF00") and body[18:22] == h("C0A80101")
+    assert body[10:14] == h("0A01A8C0")  # a little-endian word, as IgH/SOEM/Wireshark
+    assert body[14:18] == h("00FFFFFF") and body[18:22] == h("0101A8C0")
     assert body[22:26] == bytes(4)  # absent DNS server still reserved
     assert body[26:58] == b"drive1".ljust(32, b"\0")
     assert decode_eoe(raw) == EoeSetIpRequest(PARAMS)
@@ -126,10 +126,10 @@ def test_set_ip_fixed_layout() -> None:
 def test_set_ip_packed_layout_soem() -> None:
     params = EoeIpParameters(ip=IPv4Address("10.0.0.2"))
     raw = EoeSetIpRequest(params, packed=True).encode()
-    assert raw == h("0200 0000 02000000 0A000002")
+    assert raw == h("0200 0000 02000000 0200000A")
     assert decode_eoe(raw) == EoeSetIpRequest(params, packed=True)
     with pytest.raises(MailboxError):
-        decode_eoe(h("0200 0000 03000000 0A000002"))  # MAC flagged but missing
+        decode_eoe(h("0200 0000 03000000 0200000A"))  # MAC flagged but missing
 
 
 def test_eoe_responses() -> None:

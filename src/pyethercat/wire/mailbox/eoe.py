@@ -11,7 +11,14 @@ Header (4 bytes after the mailbox header), little-endian words::
             fragment 0: complete size / 32), 15:12 frame number
             responses: result code
 
-IPv4 addresses inside EoE are in network byte order. ``encode()`` returns the
+IPv4 addresses in Set/Get IP parameter (IP, subnet mask, gateway, DNS
+server) are 32-bit little-endian words, so their octets are on the wire in
+reverse order (192.168.0.1 as ``01 00 A8 C0``): IgH ``master/fsm_eoe.c``
+writes them with ``memcpy_swap32``, SOEM/SOES with ``EOE_ip_uint32_to_byte``
+(``byte_ip[3]`` = first octet), Wireshark's ``packet-ecatmb.c`` reads them
+little-endian, and TwinCAT's request in the corpus capture
+``ethercrab_twincat-akd-nc-mode.pcapng`` carries its mask 255.255.255.0 as
+``00 FF FF FF``. ``encode()`` returns the
 mailbox payload; :func:`decode_eoe` is the inverse. :func:`eoe_fragment` and
 :class:`EoeReassembler` split and rebuild Ethernet frames.
 """
@@ -247,7 +254,7 @@ def _field_bytes(flag: EoeIpFlags, value: object) -> bytes:
     if value is None:
         return bytes(size)
     if isinstance(value, IPv4Address):
-        return value.packed  # network byte order
+        return value.packed[::-1]  # a little-endian word (module text)
     if isinstance(value, str):
         return value.encode("latin-1").ljust(size, b"\x00")
     assert isinstance(value, bytes)
@@ -259,7 +266,7 @@ def _field_value(flag: EoeIpFlags, raw: bytes) -> object:
         return raw
     if flag is EoeIpFlags.DNS_NAME:
         return raw.split(b"\x00", 1)[0].decode("latin-1")
-    return IPv4Address(raw)
+    return IPv4Address(bytes(raw[::-1]))
 
 
 @dataclass(frozen=True, slots=True)
