@@ -86,3 +86,40 @@ def test_slaves_verbose_shows_dc_as_igh_does(tmp_path: Path, corpus_dir: Path) -
     assert code == 0, out + err
     delays = [r[6] for r in rows(out)]
     assert delays[:2] == ["0", "-"] and delays[2] in ("295", "300")
+
+
+def test_run_dc_plot_has_the_sync0_spread_of_the_simulator(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """With --sim the plot gets the SYNC0 spread panel from the pulses the segment recorded."""
+    import matplotlib.figure
+
+    from pyethercat.cli import dc_plot
+
+    drawn: list[list[str]] = []
+    spreads: list[list[tuple[float, float]]] = []
+    save = matplotlib.figure.Figure.savefig
+    plot_dc = dc_plot.plot_dc
+
+    def savefig(fig: matplotlib.figure.Figure, *args: object, **kw: object) -> None:
+        drawn.append([ax.get_title() for ax in fig.axes])
+        save(fig, *args, **kw)  # type: ignore[arg-type]
+
+    def spy(*args: object, **kw: object) -> int:
+        spreads.append(list(kw.get("sync0_spread") or []))  # type: ignore[call-overload]
+        return plot_dc(*args, **kw)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", savefig)
+    monkeypatch.setattr(dc_plot, "plot_dc", spy)
+    plot = tmp_path / "run.png"
+    code, out, err = run("--sim", str(DEMO), "run", "--dc", "--cycle", "2000", "--seconds", "1.5",
+                         "--plot", str(plot))
+    assert code == 0, out + err
+    assert len(drawn) == 1 and drawn[0][-1].startswith("SYNC0 spread"), drawn
+    series = spreads[0]
+    # pulses of 2 ms cycles from several refreshes of the live view, in time order
+    assert len(series) > 20 and [t for t, _ in series] == sorted(t for t, _ in series)
+    assert series[-1][0] > 0.3
+    # the five terminals with a DC op mode fire together (an in-process simulator on the
+    # host's clock: within a few microseconds, not a cycle apart)
+    assert all(0 <= s < 20_000 for _, s in series), max(s for _, s in series)
+    assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -260,3 +260,51 @@ def test_sii_write_refuses_another_device_unless_forced(udp_segment: str, tmp_pa
     assert (tmp_path / "ek-old.bin").read_bytes()[:len(ek)] == ek
     code, out, _ = run("--udp", udp_segment, "slaves")
     assert out.splitlines()[0].endswith("EL2004 4K. Dig. Ausgang 24V, 0.5A")
+
+
+# --- config: IgH's selection by alias:position ------------------------------------------------
+
+
+@pytest.fixture
+def aliased_master(tmp_path: Path) -> Iterator[str]:
+    """A running master (control socket) on coupler, di8 (alias 7), do8, di8."""
+    from pyethercat.link.pair import PairLink
+    from pyethercat.master.control.endpoint import link_spec
+    from pyethercat.master.control.server import serve
+    from pyethercat.master.master import Master
+
+    topo = tmp_path / "aliased.toml"
+    topo.write_text('[[slave]]\nname = "c"\ndevice = "builtin:coupler"\n'
+                    '[[slave]]\nname = "a"\ndevice = "builtin:di8"\nalias = 7\n'
+                    '[[slave]]\nname = "b"\ndevice = "builtin:do8"\n'
+                    '[[slave]]\nname = "d"\ndevice = "builtin:di8"\n')
+    segment = load_topology(topo).build()
+    m = Master(PairLink.responder_link(segment.process))
+    m.scan()
+    m.configure()
+    runner = m.start(0.002)
+    server = serve(m, link_spec(sim=str(topo)))
+    try:
+        yield str(topo)
+    finally:
+        server.close()
+        runner.stop()
+        m.close()
+
+
+def test_config_selects_by_alias_and_position_as_igh(aliased_master: str) -> None:
+    def rows(*sel: str) -> list[tuple[str, str]]:
+        code, out, err = run("--sim", aliased_master, "config", *sel)
+        assert code == 0, err
+        return [(ln.split()[0], ln.split()[2]) for ln in out.splitlines()]
+
+    # alias:position, attached ring position
+    assert rows() == [("0:0", "0"), ("7:0", "1"), ("7:1", "2"), ("7:2", "3")]
+    assert rows("-a", "7", "-p", "1") == [("7:1", "2")]
+    assert rows("-a", "7") == [("7:0", "1"), ("7:1", "2"), ("7:2", "3")]
+    # -p alone counts within every alias (IgH Command::selectedConfigs)
+    assert rows("-p", "0") == [("0:0", "0"), ("7:0", "1")]
+    assert rows("-p", "1-2", "-a", "0-7") == [("7:1", "2"), ("7:2", "3")]
+    assert rows("-a", "3") == []
+    code, out, _ = run("--sim", aliased_master, "config", "-v", "-a", "7", "-p", "2")
+    assert out.splitlines()[:3] == ["Alias: 7", "Position: 2", "Vendor Id: 0x00504543"]

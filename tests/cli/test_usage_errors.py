@@ -161,6 +161,34 @@ CASES = [
     (["--sim", DEMO, "graph", "nonsense"], "unknown argument 'nonsense'"),
     (["--sim", DEMO, "run", "--eni", "/nonexistent.xml"], "/nonexistent.xml"),
     (["--sim", DEMO, "--eni", "/nonexistent.xml", "run"], "/nonexistent.xml"),
+    (["--sim", DEMO, "run", "--seconds", "1", "--cycle", "0.5"],
+     "--cycle '0.5': give the cycle time in whole microseconds"),
+    # distributed clocks: times in microseconds, the shift within the cycle
+    (["--sim", DEMO, "dc", "--sync0", "abc"], "--sync0 'abc': not a number of microseconds"),
+    (["--sim", DEMO, "dc", "--sync0", "1000", "--sync1", "y"],
+     "--sync1 'y': not a number of microseconds"),
+    (["--sim", DEMO, "dc", "--shift", "nan"], "--shift 'nan': not a number of microseconds"),
+    (["--sim", DEMO, "run", "--seconds", "1", "--dc", "--sync0", "abc"], "--sync0 'abc': not a number of microseconds"),
+    (["--sim", DEMO, "run", "--seconds", "1", "--dc", "--shift", "x"], "--shift 'x': not a number of microseconds"),
+    (["--sim", DEMO, "run", "--seconds", "1", "--dc", "--sync0", "-500"], "the SYNC0 cycle must be positive"),
+    (["--sim", DEMO, "dc", "--sync0", "500", "--shift", "500"],
+     "--shift 500 us: the shift must lie within the SYNC0 cycle (0 up to below 500 us)"),
+    (["--sim", DEMO, "run", "--seconds", "1", "--cycle", "1000", "--shift", "1500"],
+     "--shift 1500 us: the shift must lie within the SYNC0 cycle (0 up to below 1000 us)"),
+    (["--sim", DEMO, "run", "--seconds", "1", "--shift", "-1"], "--shift -1 us: the shift must lie within"),
+    # a plot under a missing directory is refused before the run, as --pcap is
+    (["--sim", DEMO, "run", "--seconds", "1", "--plot", "/nonexistent/d/p.png"],
+     "cannot write the plot /nonexistent/d/p.png: directory /nonexistent/d does not exist"),
+    (["--sim", DEMO, "dc", "--plot", "/nonexistent/d/p.png"],
+     "cannot write the plot /nonexistent/d/p.png: directory /nonexistent/d does not exist"),
+    (["--sim", DEMO, "run", "--dc", "--seconds", "1", "--plot", "{plain}/p.png"],
+     "plain-file is not a directory"),
+    # selections checked before the segment or the running master is reached
+    (["--sim", DEMO, "data", "-d", "x"], "invalid character 'x' at position 0 of 'x'"),
+    (["--sim", DEMO, "domains", "-d", "1;2"], "invalid character ';'"),
+    (["--sim", DEMO, "-a", "0x10000", "slaves"], "alias 0x10000 out of range 0..0xFFFF"),
+    (["--sim", DEMO, "config", "-a", "70000"], "alias 70000 out of range 0..0xFFFF"),
+    (["--sim", DEMO, "config", "-p", "q"], "invalid character 'q'"),
 ]
 
 

@@ -15,19 +15,22 @@ back (AssignActivate, SYNC0 cycle and shift, SYNC1 cycle register).
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
 from typing import Any
 
 import click
 
 from pyethercat.cli._connect import Connection
 from pyethercat.cli._session import own_master
-from pyethercat.cli._util import parse_int
+from pyethercat.cli._util import number
 from pyethercat.errors import ConfigError
 from pyethercat.master.clocks import DcStatus
 from pyethercat.master.dc import DEFAULT_STATIC_SYNC, DcReport, DcSettings
 from pyethercat.master.master import Master
 
-__all__ = ["configure_sync_from_options", "format_dc", "register", "wall_clock_for_sim"]
+__all__ = ["SyncOptions", "configure_sync_from_options", "format_dc", "microseconds", "register",
+           "sync_options", "wall_clock_for_sim"]
 
 TABLE_HEADER = ("# pos  station  dc          ref  entry  parent  delay_ns  offset_ns"
                 "             diff_ns  sync")
@@ -44,26 +47,65 @@ def wall_clock_for_sim(conn: Connection) -> None:
     seg.clock = WallClock()
 
 
-def configure_sync_from_options(m: Master, cycle_ns: int, sync0_us: str | None,
-                                sync1_us: str | None, shift_us: str | None) -> int:
-    """SYNC settings from ``--sync0/--sync1/--shift`` (µs); returns the slaves configured.
+@dataclass(frozen=True)
+class SyncOptions:
+    """``--sync0/--sync1/--shift`` checked and in ns (see :func:`sync_options`)."""
 
-    ``--sync1`` below the SYNC0 cycle is a delay after each SYNC0; a multiple
-    of it makes SYNC1 fire every n-th SYNC0 cycle.
+    cycle0_ns: int
+    shift_ns: int = 0
+    sync1_delay_ns: int | None = None
+    sync1_multiple: int | None = None
+
+
+def microseconds(text: str, option: str) -> int:
+    """A time in µs as typed after ``option`` (decimals allowed), in whole ns.
+
+    :class:`ConfigError` for anything but a finite number.
     """
-    cycle0 = int(round(float(sync0_us) * 1000)) if sync0_us is not None else cycle_ns
-    shift = int(round(float(shift_us) * 1000)) if shift_us is not None else 0
-    kw: dict[str, int] = {}
-    if sync1_us is not None:
-        s1 = int(round(float(sync1_us) * 1000))
-        if s1 < cycle0:
-            kw["sync1_delay_ns"] = s1
-        elif s1 % cycle0 == 0:
-            kw["sync1_multiple"] = s1 // cycle0
-        else:
-            raise ConfigError(f"--sync1 {sync1_us} us: give a delay below the SYNC0 cycle "
-                              f"({cycle0 / 1000:g} us) or a multiple of it")
-    return len(m.dc.configure_sync(cycle0, shift, **kw))  # type: ignore[arg-type]
+    try:
+        value = float(text)
+    except ValueError:
+        raise ConfigError(f"{option} {text!r}: not a number of microseconds") from None
+    if not math.isfinite(value):
+        raise ConfigError(f"{option} {text!r}: not a number of microseconds")
+    return int(round(value * 1000))
+
+
+def sync_options(cycle_ns: int, sync0_us: str | None, sync1_us: str | None,
+                 shift_us: str | None) -> SyncOptions:
+    """Check ``--sync0/--sync1/--shift`` (µs) before the segment is touched.
+
+    ``cycle_ns`` is the SYNC0 cycle when ``--sync0`` is not given. The shift
+    lies within the SYNC0 cycle (0 up to below one cycle): the start time is
+    put on the cycle grid plus the shift, so a shift of a cycle or more would
+    be the same pulses under another name (IgH and SOEM take it the same
+    way). ``--sync1`` below the SYNC0 cycle is a delay after each SYNC0; a
+    multiple of it makes SYNC1 fire every n-th SYNC0 cycle.
+    """
+    cycle0 = microseconds(sync0_us, "--sync0") if sync0_us is not None else cycle_ns
+    if cycle0 <= 0:
+        raise ConfigError(f"--sync0 {sync0_us}: the SYNC0 cycle must be positive")
+    shift = microseconds(shift_us, "--shift") if shift_us is not None else 0
+    if not 0 <= shift < cycle0:
+        raise ConfigError(f"--shift {shift_us} us: the shift must lie within the SYNC0 cycle "
+                          f"(0 up to below {cycle0 / 1000:g} us)")
+    if sync1_us is None:
+        return SyncOptions(cycle0, shift)
+    s1 = microseconds(sync1_us, "--sync1")
+    if 0 <= s1 < cycle0:
+        return SyncOptions(cycle0, shift, sync1_delay_ns=s1)
+    if s1 > 0 and s1 % cycle0 == 0:
+        return SyncOptions(cycle0, shift, sync1_multiple=s1 // cycle0)
+    raise ConfigError(f"--sync1 {sync1_us} us: give a delay below the SYNC0 cycle "
+                      f"({cycle0 / 1000:g} us) or a multiple of it")
+
+
+def configure_sync_from_options(m: Master, options: SyncOptions) -> int:
+    """Ask for the SYNC pulses ``options`` describe (:func:`sync_options`); returns the
+    slaves configured."""
+    return len(m.dc.configure_sync(options.cycle0_ns, options.shift_ns,
+                                   sync1_delay_ns=options.sync1_delay_ns,
+                                   sync1_multiple=options.sync1_multiple))
 
 
 def _sync_text(st: DcStatus) -> str:
@@ -125,6 +167,15 @@ def register(cli: click.Group) -> None:
     def dc_cmd(obj: dict[str, Any], reference: str | None, static: int, sync0_us: str | None,
                shift_us: str | None, sync1_us: str | None, plot: str | None) -> None:
         """Set up distributed clocks and show each slave's DC state."""
+        # Bad values and an unwritable plot fail here, before the segment is touched.
+        sync = None
+        if sync0_us is not None or sync1_us is not None or shift_us is not None:
+            sync = sync_options(1_000_000, sync0_us, sync1_us, shift_us)
+        ref = None if reference is None else number(reference, "--reference")
+        if plot:
+            from pyethercat.cli.dc_plot import check_plot_path
+
+            check_plot_path(plot)
         # DC set-up writes every slave's offsets and delays: not beside a running master.
         with own_master(obj) as conn:
             wall_clock_for_sim(conn)
@@ -133,12 +184,10 @@ def register(cli: click.Group) -> None:
             if not m.slaves:
                 raise ConfigError("no slaves found")
             trace = max(1, static // 60) if plot and static else 0
-            settings = DcSettings(reference=None if reference is None else parse_int(reference),
-                                  static_sync=static, trace_every=trace)
+            settings = DcSettings(reference=ref, static_sync=static, trace_every=trace)
             report = m.dc.setup(settings)
-            if sync0_us is not None or sync1_us is not None or shift_us is not None:
-                cycle_ns = int(round(float(sync0_us or 1000) * 1000))
-                configure_sync_from_options(m, cycle_ns, sync0_us, sync1_us, shift_us)
+            if sync is not None:
+                configure_sync_from_options(m, sync)
                 m.dc.apply_sync()
             click.echo(format_dc(report, m.dc.status()))
             if plot:

@@ -13,13 +13,68 @@ Panels, each where there is data for it:
 
 from __future__ import annotations
 
+import importlib.util
+import os
 from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
 
 from pyethercat.errors import ConfigError
 from pyethercat.master.dc import DcReport
 from pyethercat.master.dc_loop import DcCycle
 
-__all__ = ["plot_dc"]
+__all__ = ["Sync0Spread", "check_plot_path", "plot_dc"]
+
+
+def check_plot_path(path: str) -> None:
+    """Refuse a ``--plot`` file that could not be written, before the run starts.
+
+    The figure is drawn after the run; finding then that its directory is
+    missing (or matplotlib is) would throw the run's data away.
+    """
+    p = Path(path)
+    parent = p.parent if str(p.parent) else Path(".")
+    if p.is_dir():
+        raise ConfigError(f"cannot write the plot {path}: it is a directory")
+    if parent.exists() and not parent.is_dir():
+        raise ConfigError(f"cannot write the plot {path}: {parent} is not a directory")
+    if not parent.is_dir():
+        raise ConfigError(f"cannot write the plot {path}: directory {parent} does not exist")
+    if not os.access(parent, os.W_OK | os.X_OK) or (p.exists() and not os.access(p, os.W_OK)):
+        raise ConfigError(f"cannot write the plot {path}: permission denied")
+    if importlib.util.find_spec("matplotlib") is None:
+        raise ConfigError("--plot needs matplotlib: pip install 'pyethercat[plot]'")
+
+
+class Sync0Spread:
+    """The SYNC0 spread of an in-process simulator over a run, sampled as it goes.
+
+    The segment keeps only each slave's last pulses (``sim.dc.RECORDED_PULSES``),
+    so :meth:`sample` is called every refresh of the live view and the
+    series is the union of what it saw. The loop's thread writes the
+    records while a sample reads them: the newest and the oldest pulses of
+    a sample may be half written (the system time of the new pulse beside
+    the true time of the one its slot held), so each sample drops them.
+    """
+
+    EDGE = 2
+
+    def __init__(self, segment: Any) -> None:
+        self._segment = segment
+        self._seen: dict[int, float] = {}
+
+    def sample(self) -> None:
+        """Take in the pulses the segment holds now."""
+        spreads = self._segment.dc.sync0_spreads()
+        for st, spread in spreads[self.EDGE: len(spreads) - self.EDGE]:
+            self._seen[st] = spread
+
+    def series(self) -> list[tuple[float, float]]:
+        """(seconds since the first pulse seen, spread in ns), in order."""
+        if not self._seen:
+            return []
+        keys = sorted(self._seen)
+        return [((k - keys[0]) / 1e9, self._seen[k]) for k in keys]
 
 
 def plot_dc(path: str, report: DcReport | None, cycle: DcCycle | None = None,

@@ -17,6 +17,7 @@ from typing import Any
 
 import click
 
+from pyethercat.cli._select import parse_list, select_configs, selection_options
 from pyethercat.cli._session import open_session, spec_of
 from pyethercat.master.config import ProcessDataConfig
 from pyethercat.master.control import messages as msg
@@ -101,8 +102,16 @@ def _no_master_note(session_remote: bool, spec: str) -> None:
                    "(start one with 'pyethercat run')", err=True)
 
 
+def _checked_domain(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
+    # While the options are parsed: a bad list fails before the master is reached.
+    if value is not None:
+        parse_list(value, 0)
+    return value
+
+
 @click.command("domains")
-@click.option("-d", "--domain", metavar="N", help="Only this domain (process-data group index).")
+@click.option("-d", "--domain", metavar="N", callback=_checked_domain,
+              help="Only this domain (process-data group index).")
 @click.option("-v", "--verbose", is_flag=True, help="Slave blocks and process data in hex.")
 @click.pass_obj
 def domains_command(obj: dict[str, Any], domain: str | None, verbose: bool) -> None:
@@ -120,14 +129,13 @@ def domains_command(obj: dict[str, Any], domain: str | None, verbose: bool) -> N
 def _pick(domains: list[msg.DomainInfo], domain: str | None) -> list[msg.DomainInfo]:
     if domain is None:
         return domains
-    from pyethercat.cli._select import parse_list
-
     wanted = parse_list(domain, len(domains) - 1)
     return [d for d in domains if d.index in wanted]
 
 
 @click.command("data")
-@click.option("-d", "--domain", metavar="N", help="Only this domain (process-data group index).")
+@click.option("-d", "--domain", metavar="N", callback=_checked_domain,
+              help="Only this domain (process-data group index).")
 @click.pass_obj
 def data_command(obj: dict[str, Any], domain: str | None) -> None:
     """The binary process image of every domain, concatenated, to stdout."""
@@ -147,20 +155,29 @@ def _sm_direction(cfg_sm: Any) -> str:
 
 def format_config(cfg: ProcessDataConfig | None, slaves: list[Slave],
                   states: list[msg.SlaveState], startup: list[msg.StartupSdo],
-                  verbose: bool) -> list[str]:
-    """``ethercat config [-v]`` as IgH prints it, from the running master's configuration."""
+                  verbose: bool, position: str | None = None,
+                  alias: str | None = None) -> list[str]:
+    """``ethercat config [-v] [-p POS] [-a ALIAS]`` as IgH prints it, from the running
+    master's configuration.
+
+    ``position``/``alias`` select configurations by their ``alias:position``
+    address as IgH does (:func:`pyethercat.cli._select.select_configs`).
+    """
     if cfg is None:
         return []
     rel = alias_positions(slaves)
     by_pos = {s.position: s for s in slaves}
     state_of = {s.position: igh_state(s.state, s.error) for s in states}
+    configured = sorted(cfg.slaves)
+    keys = [rel.get(pos, (0, pos)) for pos in configured]
     rows = []
-    for pos in sorted(cfg.slaves):
+    for k in select_configs(keys, position, alias):
+        pos = configured[k]
         s = by_pos.get(pos)
-        alias, relpos = rel.get(pos, (0, pos))
+        cfg_alias, relpos = keys[k]
         vendor = s.identity.vendor_id if s is not None else 0
         product = s.identity.product_code if s is not None else 0
-        rows.append((pos, str(alias), str(relpos), f"0x{vendor:08x}/0x{product:08x}",
+        rows.append((pos, str(cfg_alias), str(relpos), f"0x{vendor:08x}/0x{product:08x}",
                      str(pos) if s is not None else "-", state_of.get(pos, "-"), s))
     out: list[str] = []
     if not verbose:
@@ -204,17 +221,20 @@ def format_config(cfg: ProcessDataConfig | None, slaves: list[Slave],
 
 
 @click.command("config")
+@selection_options
 @click.option("-v", "--verbose", is_flag=True, help="PDOs, entries and start-up SDOs too.")
 @click.pass_obj
-def config_command(obj: dict[str, Any], verbose: bool) -> None:
-    """The running master's slave configurations (IgH layout)."""
+def config_command(obj: dict[str, Any], position: str | None, alias: str | None,
+                   verbose: bool) -> None:
+    """The running master's slave configurations (IgH layout; -p/-a select by alias:position)."""
     with open_session(obj) as session:
         reply = session.call(msg.GetConfig())
         slaves = session.slaves() if reply.config is not None else []
         remote = session.remote
     if reply.config is None:
         _no_master_note(remote, spec_of(obj))
-    for line in format_config(reply.config, slaves, reply.states, reply.startup, verbose):
+    for line in format_config(reply.config, slaves, reply.states, reply.startup, verbose,
+                              position, alias):
         click.echo(line)
 
 

@@ -341,7 +341,7 @@ def register(cli: click.Group) -> None:
 
             eni = load_eni(eni_file)  # a broken file fails before the segment is touched
         if cycle_us is not None:
-            cycle = parse_int(cycle_us) / 1e6
+            cycle = _whole_microseconds(cycle_us) / 1e6
         elif eni is not None and eni.cycle_time_us:
             cycle = eni.cycle_time_us / 1e6
         else:
@@ -354,6 +354,15 @@ def register(cli: click.Group) -> None:
             raise ConfigError(f"run: --give-up must be 0 (never) or positive, got {give_up:g}")
         if cpu is not None and not isolated:
             raise ConfigError("run: --cpu pins the isolated loop's process: give --isolated")
+        sync = None
+        if dc:
+            from pyethercat.cli.dc_cmds import sync_options
+
+            sync = sync_options(int(round(cycle * 1e9)), sync0_us, sync1_us, shift_us)
+        if plot:
+            from pyethercat.cli.dc_plot import check_plot_path
+
+            check_plot_path(plot)
         # Off a terminal rich would squeeze the table into 80 columns: give it room.
         console = Console() if sys.stdout.isatty() else Console(width=140)
         with StopSignals() as signals, connect(obj, pcap=pcap) as conn, \
@@ -364,6 +373,12 @@ def register(cli: click.Group) -> None:
             from pyethercat.cli.dc_cmds import wall_clock_for_sim
 
             wall_clock_for_sim(conn)
+            # (only an in-process simulator knows when each SYNC0 pulse really fired)
+            spread = None
+            if plot and sync is not None and conn.segment is not None:
+                from pyethercat.cli.dc_plot import Sync0Spread
+
+                spread = Sync0Spread(conn.segment)
             if eni is not None:
                 from pyethercat.master.esi_config import start_from_eni
 
@@ -373,13 +388,12 @@ def register(cli: click.Group) -> None:
             m.configure(layout=layout)
             for spec in hot_connect:
                 m.hot_connect(*_hot_connect_spec(spec))
-            if dc:
+            if sync is not None:
                 from pyethercat.cli.dc_cmds import configure_sync_from_options
                 from pyethercat.master.dc import DcSettings
 
                 m.dc.setup(DcSettings(trace_every=250 if plot else 0))
-                configure_sync_from_options(m, int(round(cycle * 1e9)), sync0_us, sync1_us,
-                                            shift_us)
+                configure_sync_from_options(m, sync)
             if web_access is not None and not isolated:
                 isolated = _isolate_for_web(m)
             runner = m.start(cycle, dc=dc_mode if dc else None, final_state=final_state.upper(),
@@ -419,8 +433,14 @@ def register(cli: click.Group) -> None:
             try:
                 with Live(live_view(m, runner, extra), console=console, refresh_per_second=4,
                           transient=False) as live:
-                    why = cycle_until(runner, signals, seconds, give_up,
-                                      lambda: live.update(live_view(m, runner, extra)))
+                    def refresh() -> None:
+                        live.update(live_view(m, runner, extra))
+                        if spread is not None:
+                            spread.sample()
+
+                    why = cycle_until(runner, signals, seconds, give_up, refresh)
+                    if spread is not None:
+                        spread.sample()
                 # Judged while the slaves are still cycling (the stop takes them down).
                 failure = segment_lost_error(runner, m, 0.0 if why == "gave up" else SETTLE)
             finally:
@@ -437,6 +457,7 @@ def register(cli: click.Group) -> None:
                 from pyethercat.cli.dc_plot import plot_dc
 
                 plot_dc(plot, m.dc.report, runner.dc,
+                        sync0_spread=spread.series() if spread is not None else None,
                         title=f"run --dc ({dc_mode} mode), {len(m.slaves)} slaves, "
                               f"{cycle * 1e6:g} us cycle")
                 click.echo(f"plot written to {plot}")
@@ -454,6 +475,15 @@ def register(cli: click.Group) -> None:
                 click.echo(f"ended by {signals.received}")
             if failure is not None:
                 raise failure
+
+
+def _whole_microseconds(text: str) -> int:
+    """``--cycle US``: whole microseconds (``0x`` hex accepted), as IgH and SOEM take them."""
+    try:
+        return int(text, 0)
+    except ValueError:
+        raise ConfigError(f"--cycle {text!r}: give the cycle time in whole microseconds "
+                          "(e.g. 500 or 1000)") from None
 
 
 def _hot_connect_spec(text: str) -> tuple[str, int, int]:

@@ -481,7 +481,7 @@ class SyncSettings:
 
     ``assign_activate``: the 16-bit value from the ESI/SII (0x0300 SYNC0,
     0x0700 SYNC0 + SYNC1); ``cycle0``/``shift0``: SYNC0 cycle and its shift on
-    the cycle grid; ``cycle1``: the 0x09A4 value (see
+    the cycle grid (0 up to below one cycle); ``cycle1``: the 0x09A4 value (see
     :func:`pyethercat.wire.dc.sync1_cycle_register`).
     """
 
@@ -494,6 +494,11 @@ class SyncSettings:
         AssignActivate(self.assign_activate)  # range check
         if not 0 <= self.cycle0 < 1 << 32 or not 0 <= self.cycle1 < 1 << 32:
             raise ConfigError(f"SYNC cycle times must fit 32 bits: {self.cycle0}, {self.cycle1}")
+        # The start time is the cycle grid plus the shift: a shift of a cycle or more
+        # names the same pulses as a smaller one, a negative one falls before the grid.
+        if self.shift0 < 0 or (self.cycle0 and self.shift0 >= self.cycle0):
+            raise ConfigError(f"SYNC0 shift {self.shift0} ns must lie within the cycle "
+                              f"(0 to {max(self.cycle0 - 1, 0)} ns)")
 
     @property
     def activate(self) -> AssignActivate:

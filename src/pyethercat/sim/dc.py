@@ -522,6 +522,29 @@ class DcClocks:
         n = self.n
         return self.rec_sys[:n], self.rec_true[:n]
 
+    def sync0_spreads(self) -> list[tuple[int, float]]:
+        """(system time, spread in ns) of each recorded SYNC0 pulse that every pulsing slave fired.
+
+        The spread is the latest minus the earliest true time at which the
+        slaves fired that pulse: how far apart outputs would switch. Pulses
+        not (or no longer) recorded by every slave are left out; oldest first.
+        """
+        n = self.n
+        pulsing = np.flatnonzero(self.pulses[:n] > 0)
+        if not len(pulsing):
+            return []
+        rows_sys, rows_true = self.rec_sys[pulsing], self.rec_true[pulsing]
+        out: list[tuple[int, float]] = []
+        for value in np.unique(rows_sys[0]).tolist():
+            hit = rows_sys == np.uint64(value)
+            if value == 0 or not hit.any(axis=1).all():
+                continue
+            times = rows_true[hit]
+            if np.isnan(times).any():
+                continue
+            out.append((int(value), float(times.max() - times.min())))
+        return out
+
     def last_sync0(self) -> list[tuple[int, float] | None]:
         """Per slave: (system time, true segment time) of its last SYNC0 pulse, or None."""
         out: list[tuple[int, float] | None] = []
