@@ -2,8 +2,8 @@
 
 A cyclic engine or a simulator asks for what it wants and is told what it
 got: each call returns ``None`` on success or one line saying why not and
-what would allow it (root, ``CAP_SYS_NICE``, ``CAP_IPC_LOCK``), so the
-caller can report it and carry on at normal priority. Linux only; other
+what would allow it (root, ``CAP_SYS_NICE``, ``CAP_IPC_LOCK``, ``ulimit -r``
+or ``-l``), so the caller can report it and carry on at normal priority. Linux only; other
 platforms get the reason and nothing changes. Shared by ``master/`` (the
 isolated cyclic engine) and ``sim/`` (the serve loop).
 """
@@ -41,8 +41,12 @@ def set_fifo(priority: int) -> str | None:
     try:
         os.sched_setscheduler(0, policy, os.sched_param(priority))
     except OSError as exc:
-        return (f"SCHED_FIFO {priority} refused ({exc.strerror or exc}): run as root or give "
-                "the interpreter CAP_SYS_NICE (setcap cap_sys_nice+ep)")
+        # (without CAP_SYS_NICE, sched(7) allows SCHED_FIFO up to RLIMIT_RTPRIO)
+        soft, _hard = resource.getrlimit(resource.RLIMIT_RTPRIO)
+        limit = "unlimited" if soft == resource.RLIM_INFINITY else str(soft)
+        return (f"SCHED_FIFO {priority} refused ({exc.strerror or exc}; RLIMIT_RTPRIO {limit}): "
+                "run as root, give the interpreter CAP_SYS_NICE (setcap cap_sys_nice+ep), "
+                f"or raise 'ulimit -r' to {priority}")
     return None
 
 
