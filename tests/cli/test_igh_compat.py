@@ -308,3 +308,49 @@ def test_config_selects_by_alias_and_position_as_igh(aliased_master: str) -> Non
     assert rows("-a", "3") == []
     code, out, _ = run("--sim", aliased_master, "config", "-v", "-a", "7", "-p", "2")
     assert out.splitlines()[:3] == ["Alias: 7", "Position: 2", "Vendor Id: 0x00504543"]
+
+
+def test_a_failing_eeprom_write_prints_the_whole_restore_command(
+        tmp_path: Path, patient_cli: None) -> None:
+    """The EEPROM keeps a wrong alias word: the error line is a command that can be run as is."""
+    corpus = REPO.parent / "shared" / "corpus" / "sii"
+    topo = tmp_path / "t.toml"
+    topo.write_text(f'[[slave]]\nname = "ek"\nsii = "{corpus / "ethercrab_ek1100.bin"}"\n'
+                    f'[[slave]]\nname = "el"\nsii = "{corpus / "ethercrab_el2004.bin"}"\n')
+    seg = load_topology(topo).build()
+    seg.clock = WallClock()
+    eeprom = seg.escs[1].eeprom
+    original = bytes(eeprom.image)
+    store = eeprom._write_word
+
+    def bad_cell(address: int, now: int) -> None:
+        store(address, now)
+        if address == 4:  # the alias word: one bit stuck at 1
+            eeprom.image[8] |= 0x01
+
+    eeprom._write_word = bad_cell  # type: ignore[method-assign]
+    link = UdpLink(bind=("127.0.0.1", 0))
+    srv = SimServer(seg, link)
+    thread = threading.Thread(target=srv.run, daemon=True)
+    thread.start()
+    where = "{}:{}".format(*link.address)
+    try:
+        backup = tmp_path / "old.bin"
+        code, out, err = run("--udp", where, "alias", "-p", "1", "4710", "--backup", str(backup))
+        assert code == 1
+        lines = err.strip().splitlines()
+        assert len(lines) == 1 and "word 0x0004" in lines[0], err
+        restore = f"pyethercat --udp {where} sii_write -p 1 --force {backup}"
+        assert lines[0].endswith(f"restore the old content with {restore}"), lines[0]
+        saved = backup.read_bytes()
+        assert len(saved) > 0x80 and saved == original[:len(saved)]
+        # The cell is mended; the printed command, run as it stands, puts the old SII back.
+        eeprom._write_word = store  # type: ignore[method-assign]
+        code, out, err = run(*restore.split()[1:])
+        assert code == 0, err
+        assert bytes(eeprom.image[:len(original)]) == original
+    finally:
+        srv.stop()
+        thread.join(5)
+        srv.close()
+        link.close()
