@@ -124,3 +124,41 @@ def test_reference_follows_the_master() -> None:
     spread, seen = sync0_spread(seg)
     assert seen > 50 and spread < 50
     assert not plan.monitor.unstable
+
+
+def test_a_real_deviation_raises_a_sync_event_and_clears_it_again() -> None:
+    """A slave's quartz steps by 900 ppm: the loop reports "sync unstable", then stable."""
+    from pyethercat.sim.topology import parse_topology
+
+    clock = VirtualClock(1_000_000_000)
+    seg = parse_topology('[[slave]]\nname = "a"\ndevice = "builtin:coupler"\n'
+                         '[[slave]]\nname = "b"\ndevice = "builtin:do8"\n'
+                         '[[slave]]\nname = "c"\ndevice = "builtin:di8"\n').build(clock=clock)
+    m = Master(PairLink.responder_link(seg.process), clock=clock)
+    m.dc.master_time = lambda: clock.now_ns() + EPOCH
+    m.scan()
+    m.dc.setup(DcSettings(static_sync=1000))
+    m.configure()
+    m.dc.configure_sync(1_000_000)
+    runner = m.start(0.001, dc="master", clock=clock, dc_monitor=0.01, dc_limit=1e-6,
+                     check_interval=0)
+    try:
+        runner.wait_exchanges("main", 300, 20.0)
+        assert list(runner.dc_events) == []  # in sync: nothing to report
+        drift = seg.dc_report()[2]["drift_ppm"]
+        assert isinstance(drift, float)
+        seg.set_drift(2, drift + 900.0)  # beyond what 0x0930 = 0x1000 lets the loop follow
+        runner.wait_exchanges("main", 600, 30.0)
+        events = list(runner.dc_events)
+        assert len(events) == 1 and events[0].unstable, [e.text for e in events]
+        assert events[0].limit_ns == 1000 and events[0].deviation_ns > 1000
+        assert events[0].text.startswith("sync unstable: system time difference up to")
+        assert runner.dc is not None and runner.dc.monitor.unstable
+        seg.set_drift(2, drift)  # the quartz recovers: the loop pulls the clock back
+        runner.wait_exchanges("main", 1500, 60.0)
+        events = list(runner.dc_events)
+        assert [e.unstable for e in events] == [True, False], [e.text for e in events]
+        assert events[1].deviation_ns < 500 and events[1].time_ns > events[0].time_ns
+        assert not runner.dc.monitor.unstable
+    finally:
+        runner.stop()
