@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
+import signal
 import socket
 import struct
 import subprocess
 import sys
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -154,29 +154,124 @@ def test_soe_read_and_write_as_igh(topo: str) -> None:
     assert r.exit_code == 1 and "drive 9 out of range" in r.output
 
 
-def test_gateway_command_serves_and_reports(topo: str) -> None:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
-        probe.bind(("127.0.0.1", 0))
-        port = probe.getsockname()[1]
-    proc = subprocess.Popen(
+def _upload_request(address: int, index: int, subindex: int) -> bytes:
+    """An ETG.8200 datagram: EtherCAT header (type 5), mailbox header, CoE SDO upload."""
+    coe = struct.pack("<HBHBI", 2 << 12, 0x40, index, subindex, 0)
+    body = struct.pack("<HHBB", len(coe), address, 0, 0x13) + coe
+    return struct.pack("<H", len(body) | 0x5000) + body
+
+
+def _ask(port: int, datagram: bytes) -> bytes:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.settimeout(30)
+        sock.sendto(datagram, ("127.0.0.1", port))
+        reply, _ = sock.recvfrom(1024)
+    return reply
+
+
+def _value(reply: bytes) -> int:
+    """The 32-bit value of an expedited upload answer (mailbox header at 2, CoE at 8)."""
+    assert struct.unpack_from("<H", reply, 11)[0] == 0x1018 and reply[10] & 0xE3 == 0x43, \
+        reply.hex()
+    return int(struct.unpack_from("<I", reply, 14)[0])
+
+
+def _gateway(topo: str, port: int, *args: str) -> subprocess.Popen[str]:
+    return subprocess.Popen(
         [sys.executable, "-m", "pyethercat", "--sim", topo, "gateway", "--bind",
-         f"127.0.0.1:{port}", "--seconds", "20"],
+         f"127.0.0.1:{port}", "--seconds", "120", *args],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _stop(proc: subprocess.Popen[str]) -> str:
+    """Ctrl-C the gateway; the rest of its output (what it served)."""
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err
+    return out
+
+
+def test_gateway_command_serves_and_reports(topo: str) -> None:
+    port = _free_udp_port()
+    proc = _gateway(topo, port)
     try:
         assert proc.stdout is not None
         first = proc.stdout.readline()
         assert f"mailbox gateway on udp 127.0.0.1:{port}" in first, proc.stderr
-        coe = struct.pack("<HBHBI", 2 << 12, 0x40, 0x1018, 1, 0)
-        body = struct.pack("<HHBB", len(coe), 1000, 0, 0x13) + coe
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-            sock.settimeout(10)
-            sock.sendto(struct.pack("<H", len(body) | 0x5000) + body, ("127.0.0.1", port))
-            reply, _ = sock.recvfrom(1024)
-        assert struct.unpack_from("<I", reply, 14)[0] == 0x00504543
+        assert _value(_ask(port, _upload_request(1000, 0x1018, 1))) == 0x00504543
+        assert "served 1 of 1 requests (0 to the master, 1 forwarded, 0 failed)" in _stop(proc)
     finally:
-        proc.terminate()
+        proc.kill()
         proc.wait(timeout=10)
-    time.sleep(0)  # the process is gone either way
+
+
+def test_gateway_with_its_own_master_in_op(topo: str) -> None:
+    """--state OP: the gateway's master cycles (OP needs the process data exchange)."""
+    port = _free_udp_port()
+    proc = _gateway(topo, port, "--state", "OP", "--cycle", "2000")
+    try:
+        assert proc.stdout is not None
+        first = proc.stdout.readline()
+        assert f"mailbox gateway on udp 127.0.0.1:{port}" in first, proc.stderr
+        assert _value(_ask(port, _upload_request(1000, 0x1018, 2))) == 0x00050001
+        # other commands reach the gateway's master through its control socket
+        r = run(topo, "slaves")
+        assert r.exit_code == 0 and r.output.split("\n")[0].split()[2] == "OP", r.output
+        assert "served 1 of 1 requests" in _stop(proc)
+    finally:
+        proc.kill()
+        proc.wait(timeout=10)
+
+
+def test_gateway_attaches_to_a_running_master(topo: str) -> None:
+    """A master cycles in OP (as 'pyethercat run' does); the gateway forwards through it."""
+    from pyethercat.link.pair import PairLink
+    from pyethercat.master.control.endpoint import link_spec
+    from pyethercat.master.control.server import serve
+    from pyethercat.master.master import Master
+    from pyethercat.sim.topology import load_topology
+
+    segment = load_topology(topo).build()
+    m = Master(PairLink.responder_link(segment.process))
+    m.scan()
+    m.configure()
+    runner = m.start(0.002)
+    server = serve(m, link_spec(sim=topo))
+    port = _free_udp_port()
+    proc = None
+    try:
+        r = run(topo, "gateway", "--state", "PREOP", "--seconds", "1")
+        assert r.exit_code == 1 and "leaves its slaves' states alone" in r.output
+        assert r.output.count("\n") == 1
+        proc = _gateway(topo, port)
+        assert proc.stdout is not None
+        first = proc.stdout.readline()
+        assert "through the master running on sim:" in first, proc.stderr
+        io = m.slaves[0]
+        served = io.mbx.stats.received  # type: ignore[union-attr]
+        assert _value(_ask(port, _upload_request(1000, 0x1018, 2))) == 0x00050001
+        assert _value(_ask(port, _upload_request(io.station_address, 0x1018, 1))) == 0x00504543
+        # the running master's own mailbox of the slave carried them
+        assert io.mbx.stats.received - served == 2  # type: ignore[union-attr]
+        # address 0: the master's object dictionary, from the running master's scan
+        reply = _ask(port, _upload_request(0, 0x8001, 1))
+        assert struct.unpack_from("<I", reply, 14)[0] & 0xFFFF == m.slaves[1].station_address
+        # a slave without mailbox: dropped
+        _ask_nothing = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        _ask_nothing.sendto(_upload_request(1001, 0x1018, 1), ("127.0.0.1", port))
+        _ask_nothing.close()
+        out = _stop(proc)
+        assert "served 3 of 4 requests (1 to the master, 2 forwarded, 0 failed); " \
+               "dropped: no mailbox 1" in out, out
+        assert runner.running and runner.stats.wkc_errors == 0
+        assert m.read_states()[0].state == AlState.OP
+    finally:
+        if proc is not None:
+            proc.kill()
+            proc.wait(timeout=10)
+        server.close()
+        runner.stop()
+        m.close()
 
 
 def test_foe_and_soe_reach_a_running_master(topo: str, tmp_path: Path) -> None:

@@ -14,6 +14,7 @@ import struct
 import threading
 import time
 from collections.abc import Iterator
+from typing import Any
 
 import pytest
 
@@ -65,14 +66,62 @@ def expedited_u32(payload: bytes) -> int:
     return int(value)
 
 
-@pytest.fixture
-def gateway() -> Iterator[tuple[Master, MailboxGateway]]:
+class LateReplies:
+    """The segment's responder; the first slave (io) posts each reply ``hold`` frames late.
+
+    Stands in for the slave's PDI (as a slow slave's firmware): while a reply
+    waits, the slave may already take the next request from SM0, so two
+    requests can be open at once and their answers come one after the other.
+    """
+
+    def __init__(self, segment: Any, hold: int) -> None:
+        self.segment = segment
+        self.hold = hold
+        self.engine = segment.slaves[0].spec.app.mailbox
+        self.pdi = self.engine.pdi
+        self.engine.pdi = self
+        self.frames = 0
+        self.due: int | None = None
+        self._lock = threading.Lock()
+
+    def post_mailbox(self, data: bytes) -> bool:
+        if self.due is None:
+            self.due = self.frames + self.hold
+        if self.frames < self.due or not self.pdi.post_mailbox(data):
+            return False
+        self.due = None
+        return True
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.pdi, name)
+
+    def __call__(self, frame: bytes) -> bytes | None:
+        with self._lock:  # (gateway workers share the link)
+            self.frames += 1
+            reply = self.segment.process(frame)
+            self.engine.flush()  # the slave's firmware loop
+            return reply  # type: ignore[no-any-return]
+
+
+def _gateway(hold: int = 0) -> Iterator[tuple[Master, MailboxGateway]]:
     seg = parse_topology(TOPOLOGY).build()
-    m = Master(PairLink.responder_link(seg.process), clock=VirtualClock())
+    responder = LateReplies(seg, hold) if hold else seg.process
+    m = Master(PairLink.responder_link(responder), clock=VirtualClock())
     m.scan()
     m.set_state("PREOP")
     with MailboxGateway(m, bind=("127.0.0.1", 0)) as gw:
         yield m, gw
+
+
+@pytest.fixture
+def gateway() -> Iterator[tuple[Master, MailboxGateway]]:
+    yield from _gateway()
+
+
+@pytest.fixture
+def late_gateway() -> Iterator[tuple[Master, MailboxGateway]]:
+    """The io slave answers each request a few frames late."""
+    yield from _gateway(hold=20)
 
 
 def _client() -> socket.socket:
@@ -136,8 +185,16 @@ def test_segmented_upload_through_the_gateway(gateway: tuple[Master, MailboxGate
         msg = step.encode()
 
 
-def test_two_clients_at_once_never_interleave(gateway: tuple[Master, MailboxGateway]) -> None:
-    m, gw = gateway
+def test_two_clients_at_once_never_interleave(late_gateway: tuple[Master, MailboxGateway]
+                                              ) -> None:
+    """Each answer goes to its own requester although the slave answers late.
+
+    Without the per-slave lock from request to answer, the second client's
+    request reaches the slave while the first one's answer is still held
+    back, and whichever waiting client reads first takes the first answer:
+    one client gets the other's value.
+    """
+    m, gw = late_gateway
     io, drive = m.slaves
     jobs = [  # two clients on the same slave, one on the other slave
         (io.station_address, 0x1018, 1, io.identity.vendor_id),
@@ -151,7 +208,12 @@ def test_two_clients_at_once_never_interleave(gateway: tuple[Master, MailboxGate
         address, index, sub, expected = jobs[n]
         sock = _client()
         for i in range(40):
-            value = expedited_u32(parse(ask(sock, gw, request(address, index, sub, i % 7 + 1)))[2])
+            try:
+                reply = ask(sock, gw, request(address, index, sub, i % 7 + 1))
+            except TimeoutError:
+                wrong.append(f"client {n}: no answer")
+                return
+            value = expedited_u32(parse(reply)[2])
             if value != expected:
                 wrong.append(f"client {n}: got 0x{value:08X}")
             answered[n] += 1

@@ -19,6 +19,12 @@ framing of :mod:`pyethercat.wire.gateway`:
 - a datagram that cannot be decoded, names no slave, or whose slave does not
   answer is dropped without reply (as IgH and KickCAT do) and counted in
   :attr:`MailboxGateway.stats`.
+
+The gateway reaches the slaves through a :data:`Forward` function: by default
+:func:`forward_request` on the master in this process; a gateway in another
+process than a running master (``pyethercat gateway`` beside ``pyethercat
+run``) forwards through that master's control socket
+(:mod:`pyethercat.master.control.gateway_ops`), where the same function runs.
 """
 
 from __future__ import annotations
@@ -32,6 +38,7 @@ from dataclasses import dataclass, field
 from typing import Protocol
 
 from pyethercat.errors import ConfigError, EtherCATError, MailboxErrorReply
+from pyethercat.master.control.protocol import Reply
 from pyethercat.master.mailbox import ReceivedMessage
 from pyethercat.master.master_od import MasterObjectDictionary
 from pyethercat.master.slave import Slave
@@ -43,9 +50,15 @@ from pyethercat.wire.gateway import (
     encode_gateway_reply,
     gateway_target,
 )
-from pyethercat.wire.mailbox.header import MailboxType, encode_mailbox, encode_mailbox_error
+from pyethercat.wire.mailbox.header import (
+    MAILBOX_HEADER_SIZE,
+    MailboxType,
+    encode_mailbox,
+    encode_mailbox_error,
+)
 
-__all__ = ["DEFAULT_BIND", "GatewayMaster", "GatewayStats", "MailboxGateway", "parse_bind"]
+__all__ = ["DEFAULT_BIND", "DEFAULT_REQUEST_TIMEOUT", "Forward", "Forwarded", "GatewayMaster",
+           "GatewayStats", "MailboxGateway", "forward_request", "parse_bind"]
 
 _log = logging.getLogger("pyethercat.gateway")
 
@@ -97,14 +110,61 @@ def _same_type(mtype: int) -> Callable[[ReceivedMessage], bool]:
     return lambda msg: int(msg.header.type) == mtype
 
 
+@dataclass(frozen=True)
+class Forwarded(Reply):
+    """What became of one request forwarded to a slave.
+
+    ``mailbox``: the slave's answer, a whole mailbox (header with address 0,
+    payload; a mailbox error reply is one too); empty when there is none.
+    ``dropped``: why the request was not sent (the slave has no mailbox);
+    ``failed``: why the slave's answer did not come (a time-out, the link).
+    """
+
+    mailbox: bytes = b""
+    dropped: str | None = None
+    failed: str | None = None
+
+
+#: How a gateway reaches a slave: ``forward(slave, mailbox type, payload, timeout)``.
+Forward = Callable[[Slave, int, bytes, float], Forwarded]
+
+
+def forward_request(slave: Slave, mtype: int, payload: bytes, timeout: float) -> Forwarded:
+    """Send one request to ``slave``'s mailbox and take its answer (the master's side).
+
+    Holds the slave's mailbox lock from the request to its answer, so no other
+    client, nor the master's own CoE, interleaves in between. The request
+    goes with the master's counter through ``Mailbox.transact`` (the take-over
+    rule included); the answer is the next message of the same mailbox type.
+    """
+    mbx = slave.mbx
+    if mbx is None:
+        return Forwarded(dropped="no mailbox")
+    accept = _same_type(mtype)
+    try:
+        with mbx.lock:
+            mbx.drop(accept)  # answers to requests that timed out earlier
+            answer = mbx.transact(mtype, payload, accept, what="gateway request",
+                                  timeout=timeout)
+    except MailboxErrorReply as exc:
+        return Forwarded(encode_mailbox(MailboxType.ERR, encode_mailbox_error(exc.code)))
+    except EtherCATError as exc:
+        return Forwarded(failed=str(exc))
+    h = answer.header
+    return Forwarded(encode_mailbox(h.type, answer.payload, counter=h.counter,
+                                    channel=h.channel, priority=h.priority))
+
+
 class MailboxGateway:
     """The gateway of one master (see the module text); a context manager."""
 
     def __init__(self, master: GatewayMaster, *, bind: tuple[str, int] = DEFAULT_BIND,
                  workers: int = 8, timeout: float = DEFAULT_REQUEST_TIMEOUT,
-                 master_od: MasterObjectDictionary | None = None) -> None:
+                 master_od: MasterObjectDictionary | None = None,
+                 forward: Forward = forward_request) -> None:
         self.master = master
         self.timeout = timeout
+        self._forward = forward
         self.od = master_od if master_od is not None else MasterObjectDictionary(
             lambda: master.slaves)
         self.stats = GatewayStats()
@@ -207,28 +267,18 @@ class MailboxGateway:
 
     def forward(self, slave: Slave, request: GatewayRequest) -> bytes | None:
         """Send ``request`` to ``slave`` and return its answer mailbox (None: failed)."""
-        mbx = slave.mbx
-        if mbx is None:
-            self._drop("no mailbox")
+        got = self._forward(slave, int(request.header.type), request.payload, self.timeout)
+        if got.dropped is not None:
+            self._drop(got.dropped)
             return None
-        mtype = int(request.header.type)
-        accept = _same_type(mtype)
         with self._lock:
             self.stats.forwarded += 1
-        try:
-            with mbx.lock:
-                mbx.drop(accept)
-                answer = mbx.transact(mtype, request.payload, accept, what="gateway request",
-                                      timeout=self.timeout)
-        except MailboxErrorReply as exc:
-            return encode_mailbox(MailboxType.ERR, encode_mailbox_error(exc.code),
-                                  address=request.address)
-        except EtherCATError as exc:
-            _log.info("gateway: %s: request failed: %s", slave.describe(), exc)
+        if got.failed is not None or len(got.mailbox) < MAILBOX_HEADER_SIZE:
+            _log.info("gateway: %s: request failed: %s", slave.describe(), got.failed)
             with self._lock:
                 self.stats.failed += 1
             return None
-        h = answer.header
-        return encode_mailbox(h.type, answer.payload, counter=h.counter,
-                              address=request.address, channel=h.channel,
-                              priority=h.priority)
+        # the requester's address goes back in the answer's header (ETG.8200)
+        out = bytearray(got.mailbox)
+        out[2:4] = (request.address & 0xFFFF).to_bytes(2, "little")
+        return bytes(out)

@@ -36,7 +36,8 @@ __all__ = ["ControlServer", "MasterRunningError", "serve", "HANDLER_MODULES"]
 #: Modules whose import registers more handlers (one per mailbox protocol, added as they come).
 HANDLER_MODULES: tuple[str, ...] = ("pyethercat.master.control.ring_ops",
                                      "pyethercat.master.control.drive_ops",
-                                     "pyethercat.master.control.telemetry_ops")
+                                     "pyethercat.master.control.telemetry_ops",
+                                     "pyethercat.master.control.gateway_ops")
 _CRED = struct.Struct("3i")
 
 
