@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import struct
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -200,6 +201,106 @@ def test_latch_inputs_stamp_system_time() -> None:
     # writing the control again clears the stored event
     fpwr(seg, ST + 1, R.DC_LATCH1_CONTROL, bytes([R.DC_LATCH_CONTROL_NEGATIVE_SINGLE]))
     assert fprd(seg, ST + 1, R.DC_LATCH1_STATUS, 1).data[0] & R.DcLatchStatus.NEGATIVE_EDGE == 0
+
+
+class TouchProbe(DeviceApp):
+    """A device whose sensor drives the ESC's LATCH0 pin: it reports edges through its PDI."""
+
+    def edge(self, rising: bool, t_ns: int | None = None) -> None:
+        assert self.pdi is not None
+        self.pdi.latch_input(0, rising, t_ns)
+
+
+def test_a_device_application_stamps_latch_edges_through_its_pdi() -> None:
+    clock = VirtualClock(0)
+    seg = Segment(clock)
+    seg.advance_clock = False
+    probe = TouchProbe()
+    seg.add_slave(spec("ref", "ET1100"))
+    seg.add_slave(spec("probe", "ET1100", app=probe, drift_ppm=50.0))
+    address_all(seg)
+    fpwr(seg, ST + 1, R.DC_SYSTEM_TIME_OFFSET, struct.pack("<q", 3_000_000_000))
+    clock.advance(7_000)
+    now = clock.now_ns()
+    expect = int(seg.dc.system_time(np.array([1]), now)[0])
+    probe.edge(True)  # now
+    status = fprd(seg, ST + 1, R.DC_LATCH0_STATUS, 1).data[0]
+    assert status == R.DcLatchStatus.POSITIVE_EDGE | R.DcLatchStatus.PIN_STATE
+    stamp = struct.unpack("<Q", fprd(seg, ST + 1, R.DC_LATCH0_POSITIVE, 8).data)[0]
+    assert stamp == expect and stamp > 3_000_000_000  # system time: local + 0x0920
+    # a falling edge at a given moment, 12.5 us later: the pin reads low again
+    probe.edge(False, now + 12_500)
+    status = fprd(seg, ST + 1, R.DC_LATCH0_STATUS, 1).data[0]
+    assert status == R.DcLatchStatus.POSITIVE_EDGE | R.DcLatchStatus.NEGATIVE_EDGE
+    fall = struct.unpack("<Q", fprd(seg, ST + 1, R.DC_LATCH0_NEGATIVE, 8).data)[0]
+    assert abs((fall - stamp) - 12_500 * 1.00005) <= 10  # on the probe's 50 ppm fast clock
+    assert probe.pdi is not None
+    with pytest.raises(ValueError, match="latch unit 2"):
+        probe.pdi.latch_input(2, True)
+
+
+def test_a_latch_input_needs_distributed_clocks() -> None:
+    clock = VirtualClock(0)
+    seg = Segment(clock)
+    probe = TouchProbe()
+    no_dc = PROFILES["ET1100"].replace(features=0)
+    seg.add_slave(spec("plain", no_dc, app=probe))
+    with pytest.raises(ValueError, match="no distributed clocks"):
+        probe.edge(True)
+
+
+def test_control_channel_sets_drift_and_latches(tmp_path: Path) -> None:
+    """``set_drift`` and ``latch`` over a running simulator's control socket; read back by a master."""
+    import json
+    import socket
+    import threading
+
+    from pyethercat.link.udp import UdpLink
+    from pyethercat.master.master import Master
+    from pyethercat.sim.server import SimServer
+
+    seg = parse_topology('[segment]\ndrift_ppm = 0.0\n'
+                         '[[slave]]\nname = "coupler"\ndevice = "builtin:coupler"\n'
+                         '[[slave]]\nname = "di8"\ndevice = "builtin:di8"\n').build()
+    link = UdpLink(bind=("127.0.0.1", 0))
+    ctl = tmp_path / "ctl.sock"
+    srv = SimServer(seg, link, control=ctl)
+    thread = threading.Thread(target=srv.run, daemon=True)
+    thread.start()
+    host, port = link.address
+    client = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    client.settimeout(10)
+    reader = client.makefile("rb")
+
+    def control(**request: object) -> dict[str, object]:
+        client.sendall(json.dumps(request).encode() + b"\n")
+        answer: dict[str, object] = json.loads(reader.readline())
+        assert answer.get("ok"), answer
+        return answer
+
+    m = Master(UdpLink(peer=(host, port)))
+    try:
+        client.connect(str(ctl))
+        m.scan()
+        control(cmd="set_drift", slave="di8", ppm=-37.5)
+        slaves = control(cmd="dc")["slaves"]
+        assert isinstance(slaves, list)
+        assert [s["drift_ppm"] for s in slaves] == [0.0, pytest.approx(-37.5)]
+        di8 = m.slaves[1]
+        before = struct.unpack("<Q", m.read(di8, R.DC_SYSTEM_TIME, 8))[0]
+        control(cmd="latch", slave="di8", unit=1, rising=False)
+        after = struct.unpack("<Q", m.read(di8, R.DC_SYSTEM_TIME, 8))[0]
+        assert m.read(di8, R.DC_LATCH1_STATUS, 1)[0] == R.DcLatchStatus.NEGATIVE_EDGE
+        stamp = struct.unpack("<Q", m.read(di8, R.DC_LATCH1_NEGATIVE, 8))[0]
+        assert before <= stamp <= after  # stamped with the slave's time when it came
+        assert m.read(di8, R.DC_LATCH0_STATUS, 1) == b"\x00"  # the other unit saw nothing
+    finally:
+        m.close()
+        client.close()
+        srv.stop()
+        thread.join(5)
+        srv.close()
+        link.close()
 
 
 def test_topology_drift_defaults_to_random_within_100ppm_with_a_seed() -> None:

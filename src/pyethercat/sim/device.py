@@ -4,7 +4,8 @@ A device application (an IO terminal, a drive, an EoE endpoint) sees only its
 own ESC through a :class:`Pdi`, as the firmware of a real slave sees its ESC
 through the process data interface. It is called on ESC events: state
 changes, completed output buffers (only when it asks for them), mailbox
-writes, SYNC0 and power-on.
+writes, SYNC0 and power-on. It reports edges on the ESC's latch inputs
+through :meth:`Pdi.latch_input` (a touch probe, a registration mark).
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ class PdiTarget(Protocol):
     def pdi_set_inputs(self, data: bytes) -> None: ...
     def pdi_post_mailbox(self, data: bytes) -> bool: ...
     def pdi_sii_write(self, word: int, data: bytes) -> None: ...
+    def pdi_latch_input(self, unit: int, rising: bool, t_ns: int | None = None) -> None: ...
     def al_state(self) -> AlState: ...
     def set_al_error(self, code: int, state: AlState | None = None) -> None: ...
     def now_ns(self) -> int: ...
@@ -87,6 +89,18 @@ class Pdi:
         The master sees the change when it next reads the EEPROM.
         """
         self._t.pdi_sii_write(word, data)
+
+    def latch_input(self, unit: int, rising: bool, t_ns: int | None = None) -> None:
+        """An edge on the ESC's latch input ``unit`` (0 or 1: the LATCH0/LATCH1 pin).
+
+        The device's hardware saw a rising (``rising``) or falling edge, now
+        or at segment time ``t_ns``: the DC unit stamps it with its system
+        time in 0x09B0-0x09CF and sets the event in 0x09AE/0x09AF, in
+        continuous or single-event mode as 0x09A8/0x09A9 say (ESC datasheet
+        section I, "Latch Unit"). ValueError for another unit or an ESC
+        without distributed clocks.
+        """
+        self._t.pdi_latch_input(unit, rising, t_ns)
 
     def al_state(self) -> AlState:
         """Current AL state (AL status bits 3:0)."""

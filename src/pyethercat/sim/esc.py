@@ -449,5 +449,11 @@ class Esc(EscRegisters):
             self.row[s.start: s.start + n] = np.frombuffer(bytes(data[:n]), np.uint8)
             self.set_sm_status(s.n, buffer_written(s.status))
 
+    def pdi_latch_input(self, unit: int, rising: bool, t_ns: int | None = None) -> None:
+        """An edge on latch input ``unit`` (the LATCH0/1 pin), stamped by the DC unit."""
+        if not self.profile.dc_supported:
+            raise ValueError(f"{self.name}: the ESC has no distributed clocks: no latch inputs")
+        self.host.dc_latch_input(self.index, unit, rising, t_ns)
+
     def pdi_post_mailbox(self, data: bytes) -> bool:
         return self.mailbox.post(data)

@@ -92,3 +92,7 @@ class EscHost(Protocol):
     def dc_refresh(self, index: int) -> None:
         """Bring the slave's system time register (0x0910) up to date before a read."""
         ...
+
+    def dc_latch_input(self, index: int, unit: int, rising: bool, t_ns: int | None) -> None:
+        """An edge on the slave's latch input ``unit`` at segment time ``t_ns`` (None: now)."""
+        ...

@@ -732,3 +732,6 @@ class _EscHost:
 
     def dc_refresh(self, index: int) -> None:
         self._seg.dc.refresh_system_time(np.array([index], dtype=np.int64))
+
+    def dc_latch_input(self, index: int, unit: int, rising: bool, t_ns: int | None) -> None:
+        self._seg.latch_input(index, unit, rising, t_ns)
