@@ -14,6 +14,7 @@ import struct
 import pytest
 from coehelp import SM2, SM3, CoeSlave
 
+from pyethercat.wire import registers as R
 from pyethercat.wire.al import AlState, AlStatusCode
 from pyethercat.wire.cia402 import DriveState, decode_state
 from pyethercat.wire.mailbox import decode_message
@@ -53,8 +54,10 @@ def i32(v: int) -> bytes:
 class Drive:
     """One drive in OP with the test mapping; ``cycle`` sends outputs and returns inputs."""
 
-    def __init__(self) -> None:
+    def __init__(self, mapped: bool = True) -> None:
         self.s = CoeSlave("seed002-drive", serial=1)
+        if not mapped:  # as from power-on: nothing assigned, no process-data SMs
+            return
         for obj, words, assign in ((0x1600, RX, 0x1C12), (0x1A00, TX, 0x1C13)):
             self.s.download(obj, 0, u8(0))
             for n, w in enumerate(words, 1):
@@ -228,18 +231,26 @@ def test_software_limits_clamp_the_target(drive: Drive) -> None:
     assert drive.last["pos"] == 20_000 and drive.state == DriveState.OPERATION_ENABLED
 
 
-@pytest.mark.parametrize("method,switch_pos,expected", [
-    (37, None, 0),                 # current position
-    (19, 30_000, 30_000),          # home switch, falling edge
-    (20, 30_000, 30_000),          # home switch, rising edge
-    (34, None, 65_536),            # next index pulse upwards (one per revolution)
-    (17, -40_000, -40_000),        # negative limit switch
+# 0x2100 "Simulated axis": where the switches a homing method looks for are
+_NEG_LIMIT, _POS_LIMIT, _HOME_SWITCH = 7, 8, 9
+
+
+@pytest.mark.parametrize("method,switch,switch_pos,expected", [
+    (37, None, None, 0),                     # current position
+    (35, None, None, 0),                     # current position (the older number)
+    (19, _HOME_SWITCH, 30_000, 30_000),      # home switch, falling edge
+    (20, _HOME_SWITCH, 30_000, 30_000),      # home switch, rising edge
+    (34, None, None, 65_536),                # next index pulse upwards (one per revolution)
+    (33, None, None, -65_536),               # next index pulse downwards
+    (17, _NEG_LIMIT, -40_000, -40_000),      # negative limit switch
+    (18, _POS_LIMIT, 40_000, 40_000),        # positive limit switch
+    (1, _NEG_LIMIT, -40_000, 0),             # negative limit, then the index pulse above it
+    (2, _POS_LIMIT, 40_000, 0),              # positive limit, then the index pulse below it
 ])
-def test_homing_methods(drive: Drive, method: int, switch_pos: int | None, expected: int) -> None:
-    if method in (19, 20):
-        drive.s.download(0x2100, 9, i32(switch_pos or 0))
-    if method == 17:
-        drive.s.download(0x2100, 7, i32(switch_pos or 0))
+def test_homing_methods(drive: Drive, method: int, switch: int | None, switch_pos: int | None,
+                        expected: int) -> None:
+    if switch is not None:
+        drive.s.download(0x2100, switch, i32(switch_pos or 0))
     drive.s.download(0x6098, 0, bytes([method & 0xFF]))
     drive.s.download(0x607C, 0, i32(-500))                   # home position reads 500
     drive.s.download(0x6099, 1, u32(100_000))
@@ -310,6 +321,36 @@ def test_unsupported_mode_is_not_displayed(drive: Drive) -> None:
     assert drive.cycle(mode=7)["mode"] == 9                   # interpolated position: no
 
 
+def test_following_error_bit_13_comes_before_the_fault(drive: Drive) -> None:
+    drive.s.download(0x6066, 0, u16(50))                      # following error time out 50 ms
+    drive.enable()
+    start = drive.last["pos"]
+    sw = drive.cycle(3, pos=start + 1_000_000)["sw"]          # far outside the window 0x6065
+    assert sw & 0x2000 and drive.state == DriveState.OPERATION_ENABLED
+    assert drive.last["fe"] > drive.sdo(0x6065, 0, "<I")      # demand minus actual: positive
+    drive.cycle(3, pos=drive.last["pos"])                     # back inside before the time out
+    assert not drive.last["sw"] & 0x2000 and drive.state == DriveState.OPERATION_ENABLED
+
+
+def test_sms_laid_out_with_nothing_assigned_are_refused() -> None:
+    """0x1C12/0x1C13 are empty at power-on (the master assigns): SMs sized from the SII's
+    PDOs (3 bytes each) match no assigned PDO and SAFE-OP is refused, as a real slave does."""
+    d = Drive(mapped=False)
+    assert d.sdo(0x1C12, 0, "<B") == 0 and d.sdo(0x1C13, 0, "<B") == 0
+    d.s.configure_process_data(3, 3)
+    status, code = d.s.request_state(AlState.SAFEOP)
+    assert status & 0x1F == 0x12 and code == AlStatusCode.INVALID_OUTPUT_CONFIG
+    (emcy,) = d.emergencies()
+    assert emcy.error_code == 0xA000 and emcy.data == bytes([62, 3, 2]) + u16(0)
+    # the assignment the SII describes makes the same SMs right
+    d.s.ack(AlState.PREOP)
+    d.s.download(0x1C12, 1, u16(0x1600))
+    d.s.download(0x1C12, 0, u8(1))
+    d.s.download(0x1C13, 1, u16(0x1A00))
+    d.s.download(0x1C13, 0, u8(1))
+    assert d.s.request_state(AlState.SAFEOP) == (int(AlState.SAFEOP), 0)
+
+
 def test_sm2_length_wrong_is_refused_with_emergency_and_fault() -> None:
     d = Drive()
     d.s.configure_process_data(OUT_LEN + 2, IN_LEN)
@@ -320,6 +361,40 @@ def test_sm2_length_wrong_is_refused_with_emergency_and_fault() -> None:
     assert emcy.data == bytes([62, 3, 2]) + u16(OUT_LEN)      # manual 62-3, SM2, its length
     assert d.sdo(0x603F, 0, "<H") == 0xA000
     assert d.sdo(0x6041, 0, "<H") & 0x4F == 0x08              # CiA 402 fault
+
+
+def test_sm3_length_wrong_is_refused_with_emergency_and_fault() -> None:
+    d = Drive()
+    d.s.configure_process_data(OUT_LEN, IN_LEN + 2)
+    status, code = d.s.request_state(AlState.SAFEOP)
+    assert status & 0x1F == 0x12 and code == AlStatusCode.INVALID_INPUT_CONFIG
+    (emcy,) = d.emergencies()
+    assert emcy.error_code == 0xA000
+    assert emcy.data == bytes([62, 4, 3]) + u16(IN_LEN)       # manual 62-4, SM3, its length
+    assert d.sdo(0x6041, 0, "<H") & 0x4F == 0x08
+
+
+def test_sync_parameters_on_the_sm_event(drive: Drive) -> None:
+    """0x1C32/0x1C33 (ETG.1020) of a drive synchronised on the frames (no SYNC0)."""
+    assert drive.sdo(0x1C32, 1, "<H") == 0x0001               # synchronous with SM2
+    assert drive.sdo(0x1C32, 3, "<I") == 0                    # shift time: outputs at once
+    assert drive.sdo(0x1C32, 4, "<H") == 0x0007               # free run, SM2, DC SYNC0
+    assert drive.sdo(0x1C32, 5, "<I") == 250_000              # minimum cycle time 250 us
+    assert drive.sdo(0x1C33, 1, "<H") == 0x0022               # inputs latched on the SM2 event
+    assert drive.sdo(0x1C33, 3, "<I") == 0
+    assert drive.sdo(0x1C33, 5, "<I") == 250_000
+
+
+def test_sync0_faster_than_the_minimum_cycle_time_refuses_safeop() -> None:
+    d = Drive()
+    d.s.download(0x1C32, 1, u16(2))                           # DC SYNC0
+    d.s.fpwr(R.DC_SYNC0_CYCLE, u32(125_000))                  # 125 us < 0x1C32:05
+    d.s.fpwr(R.DC_ACTIVATION, bytes([R.DcActivation.CYCLIC | R.DcActivation.SYNC0]))
+    status, code = d.s.request_state(AlState.SAFEOP)
+    assert status & 0x1F == 0x12 and code == AlStatusCode.DC_INVALID_SYNC0_CYCLE_TIME
+    d.s.ack(AlState.PREOP)
+    d.s.fpwr(R.DC_SYNC0_CYCLE, u32(250_000))                  # at the minimum: accepted
+    assert d.s.request_state(AlState.SAFEOP) == (int(AlState.SAFEOP), 0)
 
 
 def test_set_for_dc_without_sync0_refuses_safeop() -> None:

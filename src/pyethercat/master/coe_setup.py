@@ -11,10 +11,11 @@ made by :class:`~pyethercat.master.mailboxes.MailboxService`):
 - process-data configuration takes the PDO assignment and mapping from CoE
   (0x1C12/0x1C13, 0x16xx/0x1Axx) for slaves that speak CoE, instead of the
   SII (as SOEM does): :meth:`CoeSetup.read_pdo_mappings`, run by
-  ``configure()``; a mapping written with ``slave.set_pdo_mapping``
-  (:meth:`CoeSetup.set_pdo_mapping`) is kept as PS start-up commands
-  (re-applied at every PRE-OP -> SAFE-OP, as TwinCAT does) and used by the
-  next configuration.
+  ``configure()``; a slave whose assignment is empty at power-on (the master
+  assigns) gets the SII's PDOs written to 0x1C12/0x1C13; a mapping written
+  with ``slave.set_pdo_mapping`` (:meth:`CoeSetup.set_pdo_mapping`) is kept
+  as PS start-up commands (re-applied at every PRE-OP -> SAFE-OP, as TwinCAT
+  does) and used by the next configuration.
 """
 
 from __future__ import annotations
@@ -171,9 +172,11 @@ class CoeSetup:
         """Read the PDO assignment and mapping of CoE slaves; set ``slave.pdo_mapping``.
 
         Slaves whose SII announces CoE are brought to PRE-OP first (when
-        ``bring_to_preop``; the mailbox works from there). A slave without
-        the assignment objects, or whose CoE mapping is empty, keeps the SII's
-        PDOs (``pdo_mapping`` stays None). Returns the mappings read, by position.
+        ``bring_to_preop``; the mailbox works from there). A slave whose
+        assignment is empty gets the SII's PDOs assigned when it announces PDO
+        assignment (:meth:`_assign_sii_pdos`); one without the assignment
+        objects, or that refuses them, keeps the SII's PDOs (``pdo_mapping``
+        stays None). Returns the mappings read or written, by position.
         """
         chosen = [s for s in slaves if self._speaks_coe(s)]
         if not chosen:
@@ -192,10 +195,48 @@ class CoeSetup:
                           exc)
                 continue
             if not any(p.bit_length for pdos in mapping.values() for p in pdos):
+                if self._assign_sii_pdos(s, client) and s.pdo_mapping is not None:
+                    out[s.position] = s.pdo_mapping
                 continue
             s.pdo_mapping = mapping
             out[s.position] = mapping
         return out
+
+    def _assign_sii_pdos(self, s: SlaveInfo, client: CoeClient) -> bool:
+        """A slave whose 0x1C12/0x1C13 are empty gets the SII's PDOs assigned (PS commands).
+
+        A device whose manual leaves the assignment to the master (0x1C12:00 =
+        0 at power-on) checks its SM lengths against the PDOs assigned, none,
+        and refuses SAFE-OP for SMs laid out from the SII (0x001D/0x001E). As
+        the EtherCAT Slave Information's PDOs are the ones the ESI assigns by
+        default (ETG.2010 TxPDO/RxPDO category, ``SyncM``), the master writes
+        them to the assignment objects, as TwinCAT does from the ESI and IgH
+        from its slave configuration (``ec_fsm_pdo``: assignment written when
+        it differs and the device supports it). Only with the PDO-assignment
+        bit of the SII's CoE details, in PRE-OP; False when nothing is written.
+        """
+        sii = s.sii
+        if sii is None or not (sii.general is not None
+                               and sii.general.coe_details & CoeDetails.PDO_ASSIGN):
+            return False
+        sms = process_data_sms(sii)
+        spec: dict[int, list[PdoSpec]] = {}
+        for p in list(sii.rx_pdos) + list(sii.tx_pdos):
+            if p.sync_manager in sms and p.entries:
+                spec.setdefault(p.sync_manager, []).append(p.index)
+        if not spec or s.al_state != AlState.PREOP:
+            return False
+        try:
+            write_pdo_mapping(client, s, spec, self.startup_commands)
+        except (ConfigError, EtherCATError) as exc:
+            _log.info("%s: the SII's PDOs not assigned over CoE (%s); using the SII",
+                      s.describe(), exc)
+            return False
+        _log.info("%s: 0x1C12/0x1C13 empty: assigned the SII's PDOs (%s)", s.describe(),
+                  "; ".join(f"SM{sm} " + ", ".join(f"0x{i:04X}" for i in pdos)
+                            for sm, pdos in spec.items()))
+        self._mapping_changed()
+        return True
 
     def read_missing_mappings(self, slaves: Sequence[SlaveInfo]) -> None:
         """Before a configuration: the CoE mappings of CoE slaves not read yet."""

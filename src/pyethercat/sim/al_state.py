@@ -239,24 +239,36 @@ class AlStateMachine:
         return not (ok0 and ok1)
 
     def process_data_mismatch(self) -> int:
-        """0 when the process-data SMs match the PDO layout, else 0x001D/0x001E."""
+        """0 when the process-data SMs match the PDO layout, else 0x001D/0x001E.
+
+        With nothing assigned to a direction, its SM enabled with a length is
+        a mismatch too: the slave stack compares the SM length with the size of
+        the assigned PDOs whatever that size is (Beckhoff SSC ``CheckSmSettings``:
+        an active SM2 needs ``SMLength == nPdOutputSize && nPdOutputSize != 0``;
+        SOES ``ESC_checkSM23`` compares the lengths).
+        """
         if self.sii.info is None:
             return 0
         regs = self.regs
         sm_count = regs.profile.sm_count
         out_len, in_len = self.process_data_bytes()
+        out_sm, in_sm = self.sii.output_sm, self.sii.input_sm
+        s = regs.sm(out_sm) if out_sm < sm_count else None
         if out_len:
-            n = self.sii.output_sm
-            s = regs.sm(n) if n < sm_count else None
             if s is None or not s.enabled or s.length != out_len or not s.ecat_writes or (
                     s.mode != _SM_MODE_BUFFERED):
                 return AlStatusCode.INVALID_OUTPUT_CONFIG
+        elif (s is not None and out_sm != in_sm and s.enabled and s.length and s.ecat_writes
+              and s.mode == _SM_MODE_BUFFERED):
+            return AlStatusCode.INVALID_OUTPUT_CONFIG
+        s = regs.sm(in_sm) if in_sm < sm_count else None
         if in_len:
-            n = self.sii.input_sm
-            s = regs.sm(n) if n < sm_count else None
             if s is None or not s.enabled or s.length != in_len or s.ecat_writes or (
                     s.mode != _SM_MODE_BUFFERED):
                 return AlStatusCode.INVALID_INPUT_CONFIG
+        elif (s is not None and out_sm != in_sm and s.enabled and s.length and not s.ecat_writes
+              and s.mode == _SM_MODE_BUFFERED):
+            return AlStatusCode.INVALID_INPUT_CONFIG
         return 0
 
     def recheck_running_state(self) -> None:

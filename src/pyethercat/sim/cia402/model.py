@@ -154,6 +154,13 @@ class Cia402Model(DriveEngine):
         if SyncSub.SYNC0_CYCLE_TIME in entries:
             entries[SyncSub.SYNC0_CYCLE_TIME].on_read = lambda: struct.pack(
                 "<I", int(self.sync_cycle[instance]) & 0xFFFFFFFF)
+        inputs = od.find(_STD.SM_INPUT_SYNC)
+        if inputs is not None:
+            # 0x1C33:02/0A show the cycle 0x1C32 does (Beckhoff SSC StartInputHandler sets
+            # the cycle time of both parameter records from the SYNC0 cycle)
+            for sub in (SyncSub.CYCLE_TIME, SyncSub.SYNC0_CYCLE_TIME):
+                if sub in inputs.entries and sub in entries:
+                    inputs.entries[sub].on_read = entries[sub].on_read
         hist = od.find(_STD.ERROR_HISTORY)
         if hist is not None:
             def clear(raw: bytes) -> None:
