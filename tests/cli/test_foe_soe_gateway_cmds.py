@@ -82,6 +82,48 @@ def test_foe_write_then_read(topo: str, tmp_path: Path) -> None:
     assert r.exit_code == 0 and r.stdout_bytes == b"hello"
 
 
+def _on_a_terminal(args: list[str]) -> tuple[int, str]:
+    """Run pyethercat with its stderr on a pseudo-terminal; (exit status, what it drew there)."""
+    import os
+    import pty
+    import re
+
+    master_fd, slave_fd = pty.openpty()
+    proc = subprocess.Popen([sys.executable, "-m", "pyethercat", *args],
+                            stdout=subprocess.DEVNULL, stderr=slave_fd,
+                            env={**os.environ, "COLUMNS": "120", "TERM": "xterm"})
+    os.close(slave_fd)
+    drawn = bytearray()
+    try:
+        while True:
+            try:
+                chunk = os.read(master_fd, 65536)
+            except OSError:  # EIO: the process is gone and the terminal closed
+                break
+            if not chunk:
+                break
+            drawn += chunk
+    finally:
+        os.close(master_fd)
+    code = proc.wait(timeout=120)
+    # without the terminal's control sequences
+    return code, re.sub(r"\x1b\[[0-9;?]*[A-Za-z]", "", drawn.decode("utf-8", "replace"))
+
+
+def test_foe_write_draws_a_progress_bar_on_a_terminal(topo: str, tmp_path: Path) -> None:
+    blob = bytes((i * 13) & 0xFF for i in range(300_000))
+    local = tmp_path / "bar.bin"
+    local.write_bytes(blob)
+    code, drawn = _on_a_terminal(["--sim", topo, "foe_write", "-p", "0", str(local)])
+    assert code == 0, drawn
+    assert (tmp_path / "files" / "bar.bin").read_bytes() == blob
+    # the bar's last picture: the whole file acknowledged, in rich's download column
+    assert "FoE write bar.bin" in drawn and "━" in drawn
+    assert "300.0/300.0 kB" in drawn, drawn
+    code, drawn = _on_a_terminal(["--sim", topo, "foe_write", "-q", "-p", "0", str(local)])
+    assert code == 0 and "FoE write" not in drawn, drawn  # (the scan's bar may show)
+
+
 def test_foe_errors_are_one_line(topo: str, tmp_path: Path) -> None:
     r = run(topo, "foe_read", "-p", "0", "missing.bin")
     assert r.exit_code == 1
@@ -100,7 +142,8 @@ def test_foe_write_boot_updates_firmware(topo: str, tmp_path: Path) -> None:
     image.write_bytes(build_firmware_image(0x00504543, 0x00050001, 0x00030000, "v3", bytes(900)))
     r = run(topo, "foe_write", "-p", "0", "--boot", str(image))
     assert r.exit_code == 0, r.output
-    # each --sim invocation builds the segment anew, so check the refusal path too
+    # each --sim invocation builds the segment anew: the new revision shows in
+    # test_foe_write_boot_shows_the_new_revision (one simulator for several commands)
     bad = tmp_path / "bad.efw"
     bad.write_bytes(build_firmware_image(1, 2, 3, "x", b""))
     r = run(topo, "foe_write", "-p", "0", "--boot", str(bad))
