@@ -101,6 +101,8 @@ def test_late_port_a_copies_of_a_closed_ring_are_no_port_fault() -> None:
         assert m.ring.state() == "redundant"
         assert [p.returning for p in m.ring.ports()] == [True, True]
     assert w.diagnoses > readings  # the watch did read the ring after each
+    red = m.scheduler.core.redundancy
+    assert red is not None and red.marks  # (each copy tells the port it was sent on)
     assert found(m) == []
     assert m.ring.last is not None and m.ring.last.ok and m.ring.last.ring_state == "closed"
     # a closed ring's copy back on B went round every slave: no cycle was short

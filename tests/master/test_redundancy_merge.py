@@ -158,6 +158,7 @@ def test_one_late_copy_in_a_split_ring_leaves_both_ports_awaited() -> None:
 
 def test_a_copy_looped_back_on_its_own_port_waits_for_a_port_that_came_back() -> None:
     red = Redundancy()
+    red.marks = True  # (an Ethernet medium: copies keep the source MAC they were sent with)
     red.returning = {PORT_A}  # B was given up ...
     sent = frame(Datagram.device(Command.BRD, 0, 0, 2))
     cs, _ = red.plan(sent)
@@ -167,6 +168,23 @@ def test_a_copy_looped_back_on_its_own_port_waits_for_a_port_that_came_back() ->
     assert red.arrived(cs, PORT_A, processed(sent, 0, wkc=3, adp_step=3), sent)[0] == "wait"
     b_half = mark_for_port(processed(sent, 0, wkc=2, adp_step=2), PORT_B)
     assert red.arrived(cs, PORT_B, b_half, sent)[0] == "done"
+
+
+def test_whether_copies_carry_the_port_they_were_sent_on_is_learnt() -> None:
+    sent = frame(Datagram.device(Command.BRD, 0, 0, 2))
+    whole = processed(sent, 0, wkc=5, adp_step=5)
+    # Ethernet: the copy sent on B keeps its mark (it came back on A untouched)
+    red = Redundancy()
+    cs, _ = red.plan(sent)
+    red.arrived(cs, PORT_B, whole, sent)
+    assert red.arrived(cs, PORT_A, mark_for_port(sent, PORT_B), sent)[0] == "done"
+    assert red.marks is True and cs.origin == {PORT_B: PORT_A, PORT_A: PORT_B}
+    # UDP: both copies come back with one synthetic source: nobody can tell
+    red = Redundancy()
+    cs, _ = red.plan(sent)
+    red.arrived(cs, PORT_B, whole, sent)
+    assert red.arrived(cs, PORT_A, sent, sent)[0] == "done"
+    assert red.marks is False and cs.origin == {}
 
 
 def test_frames_with_no_copy_back_give_up_no_port() -> None:

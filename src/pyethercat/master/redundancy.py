@@ -287,7 +287,8 @@ class PortCopies(dict[int, Datagram]):
 
     A slave reached from port A answers in the copy sent on A, wherever that copy
     came back (on B round a closed ring, on A at a break), so the origin, not the
-    port of arrival, is the side a slave is reached from."""
+    port of arrival, is the side a slave is reached from. ``origin`` is empty
+    where the medium does not carry the mark (``Redundancy.marks``)."""
 
     __slots__ = ("origin",)
 
@@ -307,7 +308,8 @@ class CopySet:
     #: Ports whose copy completes a "both" frame; ``need0``: as planned at sending.
     need: set[int] = field(default_factory=set)
     need0: frozenset[int] = frozenset()
-    #: Copies received, by the port they came in on; ``origin``: the port each was sent on.
+    #: Copies received, by the port they came in on; ``origin``: the port each was sent on
+    #: (empty when the medium does not carry the mark, see ``Redundancy.marks``).
     got: dict[int, bytes] = field(default_factory=dict)
     origin: dict[int, int] = field(default_factory=dict)
     #: A chain frame was sent on through the other port; ``held`` is what came back first.
@@ -353,6 +355,11 @@ class Redundancy:
         self.returning: set[int] = set(range(ports))
         self.misses = [0] * ports
         self.silent = 0
+        #: Whether copies come back with the source MAC they were sent with (the mark of
+        #: port B; None: not known yet): learnt from the first frame whose two copies came
+        #: back on two ports. A medium that does not carry MACs (EtherCAT over UDP) gives
+        #: every copy the same source, so which port sent a copy is unknown there.
+        self.marks: bool | None = None
         self.counters = [PortCounters() for _ in range(ports)]
         #: Frames whose copies were merged, completed with fewer copies than
         #: awaited (at their deadline), and chain frames passed on.
@@ -460,16 +467,21 @@ class Redundancy:
         else:
             copies.got[port] = raw
             copies.origin[port] = _origin(raw, sent)
+            if len(copies.got) == 2:
+                # One copy was sent on each port: two origins, unless MACs are not carried.
+                self.marks = len(set(copies.origin.values())) == 2
         if not _worked(raw):
             if len(copies.need) == 1 and len(copies.got) == 1:
                 # The only copy awaited went through no slave: the ring may be closed
                 # again, so the processed copy comes on the other port.
                 copies.need.update(self._alive())
-        elif copies.origin.get(port) == port:
+        elif self.marks and copies.origin.get(port) == port:
             # Back on the port it was sent on: the ring is open, the slaves behind the
             # break are served by the other ports' copies.
             copies.need.update(p for p in self._alive() if p in self.returning)
         if copies.need <= copies.got.keys():
+            if not self.marks:
+                copies.origin.clear()  # (the sides are then inferred from the ports)
             return "done", self._merge(sent, copies), -1
         return "wait", None, -1
 

@@ -300,16 +300,20 @@ class RingService:
         # such frame among the reading's makes the whole reading one without sides.
         answered = [r for r in requests if r.reply is not None]
         seen_sides = not ring or (bool(answered) and all(r.copies is not None for r in answered))
+        a_worked = False
         for r in requests:
             if r.copies:
                 returned.update(r.copies)
+                got = r.copies.get(0)
+                a_worked = a_worked or (got is not None and got.wkc > 0)
         readings: list[SlaveReading] = []
         counters: dict[int, diag.SlaveCounters] = {}
+        a_returned = 0 in returned
         for i, pos in enumerate(positions):
             dl_req, ctr_req = requests[stride * i], requests[stride * i + 1]
-            side = _side(dl_req, ring)
+            side = _side(dl_req, ring, a_worked, a_returned)
             if side is None:
-                side = _side(ctr_req, ring)
+                side = _side(ctr_req, ring, a_worked, a_returned)
             dl = None
             if dl_req.reply is not None and dl_req.reply.wkc == 1:
                 dl = int.from_bytes(dl_req.reply.data[:_DL], "little")
@@ -391,7 +395,7 @@ class RingService:
                     _log.exception("fault event callback %r failed", fn)
 
 
-def _side(req: Request, ring: bool) -> str | None:
+def _side(req: Request, ring: bool, a_worked: bool, a_returned: bool) -> str | None:
     """The master port a slave's answer shows it is reached from (see ``master.locate``):
     the port the copy it answered in was sent on (round a closed ring the copy sent on
     A comes back on B; at a break each copy comes back on its own port)."""
@@ -400,8 +404,18 @@ def _side(req: Request, ring: bool) -> str | None:
     copies = req.copies
     if not ring or copies is None:
         return "A" if req.reply.wkc >= 1 else None
-    origin = getattr(copies, "origin", {})
-    for port in sorted(copies):
-        if copies[port].wkc >= 1:
-            return PORT_NAMES[origin.get(port, port)]
+    origin = getattr(copies, "origin", None)
+    if origin:
+        for port in sorted(copies):
+            if copies[port].wkc >= 1:
+                return PORT_NAMES[origin.get(port, port)]
+        return None
+    # The medium does not carry the mark of the port a copy was sent on (UDP): a copy
+    # back on A with answers looped at a break; one back on B went round a whole ring
+    # (then A brought the other copy back untouched) or looped at a break on B's side.
+    a, b = copies.get(0), copies.get(1)
+    if a is not None and a.wkc >= 1:
+        return "A"
+    if b is not None and b.wkc >= 1:
+        return "B" if a_worked or not a_returned else "A"
     return None
