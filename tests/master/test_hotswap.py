@@ -12,7 +12,11 @@ that puts its system time on the reference's.
 from __future__ import annotations
 
 import struct
+import time
+from collections.abc import Callable
 from pathlib import Path
+
+import numpy as np
 
 from pyethercat.clock import VirtualClock
 from pyethercat.master.cyclic import CyclicRunner
@@ -215,3 +219,152 @@ def test_a_hot_connect_group_goes_and_comes_back() -> None:
     outcomes = [e.outcome for e in m.hotswap.events]
     assert outcomes[0] == "group absent" and "group present" in outcomes
     assert outcomes.count("same") == 2
+
+
+TOOL_RING = {"segment": {"ring": "junction:1"},
+             "slave": [{"name": "coupler", "device": "builtin:coupler"},
+                       {"name": "in1", "device": "builtin:di8"},
+                       {"name": "out1", "device": "builtin:do8"},
+                       # the ring's last slave: port 1 to master port B, the tool on port 3
+                       {"name": "junction", "device": "builtin:coupler"},
+                       {"name": "tool", "device": "builtin:do8", "alias": 0x0200,
+                        "parent": "junction", "port": 3},
+                       {"name": "tool-in", "device": "builtin:di8"}],
+             # what the master writes to the tool comes back from the tool's input terminal
+             "wire": [{"from": "tool:0", "to": "tool-in:0", "bits": 8}]}
+
+
+def test_a_hot_connect_group_absent_at_the_scan_is_configured_when_it_appears() -> None:
+    from pyethercat.sim.topology import parse_topology
+
+    clock = VirtualClock()
+    seg = parse_topology(TOOL_RING).build(clock=clock)
+    seg.remove_slave(4)  # the tool is not there when the master starts
+    seg.remove_slave(5)
+    m = Master(ring_link(seg), clock=clock)
+    m.scan()
+    assert len(m.slaves) == 4
+    presence = m.hot_connect("tool", alias=0x0200, size=2)
+    assert (presence.present, presence.positions) == (False, ())
+    cfg = m.configure()
+    m.pd.bring_up(m.slaves, 2.0)
+    r = CyclicRunner(m.scheduler, cfg, m.images, m.slaves, clock=clock, check_interval=0.05,
+                     recover=m.hotswap.recover)
+    m.pd.runner = r
+    m.hotswap.log = r.log
+    r.riders.append(RingWatch(m.ring, log=r.log,
+                              on_reading=lambda d, absent: m.hotswap.update_groups(absent, d)))
+    r.supervising = False
+    r.run(cycles=3)
+    m.set_state(AlState.OP)
+    r.supervising = True
+    r.run(cycles=50)
+    assert [g.present for g in m.hotswap.groups(r.absent)] == [False]
+    assert r.groups[0].wkc_ok and m.ring.faults == ()
+    # the tool is plugged into the junction's free port
+    seg.insert_slave(4)
+    seg.insert_slave(5)
+    for _ in range(300):
+        r.run(cycles=1)
+        if all(seg.escs[i].al_state() == AlState.OP for i in (4, 5)) and \
+                all(g.wkc_ok for g in r.groups) and m.hotswap.groups(r.absent)[0].present:
+            break
+    assert all(seg.escs[i].al_state() == AlState.OP for i in (4, 5))
+    assert len(m.slaves) == 6 and m.slaves[4].alias == 0x0200
+    assert [s.name for s in m.slaves][4:] == ["PEC-DO8 8Ch. digital output",
+                                              "PEC-DI8 8Ch. digital input"]
+    (g,) = m.hotswap.groups(r.absent)
+    assert (g.present, g.positions) == (True, (4, 5))
+    assert [e.outcome for e in m.hotswap.events] == ["group connected"]
+    # its process data is a group of its own, after the others': the old one unchanged
+    assert [x.name for x in r.groups] == ["main", "tool"]
+    assert cfg.group("tool").logical_base >= cfg.group("main").logical_end
+    for value in (0x5A, 0xC3):
+        for i in range(8):
+            m.slaves[4].outputs[f"Output {i + 1}"] = (value >> i) & 1
+            m.slaves[2].outputs[f"Output {i + 1}"] = (value >> i) & 1
+        r.run(cycles=3)
+        assert sum(int(m.slaves[5].inputs[f"Input {i + 1}"]) << i for i in range(8)) == value
+        assert int(seg.pdio.outputs(np.array([2], np.int64), 1)[0, 0]) == value
+    assert all(x.wkc_ok for x in r.groups)
+    assert m.ring.faults == () and m.ring.state() == "redundant"
+    # from now on it goes and comes back as a group found at the scan
+    seg.remove_slave(4)
+    seg.remove_slave(5)
+    r.run(cycles=30)
+    assert [g.present for g in m.hotswap.groups(r.absent)] == [False]
+    assert r.groups[0].wkc_ok
+    seg.insert_slave(4)
+    seg.insert_slave(5)
+    r.run(cycles=300)
+    assert [g.present for g in m.hotswap.groups(r.absent)] == [True]
+    assert all(x.wkc_ok for x in r.groups)
+    assert [e.outcome for e in m.hotswap.events][1:] == ["group absent", "same", "same",
+                                                         "group present"]
+
+
+def test_the_masters_own_loop_connects_a_group_that_appears() -> None:
+    from pyethercat.sim.topology import parse_topology
+
+    clock = VirtualClock()
+    seg = parse_topology(TOOL_RING).build(clock=clock)
+    seg.remove_slave(4)
+    seg.remove_slave(5)
+    # Faults act between frames, in the loop's thread (the segment is not shared across threads).
+    pending: list[Callable[[], None]] = []
+
+    def before(_port: int) -> None:
+        while pending:
+            pending.pop(0)()
+
+    with Master(ring_link(seg, before=before), clock=clock) as m:
+        m.scan()
+        m.hot_connect("tool", alias=0x0200, size=2)
+        m.configure()
+        runner = m.start(0.001)  # the master's own ring watch rides in this loop
+        try:
+            pending += [lambda: seg.insert_slave(4), lambda: seg.insert_slave(5)]
+            for _ in range(400):
+                if m.hotswap.groups(runner.absent)[0].present and \
+                        all(g.wkc_ok for g in runner.groups):
+                    break
+                time.sleep(0.05)
+            assert m.hotswap.groups(runner.absent)[0].present
+            assert [g.name for g in runner.groups] == ["main", "tool"]
+            assert all(seg.escs[i].al_state() == AlState.OP for i in (4, 5))
+        finally:
+            runner.stop()
+
+
+def test_run_starts_with_a_hot_connect_group_absent(tmp_path: Path) -> None:
+    from click.testing import CliRunner
+
+    from pyethercat.cli.main import cli
+
+    topo = tmp_path / "tool.toml"
+    topo.write_text("""
+[segment]
+ring = "junction:1"
+[[slave]]
+name = "coupler"
+device = "builtin:coupler"
+[[slave]]
+name = "in1"
+device = "builtin:di8"
+[[slave]]
+name = "junction"
+device = "builtin:coupler"
+[[slave]]
+name = "tool"
+device = "builtin:do8"
+alias = 0x0200
+parent = "junction"
+port = 3
+[[fault]]
+kind = "power_off"
+slave = "tool"
+""")
+    res = CliRunner().invoke(cli, ["--sim", str(topo), "run", "--seconds", "0.1",
+                                   "--hot-connect", "tool=0x200:1"])
+    assert res.exit_code == 0, res.output
+    assert "WKC errors: 0" in res.output

@@ -559,6 +559,33 @@ class CyclicRunner:
         their share of each working counter is not expected until they are back."""
         self.xchg.set_absent(positions)
 
+    @property
+    def takes_new_groups(self) -> bool:
+        """Whether :meth:`add_group` can work: the loop runs in this process (the isolated
+        engine's plan is fixed when it starts)."""
+        return type(self).run is CyclicRunner.run
+
+    def add_group(self, name: str, slaves: Sequence[object] = ()) -> None:
+        """Exchange the process-data group ``name``, added to the configuration while the
+        loop runs (``ProcessData.add_group``: a hot connect group that appeared), from the
+        next cycle on; its ``slaves`` are supervised from then on.
+
+        Call between cycles: from a worker in step with the loop (``master.stepping``),
+        or while the loop does not run."""
+        if not self.takes_new_groups:
+            raise ConfigError("the loop runs in an engine of its own: it takes no new group")
+        if any(g.name == name for g in self.groups):
+            raise ConfigError(f"the loop exchanges group {name!r} already")
+        g = self.config.group(name)
+        tick = self.period_ns / 1e9
+        every = max(1, int(round((g.cycle or tick) / tick)))
+        # (the exchange holds this same list: the new set of due groups gets its own plan)
+        self.groups.append(GroupRuntime(g, self.images[name], every))
+        self._every = tuple(r.every for r in self.groups)
+        self._all_due = tuple(range(len(self.groups)))
+        self.slaves.extend(slaves)
+        self.supervisor.add(slaves)
+
     def request_recovery(self, positions: list[int]) -> None:
         """Bring these slaves back now (found present without their address: power-cycled,
         hot-swapped), in step with the loop; ignored while a recovery runs."""

@@ -30,10 +30,27 @@ Every outcome is a :class:`HotSwapEvent` (``events``, and ``log``).
 
 Hot connect groups (:class:`HotConnectGroup`, ``Master.hot_connect``): a
 named group of slaves that may be absent, identified as in ETG hot connect
-by the alias of its first slave. A group is learnt from a scan where it is
-present; it may then go (unplugged: its slaves are marked absent, their share
-of the working counter not expected, ``present_ok``) and come back (its first slave must
-carry the group's alias), when it is configured again as above.
+by the alias of its first slave. A group present at the scan may go
+(unplugged: its slaves are marked absent, their share of the working counter
+not expected, ``present_ok``) and come back (its first slave must carry the
+group's alias), when it is configured again as above.
+
+A group absent at the scan waits. When a ring reading counts more slaves
+than the scan found (``Diagnosis.present``), :meth:`HotSwap.update_groups`
+connects it, in step with the loop like a recovery: the new devices must
+sit behind every slave the scan found, in bus order (on a free port of the
+last slave, or at the end of a line: the positions of the others do not
+move), the first must carry a waiting group's alias and the group must be
+complete; they get station addresses after the others', their SII is read,
+their mailboxes made, and their process data becomes a process-data group
+of its own named after the hot connect group, laid after the other groups
+in the logical address space (the others' layout does not change); they
+are brought up (mailbox, CoE start-up commands, sync managers, FMMUs), the
+running loop exchanges the new group from the next cycle on, and they are
+walked up to its target state. From then on the group goes and comes back
+as one found at the scan. Devices that appear in front of configured slaves
+are not taken (an event says so).
+
 :meth:`HotSwap.groups` tells each group's presence (``pyethercat slaves``
 prints it) and a change is an event too.
 """
@@ -59,7 +76,9 @@ from pyethercat.wire.sii.model import WORD_VENDOR_ID
 
 if TYPE_CHECKING:
     from pyethercat.master.clocks import DistributedClocks
+    from pyethercat.master.mailboxes import MailboxService
     from pyethercat.master.process import ProcessData
+    from pyethercat.master.ring import Diagnosis, RingService
     from pyethercat.master.scheduler import Scheduler
     from pyethercat.master.slave import Slave
 
@@ -80,7 +99,9 @@ class HotSwapEvent:
     ``outcome``: ``"resumed"`` (it had only left its state), ``"same"`` (the
     same device came back), ``"replaced"`` (another unit of the same
     device), ``"another product"`` (with the same process data), or
-    ``"refused"``.
+    ``"refused"``; for hot connect groups ``"group absent"``, ``"group
+    present"``, ``"group connected"`` (absent at the scan, configured when
+    it appeared) or ``"group refused"``.
     """
 
     position: int
@@ -95,12 +116,22 @@ class HotSwap:
     """Brings slaves back to their place (see the module text)."""
 
     def __init__(self, scheduler: Scheduler, pd: ProcessData, dc: DistributedClocks,
-                 slaves: Callable[[], list[Slave]], now_ns: Callable[[], int]) -> None:
+                 slaves: Callable[[], list[Slave]], now_ns: Callable[[], int], *,
+                 make_slave: Callable[[int, int], Slave] | None = None,
+                 mailboxes: MailboxService | None = None,
+                 ring: RingService | None = None) -> None:
         self.scheduler = scheduler
         self.pd = pd
         self.dc = dc
         self._slaves = slaves
         self.now_ns = now_ns
+        #: What connecting a group absent at the scan needs: the master's slave handles,
+        #: its mailboxes and its ring service (cabling learnt again).
+        self._make_slave = make_slave
+        self._mailboxes = mailboxes
+        self._ring = ring
+        self._connecting: threading.Thread | None = None
+        self._group_refusal = ""
         self.events: deque[HotSwapEvent] = deque(maxlen=500)
         #: Where event texts go too (the cyclic loop's log while one runs).
         self.log: Callable[[str], None] = lambda _text: None
@@ -113,17 +144,29 @@ class HotSwap:
     # -- hot connect groups ---------------------------------------------------------------
 
     def add_group(self, group: HotConnectGroup) -> GroupPresence:
-        """Learn a hot connect group from the scanned slaves (its first slave carries the alias)."""
+        """Declare a hot connect group: learnt from the scanned slaves when its first slave
+        (carrying the alias) is there, else waiting to be connected when it appears."""
         if group.size < 1:
             raise ConfigError(f"hot connect group {group.name!r}: size must be at least 1")
+        if not 0 < group.alias <= 0xFFFF:
+            raise ConfigError(f"hot connect group {group.name!r}: alias must be 1..0xFFFF, "
+                              f"not {group.alias}")
         if any(g.name == group.name for g, _ in self._groups):
             raise ConfigError(f"hot connect group {group.name!r} is known already")
+        if any(g.alias == group.alias for g, _ in self._groups):
+            raise ConfigError(f"hot connect group {group.name!r}: another group has alias "
+                              f"0x{group.alias:04X}")
         slaves = self._slaves()
         head = next((s for s in slaves if s.alias == group.alias), None)
         if head is None:
-            raise ConfigError(f"hot connect group {group.name!r}: no slave carries alias "
-                              f"0x{group.alias:04X} (a group is learnt from a scan where it is "
-                              "present)")
+            cfg = self.pd.config
+            if cfg is not None and any(g.name == group.name for g in cfg.groups):
+                raise ConfigError(f"hot connect group {group.name!r}: a process-data group "
+                                  "has that name (the group's data would go in one of its own)")
+            # Absent at the scan: connected when it appears (see the module text).
+            self._groups.append((group, ()))
+            self._present[group.name] = False
+            return GroupPresence(group.name, group.alias, (), False)
         positions = tuple(range(head.position, head.position + group.size))
         if positions[-1] >= len(slaves):
             raise ConfigError(f"hot connect group {group.name!r}: {group.size} slaves from "
@@ -136,19 +179,144 @@ class HotSwap:
         return GroupPresence(group.name, group.alias, positions, True)
 
     def groups(self, absent: frozenset[int] | set[int] = frozenset()) -> list[GroupPresence]:
-        """Each hot connect group and whether it is present (none of its slaves gone)."""
-        return [GroupPresence(g.name, g.alias, ps, not (set(ps) & set(absent)))
+        """Each hot connect group and whether it is present (none of its slaves gone; a group
+        absent at the scan is absent until it was connected)."""
+        return [GroupPresence(g.name, g.alias, ps, bool(ps) and not (set(ps) & set(absent)))
                 for g, ps in self._groups]
 
-    def update_groups(self, absent: frozenset[int] | set[int]) -> None:
-        """Note groups that went or came (events); the ring watch calls this after a reading."""
+    def update_groups(self, absent: frozenset[int] | set[int],
+                      reading: Diagnosis | None = None) -> None:
+        """Note groups that went or came (events), and connect a group absent at the scan
+        when ``reading`` counts more slaves than the scan found; the ring watch calls this
+        after each reading."""
         for presence in self.groups(absent):
-            if self._present.get(presence.name) != presence.present:
+            if presence.positions and self._present.get(presence.name) != presence.present:
                 self._present[presence.name] = presence.present
                 slaves = self._slaves()
                 head = slaves[presence.positions[0]]
                 self._event(head, "group present" if presence.present else "group absent",
                             None, presence.text)
+        if reading is not None and reading.present is not None \
+                and reading.present > len(self._slaves()):
+            self._start_connect()
+
+    def _waiting(self) -> list[HotConnectGroup]:
+        return [g for g, ps in self._groups if not ps]
+
+    def _start_connect(self) -> None:
+        """Connect waiting groups in step with the loop (one worker at a time)."""
+        if not self._waiting() or (self._connecting is not None and self._connecting.is_alive()):
+            return
+        runner = self.pd.runner
+        if runner is None or not runner.takes_new_groups or self._make_slave is None:
+            self._refuse_once("new slaves are not taken: a group absent at the scan is "
+                              "connected by a cyclic loop running in this process only")
+            return
+
+        def work() -> None:
+            try:
+                self.connect_groups()
+            except EtherCATError as exc:
+                # Tried again at the next reading that counts more slaves.
+                self.log(f"hot connect: not done yet: {exc}")
+
+        self._connecting = self.scheduler.stepper.run(work, name="ecat-hot-connect")
+
+    def connect_groups(self) -> list[GroupPresence]:
+        """Configure the waiting groups whose slaves appeared behind the scanned ones and add
+        them to the running loop (see the module text); the groups connected."""
+        sched = self.scheduler
+        slaves = self._slaves()
+        known = len(slaves)
+        count = scanning.count_slaves(sched)
+        if count <= known:
+            return []
+        replies = sched.transact([Datagram.positional(Command.APRD, p, reg.STATION_ADDRESS, 4)
+                                  for p in range(known, count)])
+        found = [struct.unpack_from("<HH", r.data) if r.wkc == 1 else (0, 0) for r in replies]
+        stations = {s.station_address for s in slaves}
+        moved = next((known + i for i, (st, _) in enumerate(found) if st in stations), None)
+        if moved is not None:
+            self._refuse_once(f"slaves appeared in front of configured ones (position "
+                              f"{moved} answers as station 0x{found[moved - known][0]:04X}): "
+                              "the positions of the others would move; not taken")
+            return []
+        done: list[GroupPresence] = []
+        at = known
+        while at < count:
+            alias = found[at - known][1]
+            group = next((g for g in self._waiting() if g.alias == alias), None)
+            if group is None:
+                self._refuse_once(f"the device at position {at} carries alias "
+                                  f"0x{alias:04X}: no hot connect group waits for it")
+                break
+            if at + group.size > count:
+                break  # not all its slaves are there yet
+            done.append(self._connect(group, at, max(stations) + 1 + (at - known)))
+            at += group.size
+        return done
+
+    def _connect(self, group: HotConnectGroup, first: int, station: int) -> GroupPresence:
+        """Address, read, configure and bring up ``group``'s slaves at ``first``..."""
+        assert self._make_slave is not None
+        sched = self.scheduler
+        positions = tuple(range(first, first + group.size))
+        new_stations = [station + i for i in range(group.size)]
+        if new_stations[-1] > 0xFFFF:
+            raise ConfigError(f"hot connect group {group.name!r}: no station addresses left")
+        replies = sched.transact([
+            Datagram.positional(Command.APWR, p, reg.STATION_ADDRESS, struct.pack("<H", st))
+            for p, st in zip(positions, new_stations, strict=True)])
+        if any(r.wkc != 1 for r in replies):
+            raise WorkingCounterError(f"hot connect group {group.name!r}: station addresses "
+                                      "not taken", 1, 0)
+        # The scan's start-up defaults, for these slaves only (reset_slaves broadcasts them).
+        sched.transact([d for st in new_stations for d in (
+            Datagram.device(Command.FPWR, st, reg.DL_CONTROL_ALIAS, b"\x00"),
+            Datagram.device(Command.FPWR, st, reg.AL_CONTROL,
+                            struct.pack("<H", AlState.INIT | reg.AL_ERROR_FLAG)),
+            Datagram.device(Command.FPWR, st, reg.ECAT_EVENT_MASK,
+                            struct.pack("<H", reg.EcatEvent.DL_STATUS | reg.EcatEvent.AL_STATUS)))])
+        for st in new_stations:
+            scanning.take_sii_ownership(sched, st)
+        new = [self._make_slave(p, st) for p, st in zip(positions, new_stations, strict=True)]
+        scanning.read_esc_info(sched, new)
+        images = scanning.read_sii_batch(sched, [scanning.SiiAccess.of(s) for s in new])
+        for s, img in zip(new, images, strict=True):
+            if isinstance(img, EtherCATError):
+                raise img
+            scanning.apply_sii(s, img)
+            s.name = s.name or "?"
+        slaves = self._slaves()
+        slaves.extend(new)  # the master's list: every service sees them from now on
+        scanning.build_topology(slaves)
+        if self._ring is not None:
+            self._ring.learn()
+        if self._mailboxes is not None:
+            self._mailboxes.add(new)
+        self.pd.add_group(group.name, new)
+        runner = self.pd.runner
+        target = runner.target if runner is not None else AlState.OP
+        self.pd.bring_up(new, 5.0)
+        if runner is not None:
+            runner.add_group(group.name, new)
+        self.pd.transitions.set_state(new, target, 5.0)
+        self._groups = [(g, positions if g is group else ps) for g, ps in self._groups]
+        self._present[group.name] = True
+        presence = GroupPresence(group.name, group.alias, positions, True)
+        self._event(new[0], "group connected", None, presence.text + " (connected: "
+                    + ", ".join(f"{s.position} {s.name}" for s in new) + ")")
+        return presence
+
+    def _refuse_once(self, why: str) -> None:
+        """A group event that says why waiting groups are not connected (once per reason)."""
+        if self._group_refusal == why:
+            return
+        self._group_refusal = why
+        ev = HotSwapEvent(-1, "", "group refused", None, "hot connect: " + why, self.now_ns())
+        with self._lock:
+            self.events.append(ev)
+        self.log(ev.text)
 
     def in_group(self, position: int) -> bool:
         """Whether ``position`` belongs to a hot connect group (it may be absent)."""
@@ -362,6 +530,9 @@ class GroupPresence:
 
     @property
     def text(self) -> str:
+        if not self.positions:
+            return (f"hot connect group {self.name} (alias 0x{self.alias:04X}, not connected "
+                    "yet): ABSENT")
         span = (f"{self.positions[0]}-{self.positions[-1]}" if len(self.positions) > 1
                 else str(self.positions[0]))
         return (f"hot connect group {self.name} (alias 0x{self.alias:04X}, slaves {span}): "

@@ -156,6 +156,11 @@ class MailboxService:
         """Make the mailbox and the clients of every slave with a mailbox (after a scan)."""
         self._boxes.clear()
         self._clients.clear()
+        self.add(slaves)
+
+    def add(self, slaves: Sequence[SlaveInfo]) -> None:
+        """Make the mailbox and the clients of these slaves (found after the scan: a hot
+        connect group that appeared); the others' stay as they are."""
         for s in slaves:
             info = s.mailbox
             if info is None or not s.has_mailbox:

@@ -152,7 +152,9 @@ class Master:
         self.pd.rider_factories.append(lambda runner: _ring_watch(self, runner))
         #: Slaves that come back (power-cycled, hot-swapped) are identified and configured.
         self.hotswap = HotSwap(self.scheduler, self.pd, self.dc, lambda: self.slaves,
-                               now_ns=lambda: int(self.scheduler.now() * 1e9))
+                               now_ns=lambda: int(self.scheduler.now() * 1e9),
+                               make_slave=self._make_slave, mailboxes=self.mailboxes,
+                               ring=self.ring)
         self.pd.recovery = self.hotswap.recover
         self._services = _SlaveServices(self.mailboxes, self.pd, self.coe_setup)
         #: The control socket server, while one serves this master (see :meth:`open`).
@@ -432,7 +434,8 @@ class Master:
 
     def hot_connect(self, name: str, alias: int, size: int = 1) -> GroupPresence:
         """Declare a hot connect group: the slave carrying ``alias`` and the ``size - 1``
-        behind it may go and come back while cycling (see :mod:`pyethercat.master.hotswap`)."""
+        behind it may go and come back while cycling, or be absent at the scan and be
+        configured when it appears (see :mod:`pyethercat.master.hotswap`)."""
         return self.hotswap.add_group(HotConnectGroup(name, alias, size))
 
     def diagnose(self) -> Diagnosis:
@@ -601,7 +604,7 @@ def _ring_watch(master: Master, runner: CyclicRunner) -> RingWatch:
     """The ring watch a loop carries; slaves it finds gone update the hot connect groups."""
     master.hotswap.log = runner.log
     return RingWatch(master.ring, log=runner.log,
-                     on_reading=lambda _d, absent: master.hotswap.update_groups(absent))
+                     on_reading=lambda d, absent: master.hotswap.update_groups(absent, d))
 
 
 def _sii_target(master: Master, slave: SlaveRef) -> SiiTarget:

@@ -39,6 +39,7 @@ from pyethercat.master import states
 from pyethercat.master.clocks import DistributedClocks
 from pyethercat.master.config import (
     CrossLink,
+    GroupConfig,
     GroupSpec,
     Layout,
     ProcessDataConfig,
@@ -169,6 +170,29 @@ class ProcessData:
                 self._io[s.position] = ((img.slave_inputs(s.position), img.slave_outputs(s.position))
                                         if img is not None else (None, None))
             return cfg
+
+    def add_group(self, name: str, slaves: Sequence[Slave]) -> GroupConfig:
+        """Configure ``slaves`` (found after :meth:`configure`: a hot connect group that
+        appeared) as a process-data group of their own, laid after the other groups in
+        the logical address space; the others' layout and images stay as they are."""
+        with self._lock:
+            cfg = self.need_config()
+            if any(g.name == name for g in cfg.groups):
+                raise ConfigError(f"a process-data group named {name!r} exists already")
+            self._before_configure(slaves)
+            base = max(g.logical_end for g in cfg.groups) if cfg.groups else None
+            layout = cfg.groups[0].layout if cfg.groups else Layout.PACKED
+            part = configure([slave_description(s) for s in slaves],
+                             [GroupSpec(name, None, layout, base)])
+            cfg.groups.extend(part.groups)
+            cfg.slaves.update(part.slaves)
+            # (in place: a running loop holds this dict)
+            self.images.update(build_images(part))
+            img = self.images[name]
+            for s in slaves:
+                s.config = part.slaves[s.position]
+                self._io[s.position] = (img.slave_inputs(s.position), img.slave_outputs(s.position))
+            return part.group(name)
 
     def use_images(self, images: dict[str, ProcessImage]) -> None:
         """Give the slaves' ``inputs``/``outputs`` views into these images (the isolated

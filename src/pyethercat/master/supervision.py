@@ -121,6 +121,16 @@ class Supervisor:
         self._backoff_ns = 0
         self._last_failure = ""
 
+    def add(self, slaves: Sequence[object]) -> None:
+        """Supervise these slaves too (found while the loop runs); between cycles."""
+        for s in slaves:
+            pos = int(getattr(s, "position"))  # noqa: B009
+            self.health[pos] = SlaveHealth(pos, int(getattr(s, "station_address")))  # noqa: B009
+        # A per-slave read in flight was made for the slaves before: read anew.
+        if self._detail is not None:
+            self._detail = None
+            self._want_detail = True
+
     @property
     def active(self) -> bool:
         return bool(self._check_every and self.health and self.enabled)
