@@ -189,3 +189,33 @@ def test_a_rescan_sends_the_segment_again_and_a_slow_browser_keeps_it(master: Ma
         slow.offer(second)
     waiting = [slow.queue.get_nowait() for _ in range(slow.queue.qsize())]
     assert waiting == [first, second] and slow.dropped == 4
+
+
+def test_a_cut_cable_carries_the_push_that_first_showed_it() -> None:
+    """The mark of a broken cable names the first snapshot that showed it (its time and
+    push number) for as long as it stays broken, and goes with the cut."""
+    from pyethercat.master.telemetry import Telemetry
+    from pyethercat.sim.topology import load_topology
+    from pyethercat.web.model import LiveModel
+
+    seg = load_topology(DEMO).build()
+    m = Master(PairLink.responder_link(seg.process), clock=VirtualClock())
+    m.scan()
+    t = Telemetry(m, max_rate=0, register_rate=0)  # a fresh snapshot and reading each time
+    model = LiveModel(m.slaves, None)
+
+    def di8_to_do8(push: int) -> dict[str, object]:
+        live = model.live(t.snapshot(), push)
+        assert live["push"] == push
+        (link,) = [x for x in live["links"] if x["to"] == 3]  # the di8's port 1 -> the do8
+        return link
+
+    assert di8_to_do8(1)["broken"] is False and di8_to_do8(2)["since_push"] is None
+    seg.break_link(1, 1)  # file index 1: the di8
+    first = di8_to_do8(3)
+    later = di8_to_do8(4)
+    assert first["broken"] and later["broken"]
+    assert first["since_push"] == later["since_push"] == 3
+    assert first["since"] == later["since"] is not None
+    seg.restore_link(1, 1)
+    assert di8_to_do8(5)["since"] is None

@@ -5,6 +5,9 @@ However many browsers are open, one task asks the master for a snapshot
 decodes it (:class:`~pyethercat.web.model.LiveModel`) and hands the same
 message to every connected client. Each client has a queue of two: a slow
 browser skips messages instead of holding up the others or the master.
+Live messages are numbered (``push``, the hub's poll count) and the segment
+message says the poll rate (``rate``), so a reader can count in pushes
+(a cut cable is marked with the push that first showed it).
 
 The hub also keeps the last ``history`` seconds of the series the charts
 draw (cycle timing, working-counter errors, DC differences, drive position
@@ -94,6 +97,7 @@ class Hub:
             self._model = LiveModel(slaves, cfg_reply.config)
             self.segment = describe_segment(self.conn.link, slaves, cfg_reply.config,
                                             writable=self.writable, redundant=snap.redundant)
+            self.segment["rate"] = self.rate
         return self.segment
 
     # -- polling ------------------------------------------------------------------------
@@ -115,7 +119,7 @@ class Hub:
             if len(snap.slaves) != len(model.slaves):
                 snap = self.conn.call(TelemetryRequest(since=self._seq))
         with self._lock:
-            live = model.live(snap)
+            live = model.live(snap, self.polls)
             self._seq = max(self._seq, max((e.seq for e in snap.events), default=0))
             for e in live["events"]:
                 self.events.append(e)

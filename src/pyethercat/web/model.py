@@ -140,19 +140,21 @@ class LiveModel:
                         if v.index in DRIVE_OBJECTS}
         self._last_counters: dict[int, tuple[float, diag.SlaveCounters]] = {}
         self._rates: dict[int, list[float]] = {}
+        #: (from, port, to) of each cable broken now -> (snapshot time, push) it was first seen.
+        self._broken_since: dict[tuple[int | None, int | None, int], tuple[float, int]] = {}
 
     # -- one snapshot ----------------------------------------------------------------------
 
-    def live(self, snap: TelemetrySnapshot) -> dict[str, Any]:
-        """The live part of the dashboard for one snapshot."""
+    def live(self, snap: TelemetrySnapshot, push: int = 0) -> dict[str, Any]:
+        """The live part of the dashboard for one snapshot, the ``push``-th sent to browsers."""
         for g in snap.groups:
             img = self.images.get(g.name)
             if img is not None and len(img.buffer) == len(g.image):
                 img.buffer[:] = g.image
         slaves = [self._slave(t, snap.registers_time) for t in snap.slaves]
-        links = self._links(slaves, snap)
+        links = self._links(slaves, snap, push)
         return {
-            "time": snap.time, "seq": snap.seq, "cycle": _cycle(snap),
+            "time": snap.time, "seq": snap.seq, "push": push, "cycle": _cycle(snap),
             "groups": [{"name": g.name, "wkc": g.wkc, "expected": g.expected_wkc, "ok": g.wkc_ok,
                         "errors": g.wkc_errors, "lost": g.lost, "exchanges": g.exchanges}
                        for g in snap.groups],
@@ -207,13 +209,16 @@ class LiveModel:
         self._rates[position] = rates
         return rates
 
-    def _links(self, slaves: list[dict[str, Any]], snap: TelemetrySnapshot
+    def _links(self, slaves: list[dict[str, Any]], snap: TelemetrySnapshot, push: int
                ) -> list[dict[str, Any]]:
         """Every cable of the scanned tree and whether it is broken now.
 
         A cable is broken when the ring service located a fault on it, when
         the slave before it answers but shows no link on that port, or when
-        that slave answers and the one behind it does not.
+        that slave answers and the one behind it does not. A broken cable
+        carries the time and push number of the first snapshot that showed
+        it broken (``since``, ``since_push``): the page prints it, and it is
+        the dashboard's own measure of how soon it saw a cut.
         """
         located: dict[tuple[int, int], str] = {}
         for f in snap.faults:
@@ -228,8 +233,10 @@ class LiveModel:
             me = slaves[s.position]
             if s.parent is None or s.parent_port is None:
                 fault = located.get((-1, 0)) or located.get((s.position, 0))
+                broken = bool(fault) or not me["answered"]
                 out.append({"from": None, "port": None, "to": s.position, "to_port": 0,
-                            "broken": bool(fault) or not me["answered"], "fault": fault or ""})
+                            "broken": broken, "fault": fault or "",
+                            **self._since((None, None, s.position), broken, snap.time, push)})
                 continue
             parent = slaves[s.parent.position]
             port = next((p for p in parent["ports"] if p["n"] == s.parent_port), None)
@@ -238,8 +245,18 @@ class LiveModel:
             crc = bool(fault) and fault is not None and fault.startswith("crc")
             broken = (bool(fault) and not crc) or (parent["answered"] and (no_link or not me["answered"]))
             out.append({"from": s.parent.position, "port": s.parent_port, "to": s.position,
-                        "to_port": 0, "broken": broken, "crc": crc, "fault": fault or ""})
+                        "to_port": 0, "broken": broken, "crc": crc, "fault": fault or "",
+                        **self._since((s.parent.position, s.parent_port, s.position), broken,
+                                      snap.time, push)})
         return out
+
+    def _since(self, key: tuple[int | None, int | None, int], broken: bool, at: float,
+               push: int) -> dict[str, Any]:
+        if not broken:
+            self._broken_since.pop(key, None)
+            return {"since": None, "since_push": None}
+        first = self._broken_since.setdefault(key, (at, push))
+        return {"since": first[0], "since_push": first[1]}
 
     def _values(self, snap: TelemetrySnapshot) -> dict[str, list[list[str]]]:
         if not snap.groups:

@@ -95,18 +95,24 @@ class RemoteConnection:
 
 
 class DirectConnection:
-    """Requests served in process by a master this program opened."""
+    """Requests served in process by a master this program opened.
+
+    One request at a time, under :attr:`lock`: a direct master's
+    scan-on-first-use is not re-entrant. Code of the same program that works
+    on the master (or on an in-process simulated segment) from another
+    thread holds the same lock, so its frames never interleave with the
+    dashboard's.
+    """
 
     remote = False
 
-    def __init__(self, context: MasterContext) -> None:
+    def __init__(self, context: MasterContext, lock: threading.Lock | None = None) -> None:
         self.context = context
         self.link = context.link
-        # One request at a time: a direct master's scan-on-first-use is not re-entrant.
-        self._lock = threading.Lock()
+        self.lock = lock if lock is not None else threading.Lock()
 
     def call(self, req: Request) -> Any:
-        with self._lock:
+        with self.lock:
             return dispatch(self.context, req)
 
     def close(self) -> None:

@@ -245,18 +245,16 @@ function renderTopology() {
       marks.push(sv("text", { x: mx - 5, y: my + 5, class: "breaklabel" }, "✕"));
       /* beside the tree, one short line each (the svg grows to the longest, see below) */
       const tx = X0 + maxDepth * INDENT + W + 16;
-      const text = sv("text", { x: tx, y: my + 4, class: "breaklabel", id: "break-" + r.pos });
-      text.append(sv("tspan", { x: tx }, `✕ link down: #${s.parent === null ? "master" : s.parent} port ${s.parent === null ? "A" : s.parent_port} → #${r.pos} port 0`));
+      /* data-since(-push): the snapshot (its time, its push number) that first showed the cut */
+      const text = sv("text", { x: tx, y: my + 4, class: "breaklabel", id: "break-" + r.pos,
+        "data-since": info.since === null ? "" : info.since, "data-since-push": info.since_push === null ? "" : info.since_push });
+      text.append(sv("tspan", { x: tx }, `✕ link down: #${s.parent === null ? "master" : s.parent} port ${s.parent === null ? "A" : s.parent_port} → #${r.pos} port 0`
+        + (info.since ? `  since ${timeText(info.since)}` : "")));
       text.append(sv("tspan", { x: tx + 14, dy: 14, class: "names" }, `${where} → #${r.pos} ${s.name}`));
       marks.push(text);
-      if (info.fault) marks.push(sv("text", { x: tx + 14, y: my + 32, class: "edgelabel" }, "located: " + info.fault));
+      /* where the ring service put it, without its details (the list under the drawing has them) */
+      if (info.fault) marks.push(sv("text", { x: tx + 14, y: my + 32, class: "edgelabel" }, "located: " + info.fault.split(" (")[0]));
     }
-  }
-  if (S.segment.redundant && rows.length) {
-    const last = at[rows[rows.length - 1].pos];
-    const x = width - 40;
-    svg.append(sv("path", { d: `M${last.x + W} ${last.y + H / 2} L${x} ${last.y + H / 2} L${x} ${Y0 - 10} L60 ${Y0 - 10} L60 ${Y0}`, class: "edge ring" }));
-    svg.append(sv("text", { x: x - 150, y: Y0 - 14, class: "edgelabel" }, "ring: back to master port B"));
   }
   /* nodes */
   for (const r of rows) {
@@ -266,12 +264,15 @@ function renderTopology() {
     const answered = ls ? ls.answered : true;
     const stName = ls ? ls.state_full : "?";
     const cls = ls ? stateClass(stName, answered) : "INIT";
-    const g = sv("g", { class: "node" + (answered ? "" : " lost"), id: "node-" + r.pos, "data-state": cls });
+    const side = ls && ls.side ? ls.side : "";
+    const g = sv("g", { class: "node" + (answered ? "" : " lost"), id: "node-" + r.pos, "data-state": cls, "data-side": side });
     g.append(sv("rect", { class: "box", x: me.x, y: me.y, width: W, height: H, rx: 6 }));
     g.append(sv("text", { class: "pos", x: me.x + 10, y: me.y + 19 }, "#" + r.pos));
     g.append(sv("text", { x: me.x + 40, y: me.y + 19 }, s.name.length > 44 ? s.name.slice(0, 43) + "…" : s.name));
-    g.append(sv("text", { class: "sub", x: me.x + 40, y: me.y + 36 },
-      `${hex(s.station)} · ${hex(s.vendor, 8)}:${hex(s.product, 8)}` + (ls && ls.code ? ` · AL ${hex(ls.code)}` : "")));
+    /* In a ring, the master port this slave's answers come back on (B: the ring is open before it). */
+    const via = S.segment.redundant && side ? ` · via ${side}` : "";
+    g.append(sv("text", { class: "sub" + (side === "B" ? " via-b" : ""), x: me.x + 40, y: me.y + 36 },
+      `${hex(s.station)} · ${hex(s.vendor, 8)}:${hex(s.product, 8)}` + (ls && ls.code ? ` · AL ${hex(ls.code)}` : "") + via));
     const label = answered ? stName : "NO ANSWER";
     const bw = 74;
     g.append(sv("rect", { class: "state", x: me.x + W - bw - 8, y: me.y + 8, width: bw, height: 16, rx: 3, fill: cssColor(cls) }));
@@ -281,11 +282,11 @@ function renderTopology() {
     ports.forEach((p, k) => {
       if (!p.implemented) return;
       const cabled = (s.parent !== null || p.n === 0) && p.n === 0 || s.children[String(p.n)] !== undefined;
-      let fill = "#cfd6df";
-      if (p.known && p.link) fill = "#1f9d55";
-      else if (p.known && cabled) fill = "#d64545";
+      let fill = "#cfd6df", link = p.known ? "none" : "unknown";
+      if (p.known && p.link) { fill = "#1f9d55"; link = "up"; }
+      else if (p.known && cabled) { fill = "#d64545"; link = "down"; }
       const cx = me.x + W - 82 + k * 20, cy = me.y + 35;
-      g.append(sv("circle", { class: "port", cx, cy, r: 5, fill }));
+      g.append(sv("circle", { class: "port", cx, cy, r: 5, fill, "data-port": p.n, "data-link": link }));
       g.append(sv("text", { class: "sub", x: cx + 7, y: cy + 4, "font-size": "9" }, String(p.n)));
     });
     svg.append(g);
@@ -296,7 +297,15 @@ function renderTopology() {
   /* long names or a long fault text: widen the drawing rather than clip it (the card scrolls) */
   const bb = svg.getBBox();
   const need = Math.ceil(bb.x + bb.width + 12);
-  if (need > width) { svg.setAttribute("width", need); svg.setAttribute("viewBox", `0 0 ${need} ${height}`); }
+  const wide = Math.max(width, need + (S.segment.redundant ? 40 : 0));
+  if (wide > width) { svg.setAttribute("width", wide); svg.setAttribute("viewBox", `0 0 ${wide} ${height}`); }
+  if (S.segment.redundant && rows.length) {
+    /* the ring's return from the last slave to master port B, right of everything else */
+    const last = at[rows[rows.length - 1].pos];
+    const x = wide - 30;
+    svg.insertBefore(sv("path", { d: `M${last.x + W} ${last.y + H / 2} L${x} ${last.y + H / 2} L${x} ${Y0 - 10} L60 ${Y0 - 10} L60 ${Y0}`, class: "edge ring" }), svg.firstChild);
+    svg.append(sv("text", { x: x - 150, y: Y0 - 14, class: "edgelabel" }, "ring: back to master port B"));
+  }
   const faults = live ? live.faults : [];
   const box = el("div", { class: "faults", id: "faults" });
   if (live && live.ring_state && S.segment.redundant) box.append(el("div", { class: "muted" }, "ring: " + live.ring_state));
@@ -329,7 +338,7 @@ function renderSlaves() {
   clear(t);
   const dc = S.live ? Object.fromEntries(S.live.dc.slaves.map((d) => [d.position, d])) : {};
   t.append(el("thead", null, el("tr", null, ...["#", "Station", "Name · identity", "State", "AL status", "Supervision",
-    "Port 0", "Port 1", "Port 2", "Port 3", "Errors/s", "DC delay · offset · |Δt|"].map((h) => el("th", null, h)))));
+    "Port 0", "Port 1", "Port 2", "Port 3", "Errors/s", "DC"].map((h) => el("th", null, h)))));
   const body = el("tbody");
   for (const s of S.segment.slaves) {
     const ls = S.live ? S.live.slaves[s.position] : null;
@@ -338,13 +347,17 @@ function renderSlaves() {
     const cls = ls ? stateClass(state, answered) : "INIT";
     const row = el("tr", { class: answered ? "" : "lost", id: "slave-row-" + s.position });
     row.append(el("td", { class: "num" }, s.position));
-    row.append(el("td", { class: "mono" }, hex(s.station) + (s.alias ? ` / alias ${s.alias}` : "")));
-    row.append(el("td", { class: "name nowrap" }, s.name, el("div", { class: "mono muted" },
-      `${hex(s.vendor, 8)}:${hex(s.product, 8)} rev ${hex(s.revision, 8)} sn ${s.serial ?? "–"}`)));
+    row.append(el("td", { class: "mono" }, hex(s.station), s.alias ? el("div", { class: "muted" }, `alias ${s.alias}`) : null));
+    /* Identity on two short lines, so the table fits a laptop screen without scrolling. */
+    row.append(el("td", { class: "name" }, s.name,
+      el("div", { class: "mono muted nowrap" }, `${hex(s.vendor, 8)}:${hex(s.product, 8)}`),
+      el("div", { class: "mono muted nowrap" }, `rev ${hex(s.revision, 8)} · sn ${s.serial ?? "–"}`)));
     row.append(el("td", null, el("span", { class: "badge " + cls, "data-state": state }, answered ? state : "NO ANSWER")));
-    row.append(el("td", null, ls && ls.code ? el("span", null, el("b", { class: "mono" }, hex(ls.code)), " ", ls.code_text) : el("span", { class: "muted" }, "–")));
+    row.append(el("td", { class: "alstatus" }, ls && ls.code
+      ? el("span", { "data-code": ls.code }, el("b", { class: "mono" }, hex(ls.code)), " ", ls.code_text) : el("span", { class: "muted" }, "–")));
     const h = ls ? ls.health : "–";
-    row.append(el("td", { class: "nowrap " + (h === "ok" ? "health-ok" : "health-bad") }, h + (ls && ls.recoveries ? ` (${ls.recoveries} recovered)` : "")));
+    row.append(el("td", { class: h === "ok" ? "health-ok" : "health-bad" }, h,
+      ls && ls.recoveries ? el("div", { class: "muted nowrap" }, `${ls.recoveries} recovered`) : null));
     for (let n = 0; n < 4; n++) {
       const desc = s.ports[n];
       if (!desc || !desc.implemented) { row.append(el("td", { class: "muted" }, "–")); continue; }
@@ -356,11 +369,14 @@ function renderSlaves() {
       row.append(el("td", { class: "portcell", title: text, "data-link": p && p.known ? (p.link ? "up" : "down") : "" }, el("span", { class: "port" }, dot, counts)));
     }
     const rate = ls && ls.rates ? ls.rates.reduce((a, b) => a + b, 0) : null;
-    row.append(el("td", { class: "num" + (rate ? " health-bad" : "") }, rate === null ? "–" : rate.toFixed(1)));
+    row.append(el("td", { class: "num rate" + (rate ? " health-bad" : "") }, rate === null ? "–" : rate.toFixed(1)));
     const d = dc[s.position];
     const ns = (v) => (v === null || v === undefined ? "–" : v + " ns");
-    row.append(el("td", { class: "num nowrap" }, d || (ls && ls.dc_difference_ns !== null)
-      ? `${ns(d && d.delay_ns)} · ${ns(d && d.offset_ns)} · ${ns(ls && ls.dc_difference_ns)}` : "–"));
+    /* delay, offset and |Δt| one under the other: three short lines instead of one wide one */
+    const dcLine = (label, v) => el("div", { class: "nowrap" }, el("span", { class: "muted" }, label + " "), ns(v));
+    row.append(el("td", { class: "num dc" }, ...(d || (ls && ls.dc_difference_ns !== null)
+      ? [dcLine("delay", d && d.delay_ns), dcLine("offset", d && d.offset_ns), dcLine("|Δt|", ls && ls.dc_difference_ns)]
+      : ["–"])));
     body.append(row);
   }
   t.append(body);
