@@ -111,6 +111,9 @@ class AxisModel(CoeModel):
         self.plan_to: F64 = arr("plan_to", np.float64, 0.0)
         self.plan_vff: F64 = arr("plan_vff", np.float64, 0.0)
         self.plan_tff: F64 = arr("plan_tff", np.float64, 0.0)
+        #: Acceleration of the demand over the next cycle (inc/s²), the one the torque
+        #: feed-forward assumes: the demand between set-points is a parabola with it.
+        self.plan_acc: F64 = arr("plan_acc", np.float64, 0.0)
         self.plan_v: F64 = arr("plan_v", np.float64, 0.0)
         self.plan_t: F64 = arr("plan_t", np.float64, 0.0)
 
@@ -245,9 +248,19 @@ class AxisModel(CoeModel):
             all_on = bool((mode != CTRL_OFF).all())
             on = (mode != CTRL_OFF).astype(np.float64)
         limit_speed = self._limit_speed(vmax)
-        p0, p1 = self.plan_from[r], self.plan_to[r]
-        span = (p1 - p0) / n
-        vff, tff = self.plan_vff[r], self.plan_tff[r]
+        # The demand between two set-points: a parabola from plan_from to plan_to whose
+        # acceleration is the one the torque feed-forward gives the axis, its velocity
+        # (the velocity feed-forward) ramping from vff - acc dt/2 to vff + acc dt/2. A
+        # straight line with the cycle's mean velocity would make the velocity loop fight
+        # the torque feed-forward (ahead of the ramp early in the cycle, behind it late)
+        # and push the axis ahead of the demand while it accelerates.
+        acc = self.plan_acc[r]
+        acc_h = acc * h
+        acc_hh = acc_h * h
+        pref = self.plan_from[r]
+        step_p = (self.plan_to[r] - pref) / n - acc_hh * (0.5 * (n - 1))  # first substep
+        vff = self.plan_vff[r] - acc_h * (0.5 * n)                     # at the start
+        tff = self.plan_tff[r]
         vcmd, tcmd = self.plan_v[r], self.plan_t[r]
         p, v, integ = self.p[r], self.v[r], self.integ[r]
         ki_h, gain_h = ki * h, acc_gain * h
@@ -256,7 +269,10 @@ class AxisModel(CoeModel):
         for step in range(1, n + 1):
             # ufunc minimum/maximum rather than np.clip: clip's Python wrapper costs more
             # than the arithmetic on these short arrays
-            pref = p0 if step == 1 else p0 + span * (step - 1)  # the demand where it starts
+            if step > 1:  # the demand and its velocity where the substep starts
+                pref = pref + step_p
+                step_p = step_p + acc_hh
+                vff = vff + acc_h
             vref = vff + kp * (pref - p) if all_pos else np.where(pos, vff + kp * (pref - p), vcmd)
             if limit_speed:
                 vref = np.minimum(np.maximum(vref, -vmax), vmax)
@@ -309,7 +325,7 @@ class AxisModel(CoeModel):
     def reset_axis(self, instance: int) -> None:
         """Power-on: the axis stands at raw position 0 with its loops idle."""
         for name in ("p", "v", "integ", "torque", "enc_prev", "plan_from", "plan_to",
-                     "plan_vff", "plan_tff", "plan_v", "plan_t"):
+                     "plan_vff", "plan_tff", "plan_acc", "plan_v", "plan_t"):
             arr: Any = getattr(self, name)
             arr[instance] = 0.0
         self.plan_mode[instance] = CTRL_OFF

@@ -131,18 +131,22 @@ def plan(eng: DriveEngine, r: Rows, inst: I64, state: I64, mode: I64, cw: I64, p
         g_p, g_v, new_p, new_v = homing.run_homing(eng, r, inst, m, halt, cw, prev, p, g_p, g_v, new_p,
                                               new_v, dt, switches)
     # commit the plan
+    position = ctrl == CTRL_POSITION
+    was_position = eng.plan_mode[r] == CTRL_POSITION
     eng.plan_mode[r] = ctrl
     eng.plan_from[r] = np.where(powered, g_p, p)
     eng.plan_to[r] = np.where(powered, new_p, p)
-    position = ctrl == CTRL_POSITION
     vff = ((new_p - g_p) / safe_dt + vff_extra) * position
     # acceleration feed-forward: the torque the demanded change of velocity needs
-    # (inertia), as servo drives add it to the velocity loop's output
-    accel = (vff - eng.plan_vff[r]) / safe_dt * (position & (eng.plan_mode[r] == CTRL_POSITION))
+    # (inertia), as servo drives add it to the velocity loop's output. A generated
+    # demand (profile position, homing, stop ramps) goes from g_v to new_v over the
+    # cycle; in CSP new_v is the cycle's mean velocity and g_v the last cycle's.
+    accel = (new_v - g_v) / safe_dt * (position & was_position)
     consts = eng.constants(r)
     inertia = consts.inertia / consts.counts_per_rad
     eng.plan_vff[r] = vff
     eng.plan_tff[r] = tff + inertia * accel
+    eng.plan_acc[r] = accel
     eng.plan_v[r] = vcmd
     eng.plan_t[r] = tcmd
     eng.g_p[r] = np.where(powered, new_p, p)
@@ -171,6 +175,7 @@ def plan_csp(eng: DriveEngine, r: Rows, safe_dt: F64) -> None:
     eng.plan_vff[r] = vff
     eng.plan_tff[r] = (col(*K_TORQUE_OFFSET, r) * col(*K_RATED, r) * 1e-6
                         + consts.inertia / consts.counts_per_rad * accel)
+    eng.plan_acc[r] = accel
     eng.g_p[r] = raw
     eng.g_v[r] = (raw - g_p) / safe_dt
     eng.limited[r] = limited
