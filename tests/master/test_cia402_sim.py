@@ -22,7 +22,7 @@ from pyethercat.master.dc import DcSettings
 from pyethercat.master.master import Master
 from pyethercat.sim.segment import Segment
 from pyethercat.sim.topology import parse_topology
-from pyethercat.trajectory import s_curve
+from pyethercat.trajectory import s_curve, trapezoid
 from pyethercat.wire import registers as R
 from pyethercat.wire.al import AlState, AlStatusCode
 from pyethercat.wire.cia402 import DriveState, OperationMode
@@ -90,6 +90,70 @@ def test_csp_s_curves_on_dc_follow_within_the_window() -> None:
         assert s.sdo_read(0x1C32, 1, "uint16") == 2
         assert s.sdo_read(0x1C32, 0x0B, "uint16") == 0
         assert s.sdo_read(0x1C32, 2, "uint32") == 1_000_000
+        assert s.sdo_read(0x1C32, 3, "uint32") == 0           # outputs applied at SYNC0
+        assert s.sdo_read(0x1C32, 5, "uint32") == 250_000     # minimum cycle time
+        assert s.sdo_read(0x1C33, 1, "uint16") == 2           # inputs latched at SYNC0 too
+        assert s.sdo_read(0x1C33, 2, "uint32") == 1_000_000   # the same cycle
+        assert s.sdo_read(0x1C33, 3, "uint32") == 0
+
+
+def test_following_error_is_demand_minus_actual_and_lags_on_acceleration() -> None:
+    """0x60F4 is the position demand value minus the position actual value (IEC 61800-7-201):
+    while a positive move accelerates at a constant rate the axis never leads its demand,
+    and a move the other way mirrors it."""
+    rig = Rig(drives(2))
+    g = rig.group
+    g.set_mode("csp")
+    g.enable()
+    start = g.positions_actual()
+    move = trapezoid(start, start + np.array([60_000, -60_000]), 4e5, 4e6, 0.001)
+    rec = g.follow(move, settle=30)
+    assert rec is not None and rec.following_error is not None
+    # the cycles in which the commanded move accelerates at 4e6 inc/s² (to 400,000 inc/s)
+    accel = np.abs(np.diff(move.velocity[:, 0])) > 1.0
+    accel[move.velocity[1:, 0] <= 0] = False
+    rows = np.nonzero(accel)[0][5:100]                       # 0.1 s of it, the drive caught up
+    fe = rec.following_error[rows]
+    assert (fe[:, 0] >= 0).all() and (fe[:, 1] <= 0).all(), fe.T
+    assert np.abs(fe).max() <= 5                              # the feed-forward does the work
+
+
+def test_builtin_drive_gets_the_sii_pdos_assigned_and_runs() -> None:
+    """The drive's 0x1C12/0x1C13 are empty at power-on: configure() writes the SII's PDOs
+    to them (the drive would refuse SAFE-OP otherwise) and the drive answers in OP."""
+    rig = Rig(drives(1), mapping=None)
+    s = rig.m.slaves[0]
+    assert [s.sdo_read(0x1C12, sub, "uint16" if sub else "uint8") for sub in (0, 1)] == [1, 0x1600]
+    assert [s.sdo_read(0x1C13, sub, "uint16" if sub else "uint8") for sub in (0, 1)] == [1, 0x1A00]
+    cfg = rig.m.process_data
+    assert cfg is not None                                    # controlword + mode, status + mode
+    assert (cfg.slaves[0].output_bytes, cfg.slaves[0].input_bytes) == (3, 3)
+    d = rig.group.drive(0)
+    assert d.state == DriveState.SWITCH_ON_DISABLED and d.statusword & 0x0250 == 0x0250
+    d.enable()
+    assert d.state == DriveState.OPERATION_ENABLED
+
+
+@pytest.mark.parametrize("mode,index,stale,dtype", [
+    ("csp", 0x607A, 30_000, "int32"),                         # a target left from a PP move
+    ("csv", 0x60FF, 200_000, "int32"),                        # from a PV run
+    ("cst", 0x6071, 300, "int16"),                            # 30 % of the rated torque
+], ids=["csp", "csv", "cst"])
+def test_cyclic_mode_with_an_unmapped_target_starts_where_the_axis_is(
+        mode: str, index: int, stale: int, dtype: str) -> None:
+    """The target of CSP/CSV/CST not in the PDOs still holds what was written last; the group
+    writes it by SDO (actual position, zero velocity, zero torque) before the mode changes."""
+    rig = Rig(drives(1), mapping=None)                        # controlword + mode only
+    s = rig.m.slaves[0]
+    d = rig.group.drive(0)
+    d.enable()
+    before = s.sdo_read(0x6064, 0, "int32")
+    s.sdo_write(index, 0, before + stale if index == 0x607A else stale, dtype)
+    d.set_mode(mode)
+    rig.group.step(300)
+    assert d.state == DriveState.OPERATION_ENABLED            # no following error fault
+    assert abs(s.sdo_read(0x6064, 0, "int32") - before) <= 1  # the axis did not move
+    assert s.sdo_read(index, 0, dtype) == (before if index == 0x607A else 0)
 
 
 def test_following_error_fault_emergency_and_reset() -> None:
@@ -125,7 +189,9 @@ def test_profile_position_move_quick_stop_and_homing() -> None:
     assert abs(d.actual_position - (start + 60_000)) <= 100
     assert d.mode == OperationMode.PROFILE_POSITION
     d.move_to(-10_000, relative=True)                          # relative to the last target
-    rig.group.step(100)
+    # the axis may come to rest a fraction of an increment past the target; the velocity
+    # loop's integrator then has to overcome Coulomb friction (0x2100) before it creeps back
+    rig.group.step(300)
     assert d.actual_position == start + 50_000
     rig.m.slaves[0].sdo_write(0x2100, 9, start + 80_000, "int32")  # the home switch
     rig.m.slaves[0].sdo_write(0x607C, 0, -1000, "int32")           # home reads 1000

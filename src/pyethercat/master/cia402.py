@@ -590,16 +590,14 @@ class DriveGroup:
 
     def set_mode(self, mode: OperationMode | int | str, timeout: float = 1.0,
                  drives: Sequence[int] | None = None) -> None:
-        """Write 0x6060 (PDO or SDO) and wait until 0x6061 shows it."""
+        """Write 0x6060 (PDO or SDO) and wait until 0x6061 shows it.
+
+        For CSP, CSV and CST the target starts where the axes are first (in the
+        PDOs, else by SDO): position actual value, zero velocity, zero torque.
+        """
         want = parse_mode(mode) if isinstance(mode, str) else OperationMode(int(mode))
         sel = self._select(drives)
-        # the new mode's targets start where the axes are, so nothing jumps
-        if want == OM.CYCLIC_SYNC_POSITION and self._target is not None and self._pos is not None:
-            self._target.set(self._pos.get(), sel)
-        if want == OM.CYCLIC_SYNC_VELOCITY and self._target_v is not None:
-            self._target_v.set(0, sel)
-        if want == OM.CYCLIC_SYNC_TORQUE and self._target_t is not None:
-            self._target_t.set(0, sel)
+        self._start_targets(want, sel)
         if self._mode is not None:
             self._mode.set(int(want), sel)
         else:
@@ -612,6 +610,41 @@ class DriveGroup:
             return all(modes[i] == want for i in np.nonzero(sel)[0].tolist())
 
         self._wait(shown, timeout, f"mode {want.short}", sel)
+
+    def _start_targets(self, want: OperationMode, sel: B) -> None:
+        """The cyclic modes' targets start where the axes are, so nothing jumps.
+
+        A drive takes 0x607A/0x60FF/0x6071 as its set-point from the first
+        cycle in CSP/CSV/CST (IEC 61800-7-201), whether the object is in the
+        PDOs or not: an unmapped one still holds whatever was written last (a
+        profile move's target, a position from before homing redefined the
+        origin), so it is written by SDO: the position actual value, zero
+        velocity, zero torque.
+        """
+        if want == OM.CYCLIC_SYNC_POSITION:
+            col, index, dtype = self._target, _O.TARGET_POSITION, "int32"
+        elif want == OM.CYCLIC_SYNC_VELOCITY:
+            col, index, dtype = self._target_v, _O.TARGET_VELOCITY, "int32"
+        elif want == OM.CYCLIC_SYNC_TORQUE:
+            col, index, dtype = self._target_t, _O.TARGET_TORQUE, "int16"
+        else:
+            return
+        idx = np.nonzero(sel)[0].tolist()
+        if want == OM.CYCLIC_SYNC_POSITION:
+            if self._pos is not None:
+                values = self._pos.get()
+            else:
+                values = np.zeros(len(self), np.int64)
+                for i in idx:
+                    values[i] = int(self.master.slaves[self.positions[i]].sdo_read(
+                        int(_O.POSITION_ACTUAL_VALUE), 0, "int32"))
+        else:
+            values = np.zeros(len(self), np.int64)
+        if col is not None:
+            col.set(values, sel)
+            return
+        for i in idx:
+            self.master.slaves[self.positions[i]].sdo_write(int(index), 0, int(values[i]), dtype)
 
     # --- cyclic synchronous set-points -------------------------------------------------------
 
