@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from typing import Any
 
 import click
@@ -31,7 +32,29 @@ def format_drives(reply: DriveReply) -> list[str]:
     return lines
 
 
-@click.command("drive")
+_NEGATIVE = re.compile(r"-(0[xX][0-9a-fA-F]+|\d+)")
+
+
+class _DriveCommand(click.Command):
+    """A move target or a (manufacturer-specific) homing method may be negative.
+
+    "-5000" is not a cluster of short options: a negative number that is not the
+    value of an option goes after "--", where click takes it as the argument.
+    """
+
+    def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
+        if "--" not in args:
+            takes_value = {name for p in self.get_params(ctx)
+                           if isinstance(p, click.Option) and not p.is_flag for name in p.opts}
+            numbers = [i for i, a in enumerate(args) if _NEGATIVE.fullmatch(a)
+                       and not (i and args[i - 1] in takes_value)]
+            if numbers:
+                args = ([a for i, a in enumerate(args) if i not in numbers] + ["--"]
+                        + [args[i] for i in numbers])
+        return super().parse_args(ctx, args)
+
+
+@click.command("drive", cls=_DriveCommand)
 @click.argument("action", type=click.Choice(DRIVE_ACTIONS), metavar="ACTION")
 @click.argument("argument", required=False, metavar="[MODE|TARGET|METHOD]")
 @selection_options
@@ -53,7 +76,8 @@ def drive_command(obj: dict[str, Any], action: str, argument: str | None, positi
     actions go through a running master's cycle ('pyethercat run' in another
     terminal) and need the drive's controlword and statusword in its PDOs.
     A move switches to profile position mode; home to homing mode. Prints
-    every selected drive afterwards.
+    every selected drive afterwards (without -p/-a: every drive of the
+    segment). A negative TARGET or METHOD is a number, not an option.
     """
     want = _NEEDS_ARGUMENT.get(action)
     if want is not None and argument is None:
@@ -69,7 +93,9 @@ def drive_command(obj: dict[str, Any], action: str, argument: str | None, positi
         method=parse_int(argument) if action == "home" and argument is not None else None,
         timeout=timeout)
     with open_session(obj) as session:
-        positions = session.select(position, alias)
+        # neither -p nor -a: every drive (the handler leaves other slaves out)
+        positions = (None if position is None and alias is None
+                     else session.select(position, alias))
         reply: DriveReply = session.call(DriveAction(**{**req.__dict__, "positions": positions}))
     if as_json:
         click.echo(json.dumps({"source": reply.source,

@@ -56,10 +56,13 @@ class DriveReply(Reply):
 @request("drive", DriveReply)
 @dataclass(frozen=True)
 class DriveAction(Request):
-    """One action on the drives at ``positions`` (see :data:`DRIVE_ACTIONS`)."""
+    """One action on the drives at ``positions`` (see :data:`DRIVE_ACTIONS`).
+
+    ``positions`` None: every drive of the segment (other slaves are left out).
+    """
 
     action: str
-    positions: list[int]
+    positions: list[int] | None
     mode: str | None = None
     target: int | None = None
     relative: bool = False
@@ -73,13 +76,14 @@ class DriveAction(Request):
 def _drive(ctx: MasterContext, req: DriveAction) -> DriveReply:
     if req.action not in DRIVE_ACTIONS:
         raise ConfigError(f"unknown drive action {req.action!r}: one of {', '.join(DRIVE_ACTIONS)}")
+    chosen = req.positions is not None
     slaves = ctx.select(req.positions)
     positions = [s.position for s in slaves]
     runner = ctx.runner
     group = None
     if runner is not None:
         try:
-            group = DriveGroup(ctx.master, positions)
+            group = DriveGroup(ctx.master, positions if chosen else None)
         except ConfigError:
             if req.action != "status":
                 raise
@@ -87,7 +91,17 @@ def _drive(ctx: MasterContext, req: DriveAction) -> DriveReply:
         if req.action != "status":
             raise ConfigError(f"drive {req.action} needs a master that exchanges process data with "
                               "the drive (start one with 'pyethercat run', then repeat)")
-        return DriveReply([_by_sdo(ctx, p) for p in positions], "sdo")
+        if chosen:
+            return DriveReply([_by_sdo(ctx, p) for p in positions], "sdo")
+        found = []
+        for p in positions:
+            try:
+                found.append(_by_sdo(ctx, p))
+            except ConfigError:  # not a drive (no CoE, no statusword 0x6041)
+                continue
+        if not found:
+            raise ConfigError("no CiA 402 drive on the segment (no slave has a statusword 0x6041)")
+        return DriveReply(found, "sdo")
     group.attach(runner)
     try:
         _act(group, req)
@@ -153,17 +167,24 @@ def _by_sdo(ctx: MasterContext, position: int) -> DriveStatus:
                    read(int(_O.ERROR_CODE), "uint16") or 0)
 
 
+def _sdo_int(ctx: MasterContext, position: int, index: int, kind: str) -> int | None:
+    try:
+        return int(ctx.slave(position).sdo_read(int(index), 0, kind))
+    except EtherCATError:
+        return None
+
+
 def _from_group(ctx: MasterContext, group: DriveGroup) -> list[DriveStatus]:
     sws = group.statuswords()
     modes = group.modes()
     try:
         actual: list[int | None] = [int(v) for v in group.positions_actual()]
-    except ConfigError:
-        actual = [None] * len(group)
+    except ConfigError:  # not in the PDOs: by SDO
+        actual = [_sdo_int(ctx, p, _O.POSITION_ACTUAL_VALUE, "int32") for p in group.positions]
     try:
         fes: list[int | None] = [int(v) for v in group.following_errors()]
     except ConfigError:
-        fes = [None] * len(group)
+        fes = [_sdo_int(ctx, p, _O.FOLLOWING_ERROR_ACTUAL_VALUE, "int32") for p in group.positions]
     out = []
     for i, p in enumerate(group.positions):
         error = 0
