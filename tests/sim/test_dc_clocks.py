@@ -17,6 +17,7 @@ from pyethercat.sim.topology import parse_topology
 from pyethercat.wire import registers as R
 from pyethercat.wire.datagram import Command, Datagram
 from pyethercat.wire.dc import decode_time_difference
+from pyethercat.wire.sii import sii_crc
 
 ST = 0x1000
 
@@ -181,6 +182,86 @@ def test_single_shot_sync1_multiple_and_a_start_in_the_past() -> None:
     assert apps[1].sync1 == [s0[k] + 220_000 for k in (0, 3, 6)]
     assert apps[2].sync0 == []
     assert fprd(seg, ST + 2, R.DC_ACTIVATION_STATUS, 1).data == bytes([R.DcActivationStatus.SYNC0_PENDING])
+
+
+def sync_status(seg: Segment) -> tuple[int, int]:
+    """(0x098E, 0x098F) of the follower as the master reads them (FPRD)."""
+    data = fprd(seg, ST + 1, R.DC_SYNC0_STATUS, 2).data
+    return data[0], data[1]
+
+
+def test_sync_status_shows_each_pulse_for_the_pulse_length() -> None:
+    """0x0982 = 1000 (10 us, from SII word 2): SYNC0 and SYNC1 status are set that long."""
+    seg, clock = pair(0.0)
+    # the firmware's EEPROM says 10 us; the master reloads it into the registers
+    eeprom = seg.escs[1].eeprom
+    head = bytearray(eeprom.image[:14])
+    head[4:6] = struct.pack("<H", 1000)
+    eeprom.firmware_write(0, bytes(head) + bytes([sii_crc(bytes(head)), 0]))
+    fpwr(seg, ST + 1, R.SII_CONTROL, struct.pack("<H", R.SiiControl.CMD_RELOAD))
+    assert fprd(seg, ST + 1, R.DC_SYNC_PULSE_LENGTH, 2).data == struct.pack("<H", 1000)
+    # (drift 0 and a frame that passes within a microsecond: system time = clock + now)
+    now = systimes(seg)[1]
+    start = now + 1_000_000
+    start_sync(seg, ST + 1, start, 250_000, 50_000, act=0x07)  # SYNC1 50 us after SYNC0
+
+    def at(us: float) -> tuple[int, int]:
+        clock.set(1_000_000 + int(us * 1000))
+        return sync_status(seg)
+
+    def brd_at(us: float) -> bytes:
+        clock.set(1_000_000 + int(us * 1000))
+        brd = one(seg, Datagram.device(Command.BRD, 0, R.DC_SYNC0_STATUS, 2))
+        assert brd.wkc == 2
+        return brd.data
+
+    assert at(-5) == (0, 0)
+    assert at(3) == (1, 0)       # SYNC0 on
+    assert brd_at(19) == b"\x00\x00"  # 10 us later it is off again (a broadcast read too)
+    assert at(20) == (0, 0)
+    assert brd_at(52) == b"\x00\x01"
+    assert at(53) == (0, 1)      # SYNC1
+    assert at(70) == (0, 0)
+    assert at(253) == (1, 0)     # the next cycle
+    assert at(306) == (0, 1)
+    # an EtherCAT read does not acknowledge anything: the next pulse shows again
+    assert at(503) == (1, 0) and at(505) == (1, 0)
+
+
+def test_sync_status_in_acknowledge_mode_stays_until_the_pdi_reads_it() -> None:
+    """0x0982 = 0: a pulse sets the status until the PDI reads it; EtherCAT reads leave it."""
+    seg, clock = pair(0.0)
+    assert fprd(seg, ST + 1, R.DC_SYNC_PULSE_LENGTH, 2).data == b"\x00\x00"
+    pdi = seg.escs[1].pdi
+    now = systimes(seg)[1]
+    start = now + 1_000_000
+    # SYNC1 every 3rd SYNC0 cycle, 20 us after it: 0x09A4 = 2 cycles + 20 us
+    start_sync(seg, ST + 1, start, 250_000, 520_000, act=0x07)
+
+    def go(us: float) -> None:
+        clock.set(1_000_000 + int(us * 1000))
+        seg.tick()
+
+    go(100)
+    assert sync_status(seg) == (1, 0)
+    go(240)
+    assert sync_status(seg) == (1, 0)          # still set: nobody acknowledged
+    assert pdi.read(R.DC_SYNC0_STATUS, 1) == b"\x01"  # the firmware reads it ...
+    assert pdi.read(R.DC_SYNC0_STATUS, 1) == b"\x00"  # ... and so acknowledges it
+    assert sync_status(seg) == (0, 0)
+    go(260)
+    assert pdi.read(R.DC_SYNC0_STATUS, 2) == b"\x01\x00"  # the next pulse; SYNC1 not yet
+    go(510)
+    assert pdi.read(R.DC_SYNC1_STATUS, 1) == b"\x00"  # SYNC1 comes at 520 us
+    go(530)
+    assert sync_status(seg) == (1, 1)
+    assert pdi.read(R.DC_SYNC1_STATUS, 1) == b"\x01"  # acknowledges SYNC1 only
+    assert sync_status(seg) == (1, 0)
+    go(1260)
+    assert pdi.read(R.DC_SYNC0_STATUS, 2) == b"\x01\x00"  # the next SYNC1: at 750 + 520 us
+    go(1280)
+    assert pdi.read(R.DC_SYNC0_STATUS, 2) == b"\x00\x01"
+    assert pdi.read(R.DC_SYNC0_STATUS, 2) == b"\x00\x00"
 
 
 def test_latch_inputs_stamp_system_time() -> None:

@@ -365,8 +365,10 @@ class Commands:
         sm_lo, sm_hi = host.sm_span()
         plan = BrdPlan()
         sii_timed = host.sii_busy_ns > 0 or any(p.sii_read_ns or p.sii_write_ns for p in self.profiles)
+        # (SYNC0/1 status depends on the time of the read: each slave works it out)
         plan.slow = bool((lo < sm_hi and hi > sm_lo) or hi > host.memory.stride or (
-            sii_timed and lo < R.SII_CONTROL + 2 and hi > R.SII_CONTROL))
+            sii_timed and lo < R.SII_CONTROL + 2 and hi > R.SII_CONTROL) or (
+            lo <= R.DC_SYNC1_STATUS and hi > R.DC_SYNC0_STATUS))
         plan.rows = rows = self._rows_implementing(passes, lo, hi)
         plan.contiguous = contiguous = bool(route.contiguous and len(rows) == len(passes))
         plan.systime = lo < R.DC_SYSTEM_TIME + 8 and hi > R.DC_SYSTEM_TIME

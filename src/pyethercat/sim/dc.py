@@ -23,9 +23,12 @@ the ESC datasheet section I, "Distributed Clocks" (the master's side: SOEM
 - the cyclic unit (0x0980-0x09A7) fires SYNC0 from the start time 0x0990
   every 0x09A0 ns (0: once) and SYNC1 0x09A4 ns after a SYNC0 pulse, the
   next SYNC1 waiting for the first SYNC0 after it (as SOEM's ``ecx_dcsync01``
-  assumes); a pulse sets 0x098E/0x098F and its AL event, is recorded with the
-  segment time at which it really happened, and reaches device applications
-  that listen for it;
+  assumes); a pulse raises its AL event, is recorded with the segment time at
+  which it really happened, and reaches device applications that listen for
+  it. The SYNC0/SYNC1 status 0x098E/0x098F shows the pulse for the pulse
+  length 0x0982 (in 10 ns, from SII word 2); with length 0 (acknowledge mode)
+  it stays set until the PDI reads it (ET1100 datasheet section II,
+  0x0982 and 0x098E-0x098F);
 - latch inputs (0x09A8-0x09CF) stamp the system time of an edge a device
   application reports.
 
@@ -128,6 +131,14 @@ class DcClocks:
         self.sync0_on = np.zeros(0, bool)
         self.sync1_on = np.zeros(0, bool)
         self.pulses = np.zeros(0, np.int64)     # SYNC0 pulses fired so far
+        # SYNC status (0x098E/0x098F): the last pulse (system time, 0: none since the
+        # unit was configured), ``pulses`` when it was configured, and the pulses the
+        # PDI acknowledged by reading the status (SYNC0: a ``pulses`` value; SYNC1: a
+        # count since the configuration)
+        self.last0 = np.zeros(0, np.uint64)
+        self.cfg_pulses = np.zeros(0, np.int64)
+        self.ack0 = np.zeros(0, np.int64)
+        self.ack1 = np.zeros(0, np.int64)
         #: Recorded SYNC0 pulses: ring of (system time, true segment time) per slave.
         self.rec_sys = np.zeros((0, RECORDED_PULSES), np.uint64)
         self.rec_true = np.zeros((0, RECORDED_PULSES), np.float64)
@@ -157,6 +168,7 @@ class DcClocks:
                            ("wide", True), ("filtered", 0.0), ("learned", 0.0),
                            ("last_update", np.nan), ("period", 0.0), ("next0", 0), ("cycle0", 0), ("cycle1", 0),
                            ("sync0_on", False), ("sync1_on", False), ("pulses", 0),
+                           ("last0", 0), ("cfg_pulses", 0), ("ack0", 0), ("ack1", 0),
                            ("rec_sys", 0), ("rec_true", np.nan), ("app_listens", False),
                            ("model_listens", False)):
             setattr(self, name, _grown(getattr(self, name), n, fill))
@@ -186,6 +198,7 @@ class DcClocks:
         self.trim[index] = self.learned[index] = self.filtered[index] = self.period[index] = 0.0
         self.until[index] = 0.0
         self.last_update[index] = np.nan
+        self.cfg_pulses[index] = self.pulses[index]  # no pulse since: the status reads 0
         self.sync_drop(index)
 
     def set_drift(self, index: int, drift_ppm: float, now: int) -> None:
@@ -409,6 +422,10 @@ class DcClocks:
         self.cycle0[index] = esc.u32(R.DC_SYNC0_CYCLE)
         self.cycle1[index] = esc.u32(R.DC_SYNC1_CYCLE)
         self.sync0_on[index], self.sync1_on[index] = on0, on1
+        self.last0[index] = 0
+        self.cfg_pulses[index] = self.ack0[index] = self.pulses[index]
+        self.ack1[index] = 0
+        esc.row[R.DC_SYNC0_STATUS] = esc.row[R.DC_SYNC1_STATUS] = 0
         pending = (R.DcActivationStatus.SYNC0_PENDING if on0 else 0) | (
             R.DcActivationStatus.SYNC1_PENDING if on1 else 0)
         esc.row[R.DC_ACTIVATION_STATUS] = int(pending)
@@ -472,11 +489,12 @@ class DcClocks:
             self.rec_sys[sel, slot] = at
             self.rec_true[sel, slot] = self._true_time(sel, at)
         self.pulses[slaves] += count
+        self.last0[slaves] = last
         self.next0[slaves] = np.where(cycle > 0, last + cycle.astype(np.uint64), np.uint64(_U64 - 1))
         mem = self.memory.mem
         on0, on1 = self.sync0_on[slaves], self.sync1_on[slaves]
+        # (the status registers are worked out when they are read: refresh_sync_status)
         mem[slaves[on0], R.DC_SYNC0_STATUS] = R.DC_SYNC_STATUS_PULSE
-        mem[slaves[on1], R.DC_SYNC1_STATUS] = R.DC_SYNC_STATUS_PULSE
         mem[slaves, R.DC_ACTIVATION_STATUS] = 0
         ev = np.where(on0, int(R.AlEvent.SYNC0), 0) | np.where(on1, int(R.AlEvent.SYNC1), 0)
         for byte in range(2):
@@ -516,6 +534,60 @@ class DcClocks:
                         app.on_sync0(t)
                 if app is not None and self.sync1_on[s] and (int(before[k]) + j) % every == 0:
                     app.on_sync1(t + c1)
+
+    def refresh_sync_status(self, index: int, lo: int, hi: int, pdi_ns: int | None = None) -> None:
+        """Bring 0x098E/0x098F of ``index`` up to date before a read of [lo, hi).
+
+        With a pulse length (0x0982 x 10 ns) the status shows whether a pulse
+        is on: set from the pulse's system time for that long. With length 0
+        (acknowledge mode) it stays set from a pulse until the PDI reads it
+        (``pdi_ns``: the segment time of a PDI read, which then clears what it
+        read; None: an EtherCAT read, at the frame's pass, which leaves it). SYNC1 pulses are worked out from the SYNC0 ones:
+        0x09A4 after every n-th (see :func:`pyethercat.wire.dc.sync1_period`).
+        """
+        esc = self.escs[index]
+        row = esc.row
+        length = esc.u16(R.DC_SYNC_PULSE_LENGTH) * TICK_NS
+        s0 = s1 = 0
+        fired = int(self.pulses[index] - self.cfg_pulses[index])
+        if fired > 0:
+            idx = np.array([index], np.int64)
+            t = int(self.pass_time(idx)[0]) if pdi_ns is None else pdi_ns
+            wrap = _U64 if self.wide[index] else 1 << 32
+            now = int(self.system_time(idx, t)[0]) % wrap
+            last0 = int(self.last0[index])
+
+            def since(pulse: int) -> int:  # signed: the pulses lie within a few cycles
+                d = (now - pulse) % wrap
+                return d - wrap if d >= wrap // 2 else d
+
+            if self.sync0_on[index]:
+                if length:
+                    s0 = int(0 <= since(last0) < length)
+                else:
+                    s0 = int(int(self.pulses[index]) > int(self.ack0[index]))
+            count1 = 0
+            last1 = None
+            if self.sync1_on[index]:
+                c0, c1 = int(self.cycle0[index]), int(self.cycle1[index])
+                every = sync1_period(c0, c1) // c0 if c0 else 1
+                k = fired - 1                       # index of the last SYNC0 pulse
+                k -= k % every                      # the last one SYNC1 follows
+                if since((last0 - (fired - 1 - k) * c0) % wrap) < c1:
+                    k -= every                      # its SYNC1 is still to come
+                if k >= 0:
+                    last1 = (last0 - (fired - 1 - k) * c0 + c1) % wrap
+                    count1 = k // every + 1
+                if last1 is not None:
+                    s1 = int(0 <= since(last1) < length) if length else int(
+                        count1 > int(self.ack1[index]))
+            if pdi_ns is not None and not length:
+                if lo <= R.DC_SYNC0_STATUS < hi:
+                    self.ack0[index] = self.pulses[index]
+                if lo <= R.DC_SYNC1_STATUS < hi:
+                    self.ack1[index] = count1
+        row[R.DC_SYNC0_STATUS] = s0
+        row[R.DC_SYNC1_STATUS] = s1
 
     def recorded_pulses(self) -> tuple[npt.NDArray[np.uint64], F64]:
         """(system time, true segment time) of the recorded SYNC0 pulses, per slave x slot."""

@@ -235,13 +235,16 @@ class Esc(EscRegisters):
                 self._sm_write_complete(s)
         return True
 
-    def refresh(self, lo: int, hi: int) -> None:
-        """Bring time-dependent registers in [lo, hi) up to date before a read."""
+    def refresh(self, lo: int, hi: int, pdi: bool = False) -> None:
+        """Bring time-dependent registers in [lo, hi) up to date before a read (``pdi``: by the PDI)."""
         if lo < R.SII_CONTROL + 2 and hi > R.SII_CONTROL:
             self.eeprom.refresh()
         if (lo < R.DC_SYSTEM_TIME + 8 and hi > R.DC_SYSTEM_TIME and self.profile.dc_supported
                 and self.profile.dc_system_time):
             self.host.dc_refresh(self.index)
+        if (lo <= R.DC_SYNC1_STATUS and hi > R.DC_SYNC0_STATUS and self.profile.dc_supported
+                and self.profile.dc_system_time):
+            self.host.dc_sync_status(self.index, lo, hi, pdi)
 
     def after_read(self, lo: int, hi: int) -> None:
         """Clear-on-read events."""
@@ -388,7 +391,7 @@ class Esc(EscRegisters):
         if hi > top:  # memory the chip lacks reads 0
             head = self.pdi_read(address, top - lo) if lo < top else b""
             return head + bytes(length - len(head))
-        self.refresh(lo, hi)
+        self.refresh(lo, hi, pdi=True)
         data = self.row[lo:hi].tobytes()
         if lo < R.AL_CONTROL + 2 and hi > R.AL_CONTROL:
             self.clear_al_event(int(R.AlEvent.AL_CONTROL))

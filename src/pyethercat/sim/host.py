@@ -93,6 +93,11 @@ class EscHost(Protocol):
         """Bring the slave's system time register (0x0910) up to date before a read."""
         ...
 
+    def dc_sync_status(self, index: int, lo: int, hi: int, pdi: bool) -> None:
+        """Bring SYNC0/SYNC1 status (0x098E/0x098F) up to date before a read of [lo, hi)
+        (``pdi``: a PDI read, which acknowledges the pulses in acknowledge mode)."""
+        ...
+
     def dc_latch_input(self, index: int, unit: int, rising: bool, t_ns: int | None) -> None:
         """An edge on the slave's latch input ``unit`` at segment time ``t_ns`` (None: now)."""
         ...

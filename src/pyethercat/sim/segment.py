@@ -733,5 +733,9 @@ class _EscHost:
     def dc_refresh(self, index: int) -> None:
         self._seg.dc.refresh_system_time(np.array([index], dtype=np.int64))
 
+    def dc_sync_status(self, index: int, lo: int, hi: int, pdi: bool) -> None:
+        seg = self._seg
+        seg.dc.refresh_sync_status(index, lo, hi, seg.clock.now_ns() if pdi else None)
+
     def dc_latch_input(self, index: int, unit: int, rising: bool, t_ns: int | None) -> None:
         self._seg.latch_input(index, unit, rising, t_ns)
