@@ -98,7 +98,8 @@ class GatewayStats:
     forwarded: int = 0
     #: Requests forwarded but not answered (the slave's failure, a time-out).
     failed: int = 0
-    #: Datagrams dropped before forwarding, by reason ("short", "type", "length", "address").
+    #: Datagrams dropped before forwarding, by reason ("short", "type", "length", "address",
+    #: "no mailbox").
     dropped: dict[str, int] = field(default_factory=dict)
 
     @property
