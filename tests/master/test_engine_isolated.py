@@ -1,10 +1,12 @@
 """The isolated cyclic engine over a veth pair against ``pyethercat sim`` (root).
 
-A user's process that is stopped (SIGSTOP) does not stop the exchange; a
-user's process that is killed leaves the slaves in SAFEOP with their outputs
-zero; an engine that is killed makes the next access raise
-:class:`EngineDiedError`; SDOs and register reads ride in the engine's
-frames while it cycles. The user's processes here are small scripts run by
+A user's process that is stopped (SIGSTOP) does not stop the exchange, and
+slaves cut off meanwhile come back once it continues; a user's process that
+is killed leaves the slaves in SAFEOP with their outputs zero (those it can
+reach, when some are cut off); an engine that is killed makes the next
+access raise :class:`EngineDiedError`; SDOs, FoE, EoE and register reads
+ride in the engine's frames while it cycles, the mailbox status bytes with
+the process image. The user's processes here are small scripts run by
 the test; the test watches the engine through its shared memory, as any
 outside reader may. No timed assertions: the checks wait for states with
 generous limits.
@@ -14,6 +16,7 @@ from __future__ import annotations
 
 import json
 import os
+import random
 import signal
 import socket
 import subprocess
@@ -25,15 +28,19 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
+from eoe_helpers import arp_request, ping
 
 from pyethercat.errors import EngineDiedError
 from pyethercat.master import Master
 from pyethercat.master.engine.runner import IsolatedRunner
-from pyethercat.master.engine.shared import SharedArea
+from pyethercat.master.engine.shared import HEALTH_STATUS, SharedArea
+from pyethercat.master.eoe import EoeService, eoe_clients
+from pyethercat.master.foe import FoeClient
 from pyethercat.wire import registers as R
 from pyethercat.wire.al import AlState
 from pyethercat.wire.datagram import Command
 from pyethercat.wire.frame import ETHERTYPE_ETHERCAT, decode_frame
+from pyethercat.wire.pcap import read_pcap
 
 pytest.importorskip("pyethercat.sim.server")
 from pyethercat.sim.server import SimProcess, start_sim_process  # noqa: E402
@@ -92,12 +99,15 @@ def user(demo_sim: tuple[SimProcess, str]) -> Iterator[tuple[subprocess.Popen[st
         line = proc.stdout.readline()
         if not line:
             pytest.fail(f"the user's program did not start: {proc.stderr.read() if proc.stderr else ''}")
-        yield proc, json.loads(line)
+        where = json.loads(line)
+        yield proc, where
     finally:
         if proc.poll() is None:
             os.kill(proc.pid, signal.SIGCONT)
             proc.kill()
         proc.wait()
+    # Its engine takes the slaves to SAFEOP and ends (not left for the run's clean-up).
+    wait_for(lambda: not _alive(int(where["engine"])), seconds=60.0)
 
 
 class OutgoingFrames:
@@ -180,6 +190,50 @@ def test_exchange_goes_on_while_the_user_process_is_stopped(
         area.close()
 
 
+def test_slaves_cut_off_while_the_user_process_is_stopped_come_back_after_it_continues(
+        demo_sim: tuple[SimProcess, str],
+        user: tuple[subprocess.Popen[str], dict[str, object]]) -> None:
+    # Bringing a slave back is the user's master's work (its configuration): while that
+    # process is stopped the engine exchanges with the slaves it reaches and asks, and
+    # the asking waits. The do8 behind the cut falls to SAFEOP with an error (its own
+    # watchdog) and waits for the user's process; the input-only di2 and ai2 never left
+    # OP and are back as soon as the cable is.
+    sim, _iface = demo_sim
+    proc, where = user
+    area = SharedArea.attach(str(where["area"]))
+
+    def states() -> dict[str, int]:
+        return {s["name"]: int(s["al_status"]) & 0x1F for s in sim.control("slaves")["slaves"]}
+
+    def health() -> list[str]:
+        table = area.read_health()
+        return [] if table is None else [HEALTH_STATUS[int(s)] for s in table["status"][:6]]
+
+    try:
+        assert wait_for(lambda: set(states().values()) == {int(AlState.OP)})
+        os.kill(proc.pid, signal.SIGSTOP)
+        try:
+            sim.control("break_link", slave="di8", port=1)
+            assert wait_for(lambda: health()[3:] != ["ok"] * 3 and health()[:3] == ["ok"] * 3)
+            assert wait_for(lambda: states()["do8"] == int(AlState.SAFEOP) | R.AL_ERROR_FLAG)
+            before = area.status.as_dict()["cycles"]
+            sim.control("restore_link", slave="di8", port=1)
+            assert wait_for(lambda: health()[4:] == ["ok"] * 2)
+            # (the engine went on cycling; the do8 waits for the stopped process)
+            assert area.status.as_dict()["cycles"] > before
+            assert health()[3] == "recovering"
+            assert states()["do8"] == int(AlState.SAFEOP) | R.AL_ERROR_FLAG
+        finally:
+            os.kill(proc.pid, signal.SIGCONT)
+        assert wait_for(lambda: health() == ["ok"] * 6, seconds=60.0)
+        assert set(states().values()) == {int(AlState.OP)}
+        _serial, events = area.events_since(0)
+    finally:
+        area.close()
+    assert any(text.startswith("slave 3 (0x1004) back in OP") or
+               text.startswith("slave 3 back in OP") for _t, text in events), events
+
+
 def test_killed_user_process_leaves_the_slaves_in_safeop_with_zero_outputs(
         demo_sim: tuple[SimProcess, str],
         user: tuple[subprocess.Popen[str], dict[str, object]]) -> None:
@@ -253,6 +307,9 @@ def test_dead_engine_raises_on_the_next_access(demo_sim: tuple[SimProcess, str])
         assert isinstance(r, IsolatedRunner)
         assert r.engine_pid is not None
         assert m.slaves[2].inputs["Input 1"] in (True, False)
+        # The states the live view shows are the engine's supervision's (this process's
+        # sees no frame)...
+        assert wait_for(lambda: [r.slave_state(p) for p in range(6)] == [int(AlState.OP)] * 6)
         os.kill(r.engine_pid, signal.SIGKILL)
 
         def raises() -> bool:
@@ -263,6 +320,8 @@ def test_dead_engine_raises_on_the_next_access(demo_sim: tuple[SimProcess, str])
             return False
 
         assert wait_for(raises)
+        # ...and unknown once it is dead.
+        assert r.slave_state(0) is None
         with pytest.raises(EngineDiedError, match="killed by signal 9"):
             m.slaves[3].outputs["Output 1"] = 1
         with pytest.raises(EngineDiedError):
@@ -299,6 +358,94 @@ def test_sdos_ride_in_the_engine_frames(veth_pair: tuple[str, str]) -> None:
             r.stop()
 
 
+# A CoE I/O that serves FoE from a folder, and the seed 002 drive as an EoE endpoint
+# (128-byte mailboxes: a full Ethernet frame is 16 fragments each way).
+FOE_EOE = """
+[[slave]]
+name = "io"
+device = "builtin:coe-io"
+foe = true
+foe_dir = "{folder}"
+[[slave]]
+name = "drive"
+device = "builtin:seed002-drive"
+eoe = {{ ip = "10.9.0.3/24" }}
+"""
+
+
+def test_foe_and_eoe_ride_in_the_engine_frames(tmp_path: Path) -> None:
+    folder = tmp_path / "foe"
+    folder.mkdir()
+    down = random.Random(18).randbytes(3000)
+    (folder / "down.bin").write_bytes(down)
+    topo = tmp_path / "foe-eoe.toml"
+    topo.write_text(FOE_EOE.format(folder=folder))
+    pcap = tmp_path / "sim.pcap"
+    # (the simulator on a Unix socketpair: the engine takes any link over one socket;
+    # both under SCHED_FIFO and a generous frame timeout, as a loaded machine needs)
+    with start_sim_process(topo, pcap=pcap, realtime=10) as sim, \
+            Master(sim.link, owns_link=False, timeout=0.5, mailbox_timeout=5.0) as m:
+        m.scan()
+        m.configure()
+        r = m.start(cycle=0.001, isolated=True)
+        started_ns = time.time_ns()
+        try:
+            assert isinstance(r, IsolatedRunner)
+            carried = r.status()["user_frames"]
+            # FoE: a file written lands in the simulator's folder; one read comes back whole.
+            foe = m.slaves[0].client(FoeClient)
+            up = random.Random(19).randbytes(5000)
+            foe.write("up.bin", up)
+            assert (folder / "up.bin").read_bytes() == up
+            assert foe.read("down.bin") == down
+            assert r.status()["user_frames"] - carried >= foe.stats.packets
+            # EoE as `run --eoe` moves it: ticking from the runner's callback, which here
+            # runs in this process after the engine's cycles, with the drive's SM1 status
+            # byte read from the shared image.
+            clients = eoe_clients(m.slaves)
+            assert set(clients) == {1}
+            drive = clients[1]
+            got: list[bytes] = []
+            drive.on_frame = got.append
+            offsets = {p: (r.config.slaves[p].group, r.config.slaves[p].mailbox_status_offset)
+                       for p in clients}
+            assert offsets[1][1] >= 0
+            svc = EoeService(m.scheduler, [drive])
+            svc.attach(r, offsets)
+            try:
+                drive.send(arp_request(bytes([10, 9, 0, 3])))
+                assert wait_for(lambda: len(got) == 1)
+                reply = got.pop()
+                assert reply[12:14] == b"\x08\x06" and reply[20:22] == b"\x00\x02"
+                frame = ping(reply[22:28], bytes([10, 9, 0, 3]), 1472, 1)
+                drive.send(frame)
+                assert wait_for(lambda: len(got) == 1), (drive.stats, m.scheduler.stats,
+                                                         r.status())
+                echo = got.pop()
+                assert len(echo) == len(frame)
+                assert echo[34] == 0 and echo[42:] == frame[42:]  # ICMP echo reply, same data
+            finally:
+                svc.stop()
+            assert drive.stats.tx.fragments >= 16 and drive.stats.rx.fragments >= 16
+            assert r.stats.wkc_errors == 0
+            boxes = [m.mailboxes.mailbox_of(p) for p in (0, 1)]
+        finally:
+            r.stop()
+    # On the wire, from the engine's start on: the EoE fragments reached the drive's SM0,
+    # and no frame polled an SM1 status register (0x080D): every mailbox status came with
+    # the process image.
+    with pcap.open("rb") as f:
+        sent = [decode_frame(rec.data, strict=False) for rec in read_pcap(f)
+                if rec.timestamp_ns >= started_ns]
+    dgs = [d for fr in sent for d in fr.datagrams]
+    io_box, drive_box = boxes
+    assert io_box is not None and drive_box is not None
+    assert any(d.command == Command.FPWR and d.adp == drive_box.station
+               and d.ado == drive_box.rx_offset for d in dgs)
+    polls = {(b.station, b.status_address) for b in boxes if b is not None}
+    assert not any(d.command == Command.FPRD and (d.adp, d.ado) in polls for d in dgs)
+
+
 def test_telemetry_of_an_isolated_loop(demo_sim: tuple[SimProcess, str]) -> None:
     """The dashboard's reader on a loop in the engine (``run --web``): no ring watch rides
     that loop, so telemetry diagnoses the segment itself (a cut shows, and goes again), and
@@ -333,3 +480,51 @@ def test_telemetry_of_an_isolated_loop(demo_sim: tuple[SimProcess, str]) -> None
             assert wait_for(lambda: all(answering(tel.snapshot())), 60)
         finally:
             r.stop()
+
+
+def test_killed_user_with_slaves_cut_off_leaves_the_reachable_ones_in_safeop(
+        demo_sim: tuple[SimProcess, str],
+        user: tuple[subprocess.Popen[str], dict[str, object]]) -> None:
+    # The slaves behind the di8's port 1 (do8, di2, ai2) drop out while the user's process
+    # lives, and it dies before they are back. The engine cannot bring them back (the
+    # configuration is the dead process's): it takes the three it reaches to SAFEOP, says
+    # that three did not answer, and exits. Of the three cut off, the do8 (outputs) was
+    # taken to SAFEOP with an error by its own process-data watchdog (ETG.1000.6 AL status
+    # code 0x001B); the input-only di2 and ai2 have none and are still in OP when the
+    # cable is back.
+    sim, _iface = demo_sim
+    proc, where = user
+    engine = int(str(where["engine"]))
+    area = SharedArea.attach(str(where["area"]))
+
+    def states() -> dict[str, int]:
+        return {s["name"]: int(s["al_status"]) & 0x1F for s in sim.control("slaves")["slaves"]}
+
+    reachable = ("coupler", "branch-do8", "di8")
+    try:
+        assert wait_for(lambda: set(states().values()) == {int(AlState.OP)})
+        sim.control("break_link", slave="di8", port=1)
+
+        def cut_off() -> bool:
+            health = area.read_health()
+            return health is not None and [bool(p) for p in health["present"][:6]] == [
+                True, True, True, False, False, False]
+
+        assert wait_for(cut_off)
+        proc.kill()
+        proc.wait()
+        assert wait_for(lambda: not _alive(engine), seconds=60.0)
+        _serial, events = area.events_since(0)
+    finally:
+        area.close()
+    texts = [text for _t, text in events]
+    assert any("safe outputs, then SAFEOP" in t for t in texts), texts
+    # (the BRD's working counter: the slaves it reached, none of them in OP)
+    assert "3 of 6 slaves in SAFEOP; 3 did not answer and stay as they were" in texts, texts
+    assert {n: s for n, s in states().items() if n in reachable} == dict.fromkeys(
+        reachable, int(AlState.SAFEOP))
+    sim.control("restore_link", slave="di8", port=1)
+    # (the engine may have ended within the do8's watchdog time, 100 ms)
+    assert wait_for(lambda: states()["do8"] == int(AlState.SAFEOP) | R.AL_ERROR_FLAG)
+    after = states()
+    assert after["di2"] == after["ai2"] == int(AlState.OP)

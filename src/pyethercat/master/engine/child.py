@@ -276,11 +276,13 @@ class EngineRider:
 
     def publish_health(self, now: int) -> None:
         self._health_at = now
-        health = self.runner.health
+        runner = self.runner
+        health = runner.health
 
         def fill(table: npt.NDArray[np.void]) -> None:
             rows = [(h.position, h.station_address, h.state, int(h.error), h.code,
-                     int(h.present), _STATUS.get(h.status, 0), h.recoveries)
+                     int(h.present), _STATUS.get(h.status, 0), h.recoveries,
+                     runner.slave_state(h.position) or 0)
                     for h in health.values()]
             table[:len(rows)] = np.array(rows, dtype=table.dtype)
 
@@ -392,7 +394,14 @@ class EngineRider:
             self._leave_brd = None
             rep = brd.reply
             if rep is not None and rep.wkc and not rep.data[0] & int(AlState.OP):
-                runner.log(f"slaves in SAFEOP ({rep.wkc} answered)")
+                total = len(self.plan.slaves)
+                if rep.wkc >= total:
+                    runner.log(f"slaves in SAFEOP ({rep.wkc} answered)")
+                else:
+                    # (a BRD counts the slaves it reached; the others are cut off, and
+                    # only their own watchdog takes them down: see docs/realtime.md)
+                    runner.log(f"{rep.wkc} of {total} slaves in SAFEOP; {total - rep.wkc} "
+                               "did not answer and stay as they were")
                 runner.abandon()
                 return
         if now - self._leave_started > _LEAVE_NS:

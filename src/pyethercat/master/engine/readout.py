@@ -10,9 +10,12 @@ control socket, the mailboxes) reads the engine's figures.
 
 from __future__ import annotations
 
+import time
 from collections import deque
 from collections.abc import Callable
 from typing import Any
+
+import numpy as np
 
 from pyethercat.errors import EngineDiedError
 from pyethercat.master.cyclic import CycleStats, SlaveHealth
@@ -148,11 +151,36 @@ class EngineReadout:
         if table is None:
             return out
         for row in table[:len(self.slaves)].tolist():
-            pos, station, state, error, code, present, status, recoveries = row
+            pos, station, state, error, code, present, status, recoveries, _now = row
             out[int(pos)] = SlaveHealth(int(pos), int(station), int(state), bool(error), int(code),
                                         bool(present), HEALTH_STATUS[int(status)],
                                         int(recoveries))
         return out
+
+    def slave_state(self, position: int) -> int | None:
+        """AL status (state, error flag) the engine's supervision confirmed lately; None
+        when unknown (see :meth:`CyclicRunner.slave_state`), and when the engine is not
+        running or has not published for longer than the state timeout (stopped, dead).
+
+        The supervision of this process sees no frame while the engine cycles: the
+        engine's health table carries its view (published after every change it logs
+        and twice a second).
+        """
+        area = self.area
+        if area is None or self.life.why is not None:
+            return None
+        st = self.status()
+        if (STATE_NAMES.get(st.get("state", 0)) != "running"
+                or time.perf_counter_ns() - st["heartbeat_ns"] > self.supervisor.state_timeout_ns):
+            return None
+        table = area.read_health()
+        if table is None:
+            return None
+        rows = table[:len(self.slaves)]
+        at = np.flatnonzero(rows["position"] == position)
+        if not len(at):
+            return None
+        return int(rows["now"][at[0]]) or None
 
     def poll_events(self) -> None:
         """Take the engine's new log lines into ``events``."""

@@ -425,6 +425,8 @@ class IsolatedRunner(EngineReadout, CyclicRunner):
         cycles_at = self._stats_names.index("cycles")
         area = self.area
         assert area is not None
+        sched = self.scheduler
+        pause = min(self.period_ns / 2e9, 0.0005)
         while not self._stop.is_set():
             values = area.status.read()
             n = values[cycles_at] if values is not None else last
@@ -440,10 +442,32 @@ class IsolatedRunner(EngineReadout, CyclicRunner):
                     except Exception as exc:  # noqa: BLE001 - the callback's own bug
                         self.log(f"callback failed: {exc!r}")
                 last = n
+            if self._carry(sched, pause):
+                continue
             # Every half period for a callback; otherwise only waiters of wait_cycles()
             # are told, and they look again every 50 ms anyway.
-            time.sleep(min(self.period_ns / 2e9, 0.0005) if self.callback is not None
-                       else 0.002)
+            time.sleep(pause if self.callback is not None else 0.002)
+
+    def _carry(self, sched: Scheduler, budget: float) -> bool:
+        """Do the in-process loop's part for requests nobody waits on; whether there were any.
+
+        In-process, datagrams queued without a flush (an EoE service ticking from
+        the callback) leave with the next cyclic frame, and the loop's thread
+        receives every reply. Here no cycle runs in this process: this thread
+        sends them to the engine (they ride in its next cyclic frame) and takes
+        the replies, waiting at most ``budget`` seconds, in place of its pause.
+        """
+        if not sched.queued and not sched.in_flight:
+            return False
+        try:
+            sched.flush()
+            core = sched.core  # (done() is called under the scheduler's lock)
+            sched.wait_until(lambda: not core.in_flight, budget)
+        except EtherCATError:
+            # (the engine has gone or the link was handed back: the lifeline and the
+            # requests' own waiters report it)
+            time.sleep(budget)
+        return True
 
     # -- control ------------------------------------------------------------------------------
 

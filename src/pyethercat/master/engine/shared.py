@@ -62,9 +62,11 @@ EVENT_TEXT = _EVENT_SLOT - 24
 _EVENT_HEAD = struct.Struct("<QdQ")  # serial, unix time, text length
 #: Supervision status of a slave, as numbered in the health table.
 HEALTH_STATUS = ("ok", "dropped", "vanished", "recovering", "lost", "absent")
+# ``state``/``error``/``code``: what the last per-slave read found; ``now``: the AL status
+# (state and error flag) supervision confirmed lately, 0 when it is not known now.
 _HEALTH_DTYPE = np.dtype([("position", "<i4"), ("station", "<u2"), ("state", "u1"),
                           ("error", "u1"), ("code", "<u2"), ("present", "u1"),
-                          ("status", "u1"), ("recoveries", "<u4")])
+                          ("status", "u1"), ("recoveries", "<u4"), ("now", "u1")])
 _counter = itertools.count()
 
 
