@@ -123,3 +123,48 @@ def test_run_dc_plot_has_the_sync0_spread_of_the_simulator(
     # host's clock: within a few microseconds, not a cycle apart)
     assert all(0 <= s < 20_000 for _, s in series), max(s for _, s in series)
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_slaves_verbose_shows_the_delay_dc_wrote(tmp_path: Path, corpus_dir: Path,
+                                                 patient_cli: None) -> None:
+    """One simulated segment kept between commands (over UDP): after ``dc``, ``slaves -v``
+    shows the EL2889's delay from its 0x0928, as IgH's tool does after the master's set-up."""
+    import threading
+
+    from pyethercat.clock import WallClock
+    from pyethercat.link.udp import UdpLink
+    from pyethercat.sim.server import SimServer
+    from pyethercat.sim.topology import load_topology
+
+    topo = tmp_path / "t.toml"
+    topo.write_text("".join(
+        f'[[slave]]\nname = "{n}"\nsii = "{corpus_dir / "sii" / f"ethercrab_{n}.bin"}"\n'
+        for n in ("ek1100", "el2828", "el2889")))
+    seg = load_topology(topo).build()
+    seg.clock = WallClock()  # real EEPROM timing against a real-time master
+    link = UdpLink(bind=("127.0.0.1", 0))
+    srv = SimServer(seg, link)
+    thread = threading.Thread(target=srv.run, daemon=True)
+    thread.start()
+    where = "{}:{}".format(*link.address)
+
+    def delays(out: str) -> list[str]:
+        return [rec.split("DC system time transmission delay: ")[1].split()[0]
+                if "transmission delay" in rec else "-" for rec in out.split("=== Slave ")[1:]]
+
+    try:
+        code, out, err = run("--udp", where, "slaves", "-v")
+        assert code == 0, err
+        assert delays(out) == ["0", "-", "0"]  # nobody measured yet
+        code, out, err = run("--udp", where, "dc", "--static", "0")
+        assert code == 0, err
+        measured = [r[6] for r in rows(out)]
+        assert measured[:2] == ["0", "-"] and measured[2] in ("295", "300")
+        code, out, err = run("--udp", where, "slaves", "-v")
+        assert code == 0, err
+        assert delays(out) == ["0", "-", measured[2]]
+    finally:
+        srv.stop()
+        thread.join(5)
+        srv.close()
+        link.close()

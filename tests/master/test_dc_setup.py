@@ -172,6 +172,14 @@ def test_sync_config_writes_order_and_values() -> None:
     assert s3.grid == 3_000_000 and s3.start_time(0) % 3_000_000 == 0
 
 
+@pytest.mark.parametrize("shift", [-1, 1_000_000, 1_500_000])
+def test_a_shift_outside_the_cycle_is_refused(shift: int) -> None:
+    with pytest.raises(ConfigError, match=f"SYNC0 shift {shift} ns must lie within the cycle"):
+        SyncSettings(0x0300, 1_000_000, shift0=shift)
+    assert SyncSettings(0x0300, 1_000_000, shift0=999_999).start_time(0) == 101_000_000 + 999_999
+    assert SyncSettings(0x0300, 0, shift0=5_000).shift0 == 5_000  # single shot: any delay
+
+
 def test_trace_of_the_compensation() -> None:
     bus = Bus()
     report = run_dc_setup(bus, SLAVES, DcSettings(static_sync=1500, trace_every=592),

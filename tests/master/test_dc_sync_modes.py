@@ -8,6 +8,7 @@ SAFEOP without SYNC0 with its AL status code.
 from __future__ import annotations
 
 import struct
+from pathlib import Path
 
 import pytest
 
@@ -98,3 +99,43 @@ def test_sync0_cycle_below_the_device_minimum_is_refused() -> None:
     with pytest.raises(AlStatusError) as err:
         m.pd.bring_up(m.slaves, 5.0)
     assert err.value.code == AlStatusCode.DC_INVALID_SYNC0_CYCLE_TIME
+
+
+def test_the_esi_op_mode_wins_over_the_sii_and_its_assign_activate_reaches_0x0980(
+        tmp_path: Path) -> None:
+    """The slave's EEPROM says DC-Synchron 0x0300; the ESI the master is given says 0x0730
+    (cyclic unit, SYNC0 and SYNC1, both latch units on the PDI): 0x0730 is written."""
+    from pyethercat.esi.bundled import bundled_esi
+    from pyethercat.master.clocks import sync_assign_activate
+    from pyethercat.master.esi_config import apply_esi_config, esi_specs
+
+    clock = VirtualClock(1_000_000_000)
+    seg = parse_topology('[[slave]]\nname = "drive"\nesi = "builtin:seed002_drive.xml"\n'
+                         ).build(clock=clock)
+    m = Master(PairLink.responder_link(seg.process), clock=clock)
+    m.dc.master_time = lambda: clock.now_ns() + 10**18
+    m.scan()
+    drive = m.slaves[0]
+    assert drive.sii is not None
+    assert [mode.assign_activate for mode in drive.sii.dc_modes] == [0x0000, 0x0300]
+    assert sync_assign_activate(drive) == 0x0300  # from the SII alone
+    esi = bundled_esi("seed002_drive.xml").read_text()
+    assert esi.count("<AssignActivate>#x300</AssignActivate>") == 1
+    mine = tmp_path / "drive.xml"
+    mine.write_text(esi.replace("<AssignActivate>#x300</AssignActivate>",
+                                "<AssignActivate>#x730</AssignActivate>"))
+    specs = esi_specs([(mine, None, None)])
+    # the ESI's first op mode, SM-synchronous: no SYNC pulses, whatever the SII offers
+    apply_esi_config(m, specs)
+    assert drive.dc_op_mode is not None and drive.dc_op_mode.op_mode == "Synchron"
+    assert sync_assign_activate(drive) == 0
+    specs[0].op_mode = "DC"
+    apply_esi_config(m, specs)
+    assert drive.dc_op_mode is not None and drive.dc_op_mode.op_mode == "DC"
+    assert sync_assign_activate(drive) == 0x0730
+    m.dc.setup(DcSettings(static_sync=0))
+    sync = m.dc.configure_sync(1_000_000, 0, sync1_delay_ns=100_000)
+    assert sync[0].assign_activate == 0x0730
+    m.dc.apply_sync()
+    assert m.read(drive, R.DC_CYCLIC_UNIT_CONTROL, 2) == b"\x30\x07"
+    assert struct.unpack("<II", m.read(drive, R.DC_SYNC0_CYCLE, 8)) == (1_000_000, 100_000)

@@ -62,10 +62,11 @@ def dc_slave_info(slave: Slave) -> DcSlaveInfo:
 
 
 def sync_assign_activate(slave: Slave) -> int:
-    """The AssignActivate of the slave's DC op mode: the ESI's chosen one, else the first
-    SII DC mode that activates the cyclic unit (0: the slave has none)."""
+    """The AssignActivate of the slave's DC op mode: the one an ESI or ENI chose (also 0,
+    an SM-synchronous or free-run mode: no pulses), else the first SII DC mode that
+    activates the cyclic unit (0: the slave has none)."""
     eni = slave.dc_op_mode
-    if eni is not None and eni.assign_activate:
+    if eni is not None:
         return int(eni.assign_activate)
     if slave.sii is not None:
         for mode in slave.sii.dc_modes:
