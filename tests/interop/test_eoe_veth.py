@@ -7,9 +7,15 @@ server listens on port 80). Our master (``pyethercat run --eoe``) runs the
 other end and joins the slaves to a TAP with the host's address. Then real
 tools talk through it: ``ping``, ``curl``, a 1 MiB download compared byte for
 byte, the two slaves pinging each other through the master's switch, the same
-download with 1 % of the EtherCAT frames dropped by the simulator, and
-headless Chromium (through Selenium and Debian's chromedriver) loading the
-diagnostic page twice.
+download with 1 % of the EtherCAT frames dropped by the simulator before any
+slave sees them and, harder, with 1 % of them corrupted on their way back
+after both slaves processed them (EoE fragments the slave handed over are
+lost), and headless Chromium (through Selenium and Debian's chromedriver)
+loading the diagnostic page before and after the drive is moved.
+
+Without a veth pair: ``run --eoe --eoe-per-slave`` on an in-process
+simulated segment (one TAP per slave, as IgH's ``eoeXsY``), and ``run --eoe``
+without CAP_NET_ADMIN (one line that says so).
 """
 
 from __future__ import annotations
@@ -18,6 +24,7 @@ import contextlib
 import hashlib
 import json
 import os
+import pwd
 import random
 import re
 import shutil
@@ -25,6 +32,7 @@ import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 import uuid
 from collections.abc import Iterator
@@ -126,9 +134,13 @@ eoe = {{ ip = "{net}.11/24", gateway = "{net}.1", netns = "{drive_ns}" }}
             assert time.monotonic() < end, "the simulator did not come up"
             time.sleep(0.1)
         with open(master_log, "wb") as log:
+            # --retries: the scan and the SDOs of `drive` go through this master, and the
+            # simulator is Python on a loaded machine that can stall for seconds, longer
+            # than 4 x 50 ms. (Not a longer frame time-out: the EoE datagrams are not sent
+            # again by the scheduler, and a lost one holds its slave's EoE for that long.)
             master = subprocess.Popen(
-                [sys.executable, "-m", "pyethercat", "--iface", b, "run", "--eoe", "--eoe-tap", tap,
-                 "--eoe-host-ip", f"{net}.1/24", "--seconds", "900"],
+                [sys.executable, "-m", "pyethercat", "--iface", b, "--retries", "100", "run",
+                 "--eoe", "--eoe-tap", tap, "--eoe-host-ip", f"{net}.1/24", "--seconds", "900"],
                 stdout=log, stderr=subprocess.STDOUT)
         end = time.monotonic() + START_LIMIT
         while subprocess.run([ping, "-c", "1", "-W", "1", f"{net}.10"],
@@ -145,6 +157,36 @@ eoe = {{ ip = "{net}.11/24", gateway = "{net}.1", netns = "{drive_ns}" }}
         subprocess.run(["ip", "link", "del", tap], capture_output=True)
 
 
+def _mtu(name: str) -> int:
+    return int(Path(f"/sys/class/net/{name}/mtu").read_text())
+
+
+def _cli(*args: str, sim: str | None = None, iface: str | None = None,
+         check: bool = True) -> subprocess.CompletedProcess[str]:
+    where = ["--sim", sim] if sim is not None else ["--iface", str(iface)]
+    done = subprocess.run([sys.executable, "-m", "pyethercat", *where, *args],
+                          capture_output=True, text=True, timeout=START_LIMIT)
+    if check:
+        assert done.returncode == 0, done.stderr
+    return done
+
+
+def _eoe_rows(**where: str) -> dict[int, dict[str, str]]:
+    """The running master's ``eoe`` listing: its columns by slave position."""
+    lines = _cli("eoe", **where).stdout.splitlines()
+    head = lines[0].split()
+    rows = [dict(zip(head, ln.split(), strict=True)) for ln in lines[1:]]
+    return {int(r["Slave"]): r for r in rows}
+
+
+def _tcp_retransmits(netns: str) -> int:
+    """Segments TCP sent again in a namespace (``RetransSegs`` of its /proc/net/snmp)."""
+    text = subprocess.run(["ip", "netns", "exec", netns, "cat", "/proc/net/snmp"],
+                          capture_output=True, text=True, check=True).stdout
+    head, values = (ln.split()[1:] for ln in text.splitlines() if ln.startswith("Tcp:"))
+    return int(dict(zip(head, values, strict=True))["RetransSegs"])
+
+
 def test_ping_through_the_tap_ethercat_and_the_drive_namespace(eoe_net: EoeNet) -> None:
     done = subprocess.run(["ping", "-c", "20", "-i", "0.2", eoe_net.drive_ip],
                           capture_output=True, text=True)
@@ -154,6 +196,16 @@ def test_ping_through_the_tap_ethercat_and_the_drive_namespace(eoe_net: EoeNet) 
     assert rtt is not None
     print(f"\nping -c 20 host -> drive through EoE: rtt min/avg/max {rtt.group(1)}/"
           f"{rtt.group(2)}/{rtt.group(3)} ms")
+
+
+def test_a_full_1500_byte_packet_crosses_without_fragmenting(eoe_net: EoeNet) -> None:
+    """MTU 1500 on the TAP, through EoE and on the drive's namespace interface: a
+    1472-byte ping (a 1500-byte IP packet) with Don't Fragment set goes and comes back."""
+    assert _mtu(eoe_net.tap) == 1500
+    done = subprocess.run(["ping", "-c", "3", "-i", "0.2", "-M", "do", "-s", "1472",
+                           eoe_net.drive_ip], capture_output=True, text=True)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "3 received" in done.stdout
 
 
 def test_curl_gets_the_diagnostic_page(eoe_net: EoeNet) -> None:
@@ -189,6 +241,8 @@ def test_two_slaves_reach_each_other_through_the_masters_switch(eoe_net: EoeNet)
 
 
 def test_download_survives_one_percent_dropped_frames(eoe_net: EoeNet, tmp_path: Path) -> None:
+    # Dropped before any slave sees them: the mailbox datagrams are sent again, so no
+    # EoE fragment is lost here (the test below loses them).
     _control(eoe_net.control, {"cmd": "drop", "probability": 0.01, "seed": 7})
     try:
         _download(eoe_net.web_ip, tmp_path)
@@ -198,9 +252,70 @@ def test_download_survives_one_percent_dropped_frames(eoe_net: EoeNet, tmp_path:
         _control(eoe_net.control, {"cmd": "drop", "probability": 0.0})
 
 
+def test_download_survives_fragments_lost_after_the_slave_sent_them(
+        eoe_net: EoeNet, tmp_path: Path) -> None:
+    """1 % of the frames get a CRC error on their way back, at the web device's port 1:
+    both slaves processed them, the master's NIC drops them. An SM1 read lost so
+    leaves a fragment the slave handed over that the master never sees: the frame
+    it belonged to is discarded by reassembly (never delivered broken), TCP sends
+    the data again, and the download is still byte for byte the same."""
+    before = _eoe_rows(iface=eoe_net.iface)[0]
+    retransmits = _tcp_retransmits(eoe_net.web_ns)
+    _control(eoe_net.control, {"cmd": "crc_rate", "slave": "web", "port": 1, "rate": 0.01,
+                               "seed": 7})
+    try:
+        _download(eoe_net.web_ip, tmp_path)
+    finally:
+        _control(eoe_net.control, {"cmd": "crc_rate", "slave": "web", "port": 1, "rate": 0.0})
+    after = _eoe_rows(iface=eoe_net.iface)[0]
+    assert int(after["Dropped"]) > int(before["Dropped"])  # frames discarded on the master
+    assert _tcp_retransmits(eoe_net.web_ns) > retransmits
+
+
+#: Increments the drive is moved between the two page loads.
+MOVE = 100_000
+
+
+def _move_drive(iface: str) -> None:
+    """Enable the drive and move it MOVE increments through the running master's cycle.
+
+    A loaded machine can stall the loop past the drive's sync manager watchdog (the
+    drive then faults: 0x7500, EtherCAT left OP while enabled, and the master takes it
+    back to OP) or past the time `drive` waits for the next cycles: reset and try again.
+    """
+    why = ""
+    end = time.monotonic() + START_LIMIT
+    while time.monotonic() < end:
+        for action in (["reset"], ["enable", "--timeout", "60"],
+                       ["move", str(MOVE), "--relative", "--timeout", "60"]):
+            done = _cli("drive", "-p", "1", *action, iface=iface, check=False)
+            if done.returncode:
+                why = done.stderr
+                break
+        else:
+            return
+    pytest.fail(f"the drive could not be moved: {why}")
+
+
+def _live_position(browser: object) -> int:
+    """The page's large live value: the drive's position actual value, from its model."""
+    from selenium.webdriver.common.by import By
+
+    label = browser.find_element(By.ID, "live-label").text  # type: ignore[attr-defined]
+    assert label.lower() == "position actual value"
+    value = browser.find_element(By.ID, "live-value").text  # type: ignore[attr-defined]
+    got = re.fullmatch(r"(-?\d+) inc", value)
+    assert got is not None, value
+    return int(got.group(1))
+
+
 def test_headless_chromium_loads_the_page_and_the_live_value_changes(
         eoe_net: EoeNet, tmp_path: Path) -> None:
-    """Selenium drives Debian's chromedriver/chromium (no browser download at run time)."""
+    """Selenium drives Debian's chromedriver/chromium (no browser download at run time).
+
+    The live value is the drive's position actual value: the test moves the drive
+    through the master between the two loads, and the page must show the move.
+    """
     chromium = _tool("chromium")
     driver_path = _tool("chromedriver")
     webdriver = pytest.importorskip("selenium.webdriver")
@@ -218,13 +333,15 @@ def test_headless_chromium_loads_the_page_and_the_live_value_changes(
     try:
         browser.set_page_load_timeout(START_LIMIT)
         browser.get(f"http://{eoe_net.drive_ip}/")
-        first = browser.find_element(By.ID, "live-value").text
+        first = _live_position(browser)
         assert "Servo Positioning Controller" in browser.title
-        time.sleep(1.0)
+        _move_drive(eoe_net.iface)
         browser.get(f"http://{eoe_net.drive_ip}/")
-        second = browser.find_element(By.ID, "live-value").text
-        assert first and second and first != second
+        second = _live_position(browser)
+        # moved by MOVE (to within its position window), or further if a try faulted
+        assert second - first >= MOVE // 2, (first, second)
         assert browser.find_element(By.ID, "state").text == "OP"
+        assert "0x264860D2" in browser.find_element(By.ID, "identity").text
         shot = Path(os.environ.get("PYECAT_EOE_SCREENSHOT", str(tmp_path / "eoe-page.png")))
         browser.save_screenshot(str(shot))
         assert shot.stat().st_size > 10_000
@@ -256,3 +373,102 @@ def test_eoe_and_ip_reach_the_running_master(eoe_net: EoeNet) -> None:
     finally:
         subprocess.run([*cli, "ip", "-p", "1", "addr", f"{eoe_net.drive_ip}/24"],
                        capture_output=True, timeout=START_LIMIT)
+
+
+@pytest.fixture
+def echo_topology() -> Iterator[tuple[str, str, str]]:
+    """A topology with two EoE slaves on the Python echo stack and a di8 between them, in a
+    directory anyone may read (the no-privilege test runs as nobody). (path, net0, net2)"""
+    base = random.randrange(2, 250, 2)
+    net0, net2 = f"10.217.{base}", f"10.217.{base + 1}"
+    tmp = tempfile.mkdtemp(prefix="pyecat-eoe-")
+    os.chmod(tmp, 0o755)
+    path = os.path.join(tmp, "eoe.toml")
+    with open(path, "w") as f:
+        f.write(f"""
+[[slave]]
+name = "web"
+device = "builtin:eoe-web"
+eoe = {{ ip = "{net0}.2/24" }}
+[[slave]]
+name = "di"
+device = "builtin:di8"
+[[slave]]
+name = "drive"
+device = "builtin:seed002-drive"
+eoe = {{ ip = "{net2}.2/24" }}
+""")
+    os.chmod(path, 0o644)
+    try:
+        yield path, net0, net2
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def test_run_eoe_per_slave_makes_one_tap_per_slave(root: None, tmp_path: Path,
+                                                   echo_topology: tuple[str, str, str]) -> None:
+    """``run --eoe --eoe-per-slave``: a TAP per EoE slave named <prefix>s<position> as
+    IgH's eoeXsY (none for the di8 at position 1), MTU 1500, each joined to its own slave
+    only: the host's ARP broadcast on the first never reaches the second slave."""
+    topo, net0, net2 = echo_topology
+    _tool("ping")
+    prefix = f"pyecat-{uuid.uuid4().hex[:4]}"
+    tap0, tap1, tap2 = (f"{prefix}s{n}" for n in range(3))
+    log = tmp_path / "master.log"
+    with open(log, "wb") as out:
+        master = subprocess.Popen(
+            [sys.executable, "-m", "pyethercat", "--sim", topo, "run", "--eoe",
+             "--eoe-per-slave", "--eoe-tap", prefix, "--seconds", "900"],
+            stdout=out, stderr=subprocess.STDOUT)
+    try:
+        end = time.monotonic() + START_LIMIT
+        while not (os.path.exists(f"/sys/class/net/{tap0}")
+                   and os.path.exists(f"/sys/class/net/{tap2}")):
+            assert master.poll() is None, log.read_text()[-2000:]
+            assert time.monotonic() < end, "the TAP interfaces did not come up"
+            time.sleep(0.1)
+        assert not os.path.exists(f"/sys/class/net/{tap1}")  # the di8 speaks no EoE
+        assert _mtu(tap0) == _mtu(tap2) == 1500
+        subprocess.run(["ip", "addr", "add", f"{net0}.1/24", "dev", tap0], check=True)
+        ping = subprocess.run(["ping", "-c", "3", "-i", "0.2", "-W", "20", f"{net0}.2"],
+                              capture_output=True, text=True)
+        assert ping.returncode == 0, ping.stdout + ping.stderr
+        rows = _eoe_rows(sim=topo)
+        assert [(p, r["Interface"], r["State"]) for p, r in sorted(rows.items())] == [
+            (0, tap0, "up"), (2, tap2, "up")]
+        assert int(rows[0]["TxFrames"]) >= 4  # ARP and 3 pings to the web device
+        assert int(rows[2]["TxFrames"]) == 0  # switched as one TAP, the ARP reached it too
+        subprocess.run(["ip", "addr", "add", f"{net2}.1/24", "dev", tap2], check=True)
+        ping = subprocess.run(["ping", "-c", "3", "-i", "0.2", "-W", "20", f"{net2}.2"],
+                              capture_output=True, text=True)
+        assert ping.returncode == 0, ping.stdout + ping.stderr
+        assert int(_eoe_rows(sim=topo)[2]["RxFrames"]) >= 3
+    finally:
+        _stop(master)
+        for tap in (tap0, tap1, tap2):
+            subprocess.run(["ip", "link", "del", tap], capture_output=True)
+
+
+@pytest.mark.parametrize("drop", [
+    ["--reuid=nobody", "--regid=nogroup", "--clear-groups"],  # not root
+    ["--bounding-set=-net_admin"],  # root without CAP_NET_ADMIN
+], ids=["nobody", "root-without-cap-net-admin"])
+def test_run_eoe_without_cap_net_admin_is_one_line(root: None, drop: list[str],
+                                                   echo_topology: tuple[str, str, str]) -> None:
+    setpriv = _tool("setpriv")
+    topo = echo_topology[0]
+    tap = f"pyecat-{uuid.uuid4().hex[:6]}"
+    env = dict(os.environ)
+    if "--reuid=nobody" in drop:  # a private runtime directory of nobody's own
+        runtime = os.path.join(os.path.dirname(topo), "runtime")
+        os.mkdir(runtime, 0o700)
+        nobody = pwd.getpwnam("nobody")
+        os.chown(runtime, nobody.pw_uid, nobody.pw_gid)
+        env["PYETHERCAT_RUNTIME_DIR"] = runtime
+    done = subprocess.run([setpriv, *drop, sys.executable, "-m", "pyethercat", "--sim", topo,
+                           "run", "--eoe", "--eoe-tap", tap, "--seconds", "30"],
+                          capture_output=True, text=True, timeout=START_LIMIT, cwd="/", env=env)
+    assert done.returncode == 1, done.stdout + done.stderr
+    assert done.stderr == (f"pyethercat: error: creating TAP interface {tap} needs root or "
+                           f"CAP_NET_ADMIN\n")
+    assert not os.path.exists(f"/sys/class/net/{tap}")

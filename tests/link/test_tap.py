@@ -14,6 +14,11 @@ from pyethercat.link.tap import TapLink, format_mac, parse_mac
 PEER = bytes.fromhex("020000000077")
 
 
+def _mtu(name: str) -> int:
+    with open(f"/sys/class/net/{name}/mtu") as f:
+        return int(f.read())
+
+
 def test_names_and_macs_are_checked() -> None:
     with pytest.raises(ConfigError, match="interface name"):
         TapLink("x" * 16)
@@ -25,10 +30,13 @@ def test_names_and_macs_are_checked() -> None:
 
 def test_kernel_answers_arp_through_the_tap(root: None) -> None:
     name = f"pyecat-{uuid.uuid4().hex[:6]}"
-    with TapLink(name, mac=bytes.fromhex("020000000042"), address="10.215.0.1/24",
-                 mtu=1500) as tap:
+    with TapLink(name, mac=bytes.fromhex("020000000042"), address="10.215.0.1/24") as tap:
         show = subprocess.run(["ip", "-o", "addr", "show", name], capture_output=True, text=True)
         assert "10.215.0.1/24" in show.stdout
+        assert _mtu(name) == 1500  # a standard Ethernet payload, what EoE carries
+        tap.configure(mtu=1400)
+        assert _mtu(name) == 1400
+        tap.configure(mtu=1500)
         assert tap.mac == bytes.fromhex("020000000042")
         request = (b"\xff" * 6 + PEER + b"\x08\x06"
                    + struct.pack("!HHBBH6s4s6s4s", 1, 0x0800, 6, 4, 1, PEER,

@@ -13,8 +13,10 @@ A small HTTP server (standard library, one thread per connection) with:
 The content comes from the device's ``status()`` callable: a dict with
 ``name``, ``kind``, ``identity`` (label/value pairs), ``state``, ``state_ok``,
 ``temperatures`` (label/degrees pairs), ``errors`` (texts), ``live`` (label/
-value pairs, the first one being the live value) and ``network`` (label/
-value pairs).
+value pairs, the first one being the live value: a value of the device model
+that moves while the device works, such as a drive's position actual value,
+shown large with ids ``live-label`` and ``live-value``) and ``network``
+(label/value pairs).
 """
 
 from __future__ import annotations
@@ -85,7 +87,7 @@ Ethernet over EtherCAT</p></header>
 <main>
 <section><h2>EtherCAT state</h2><p><span class="state {state_cls}" id="state">{state}</span></p>
 <table>{_rows(list(status.get("network", [])))}</table></section>
-<section><h2>{html.escape(str(first[0]))}</h2>
+<section><h2 id="live-label">{html.escape(str(first[0]))}</h2>
 <p class="live" id="live-value">{html.escape(str(first[1]))}</p>
 <table>{_rows(live[1:])}</table></section>
 <section><h2>Identity</h2><table id="identity">{_rows(list(status.get("identity", [])))}</table>

@@ -352,20 +352,25 @@ class Seed002Model(Cia402Model):
         started = time.monotonic()
 
         def status() -> dict[str, Any]:
-            def value(index: int) -> int:
-                return int.from_bytes(self._read(instance, (index, 0)), "little")
+            def value(index: int, signed: bool = False) -> int:
+                # as an SDO upload reads it: actual values no PDO maps are made when read
+                return int.from_bytes(self._read(instance, (index, 0)), "little", signed=signed)
 
             statusword, control = value(_402.STATUSWORD), value(_402.CONTROLWORD)
-            position = int(self.field(_402.POSITION_ACTUAL_VALUE, 0)[instance])
+            # The drive model's own values (its encoder and speed): the large live value is
+            # what the axis does, so a page drawn by a stopped device model shows it stopped.
+            position = value(_402.POSITION_ACTUAL_VALUE, signed=True)
+            velocity = value(_402.VELOCITY_ACTUAL_VALUE, signed=True)
             state = decode_state(statusword)
 
             def live(t: float) -> list[tuple[str, Any]]:
-                return [("Uptime", f"{t:.3f} s"),
-                        ("Position actual value", f"{position} inc"),
+                return [("Position actual value", f"{position} inc"),
+                        ("Velocity 0x606C", f"{velocity} inc/s"),
                         ("Statusword 0x6041", f"0x{statusword:04X}"),
                         ("Drive state", state.label if state is not None else "?"),
                         ("Controlword 0x6040", f"0x{control:04X}"),
-                        ("DC link voltage", "560.0 V")]
+                        ("DC link voltage", "560.0 V"),
+                        ("Uptime", f"{t:.1f} s")]
 
             return device_status(app, info, started, kind="Servo positioning controller",
                                  temperatures=(("Power stage", 46.0, 4.0, 45.0),

@@ -82,7 +82,7 @@ def device_status(app: Any, info: SiiInfo, started: float, *, kind: str,
 
 
 class EoeWebModel(DeviceModel):
-    """``builtin:eoe-web``: EoE only; its page shows uptime and EoE counters."""
+    """``builtin:eoe-web``: EoE only; its page's live value is its EoE frame counter."""
 
     def instance_app(self, info: SiiInfo) -> tuple[int, DeviceApp | None]:
         instance = self.new_instance()
@@ -91,11 +91,17 @@ class EoeWebModel(DeviceModel):
 
         def status() -> dict[str, Any]:
             server = eoe_server(app)
-            frames = server.receiver.stats.frames if server is not None else 0
+            rx = server.receiver.stats if server is not None else None
+            tx = server.sender.stats if server is not None else None
+            # The device's own counters (every page load moves them), not a clock.
             return device_status(
                 app, info, started, kind="EoE test device",
                 temperatures=(("Board", 38.0, 3.0, 60.0), ("CPU", 52.0, 6.0, 23.0)),
-                live=lambda t: [("Uptime", f"{t:.3f} s"), ("Frames received", frames)])
+                live=lambda t: [("EoE frames received", rx.frames if rx else 0),
+                                ("EoE bytes received", rx.bytes if rx else 0),
+                                ("EoE frames sent", tx.frames if tx else 0),
+                                ("EoE frames discarded", rx.dropped if rx else 0),
+                                ("Uptime", f"{t:.1f} s")])
 
         attach_eoe(app, info.tx_mailbox_size or _MBX_SIZE, info.serial, status)
         return instance, app
