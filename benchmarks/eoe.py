@@ -3,6 +3,11 @@
 Run as root (veth pair, network namespaces, TAP)::
 
     .venv/bin/python benchmarks/eoe.py [--size BYTES] [--small BYTES] [--realtime PRIO]
+        [--rates 1000,4000] [--subnet auto|A.B.C.0/24]
+
+``--subnet`` is the IPv4 network of the host's TAP and the two slaves (.1,
+.10, .11); ``auto`` (the default) takes the first /24 of 10.214.0.0/16, in
+random order, that overlaps no address or route of the host.
 
 This process (the cyclic loop among its threads) runs under SCHED_FIFO 5,
 the simulator under 10, as in benchmarks/mailbox.py.
@@ -28,8 +33,11 @@ these sizes. The last line is one JSON object of the figures.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import ipaddress
 import json
 import os
+import random
 import signal
 import subprocess
 import sys
@@ -57,11 +65,46 @@ def _veth() -> tuple[str, str]:
     return a, b
 
 
+def _host_networks() -> list[ipaddress.IPv4Network]:
+    """Networks the host uses: its IPv4 addresses' and its routes' (every table)."""
+    nets: list[ipaddress.IPv4Network] = []
+    for args in (["-4", "-o", "addr", "show"], ["-4", "route", "show", "table", "all"]):
+        out = subprocess.run(["ip", *args], capture_output=True, text=True).stdout
+        for word in out.split():
+            if word[0].isdigit() and word.count(".") == 3:
+                with contextlib.suppress(ValueError):
+                    nets.append(ipaddress.IPv4Network(word, strict=False))
+    return nets
+
+
+def pick_subnet(text: str) -> ipaddress.IPv4Network:
+    """The benchmark's network: ``auto`` (a free /24 of 10.214.0.0/16) or the one given."""
+    used = _host_networks()
+    if text != "auto":
+        try:
+            net = ipaddress.IPv4Network(text)
+        except ValueError as exc:
+            raise SystemExit(f"eoe.py: error: --subnet {text}: {exc}") from None
+        if net.prefixlen > 28:
+            raise SystemExit(f"eoe.py: error: --subnet {text}: needs room for .1, .10 and .11")
+        clash = sorted({str(u) for u in used if u.overlaps(net) and u.prefixlen > 0})
+        if clash:
+            raise SystemExit(f"eoe.py: error: --subnet {text} overlaps the host's "
+                             f"{', '.join(clash)}")
+        return net
+    candidates = list(ipaddress.IPv4Network("10.214.0.0/16").subnets(new_prefix=24))
+    random.shuffle(candidates)
+    for net in candidates:
+        if not any(u.overlaps(net) and u.prefixlen > 0 for u in used):
+            return net
+    raise SystemExit("eoe.py: error: no free /24 in 10.214.0.0/16: give --subnet")
+
+
 def _measure(master: Master, cycle: float, targets: list[tuple[str, int, str]], size: int,
-             tap: str, net: str) -> list[dict[str, Any]]:
+             tap: str, host_ip: str) -> list[dict[str, Any]]:
     master.configure()
     runner = master.start(cycle)
-    run = start_eoe(master, runner, tap=tap, host_ip=f"{net}.1/24")
+    run = start_eoe(master, runner, tap=tap, host_ip=host_ip)
     rows: list[dict[str, Any]] = []
     try:
         for name, pos, ip in targets:
@@ -106,7 +149,18 @@ def main() -> None:
     ap.add_argument("--realtime", type=int, default=5,
                     help="SCHED_FIFO priority of this process, the cyclic loop's thread among "
                          "its threads (0: normal scheduling); the simulator runs at 10")
+    ap.add_argument("--rates", default="1000,4000",
+                    help="cycle rates in Hz, comma-separated")
+    ap.add_argument("--subnet", default="auto",
+                    help="IPv4 network of the TAP and the slaves (auto: a free /24 of "
+                         "10.214.0.0/16)")
     args = ap.parse_args()
+    try:
+        rates = [int(r) for r in args.rates.split(",")]
+    except ValueError:
+        raise SystemExit(f"eoe.py: error: --rates {args.rates}: integers in Hz") from None
+    if not rates or any(not 1 <= r <= 20000 for r in rates):
+        raise SystemExit(f"eoe.py: error: --rates {args.rates}: 1..20000 Hz each")
     if os.geteuid() != 0:
         print(json.dumps({"skipped": "needs root (veth, namespaces, TAP)"}))
         return
@@ -116,7 +170,9 @@ def main() -> None:
         # machine, not the EoE path (threads made from now on inherit the policy).
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(args.realtime))
     tag = uuid.uuid4().hex[:4]
-    net = "10.214.9"
+    subnet = pick_subnet(args.subnet)
+    host_ip = f"{subnet[1]}/{subnet.prefixlen}"
+    web_ip, drive_ip = subnet[10], subnet[11]
     a, b = _veth()
     tmp = Path(tempfile.mkdtemp())
     topo = tmp / "eoe.toml"
@@ -124,12 +180,14 @@ def main() -> None:
 [[slave]]
 name = "web"
 device = "builtin:eoe-web"
-eoe = {{ ip = "{net}.10/24", netns = "pyecat-b{tag}-web" }}
+eoe = {{ ip = "{web_ip}/{subnet.prefixlen}", netns = "pyecat-b{tag}-web" }}
 [[slave]]
 name = "drive"
 device = "builtin:seed002-drive"
-eoe = {{ ip = "{net}.11/24", netns = "pyecat-b{tag}-drive" }}
+eoe = {{ ip = "{drive_ip}/{subnet.prefixlen}", netns = "pyecat-b{tag}-drive" }}
 """)
+    print(f"network {subnet}: host {host_ip}, eoe-web {web_ip}, seed002-drive {drive_ip}",
+          file=sys.stderr)
     control = tmp / "sim.sock"
     sim = subprocess.Popen([sys.executable, "-m", "pyethercat", "sim", str(topo), "--iface", a,
                             "-q", "--realtime", "10", "--control", str(control)])
@@ -140,11 +198,11 @@ eoe = {{ ip = "{net}.11/24", netns = "pyecat-b{tag}-drive" }}
             time.sleep(0.1)
         with Master.open(b) as m:
             m.scan()
-            for cycle in (0.001, 0.00025):
-                rows += _measure(m, cycle, [("eoe-web", 0, f"{net}.10")], args.size,
-                                 f"pyecat-b{tag}t", net)
-                rows += _measure(m, cycle, [("seed002-drive", 1, f"{net}.11")], args.small,
-                                 f"pyecat-b{tag}t", net)
+            for cycle in (1 / r for r in rates):
+                rows += _measure(m, cycle, [("eoe-web", 0, str(web_ip))], args.size,
+                                 f"pyecat-b{tag}t", host_ip)
+                rows += _measure(m, cycle, [("seed002-drive", 1, str(drive_ip))], args.small,
+                                 f"pyecat-b{tag}t", host_ip)
     finally:
         sim.send_signal(signal.SIGINT)
         sim.wait(20)
