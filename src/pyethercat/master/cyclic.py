@@ -467,13 +467,16 @@ class CyclicRunner:
             cyc.groups = names
             cyc.link_up = stats.link_up
             t1 = clock.now_ns()
-            if self.callback is not None and not self.xchg.safe:
-                self.callback(cyc)
+            callback = None if self.xchg.safe else self.callback
+            if callback is not None:
+                callback(cyc)
             t2 = clock.now_ns()
             nxt = deadline + period
             if t2 > nxt:
                 stats.overruns += 1
-                if t1 <= nxt:
+                # (without a callback the time between the two clock reads was a
+                # preemption, not the callback's)
+                if callback is not None and t1 <= nxt:
                     stats.callback_overruns += 1
                     if stats.callback_overruns in (1, 10, 100, 1000):
                         self.log(f"callback overran the cycle ({(t2 - t1) / 1000:.0f} us); "
