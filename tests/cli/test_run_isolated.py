@@ -1,9 +1,10 @@
 """``pyethercat run --isolated --plot`` over a veth pair against ``pyethercat sim`` (root).
 
 The loop runs in its engine process: the live view names it (pid, priority,
-share of a CPU), the run ends in order, and ``--plot`` writes the period and
-jitter distribution as a PNG. ``--cpu`` without ``--isolated`` is refused in
-one line, before the segment is touched.
+share of a CPU) and shows the slaves' states as the engine sees them, the
+run ends in order, and ``--plot`` writes the period and jitter distribution
+as a PNG. ``--cpu`` without ``--isolated`` is refused in one line, before
+the segment is touched.
 """
 
 from __future__ import annotations
@@ -35,6 +36,8 @@ def test_run_isolated_names_its_engine_and_plots_the_jitter(
     # The live view's loop row: the engine's own process, with what it got.
     assert re.search(r"loop\s+│ engine pid \d+ running: (SCHED_FIFO 40|normal priority)", out), out
     assert re.search(r"jitter histogram\s+│ <\d+us \d+", out), out
+    # The slaves' states are the engine's supervision's (this process sees no frame).
+    assert len(re.findall(r"│ PEC-\S+ .*│ OP\s+│ ok", out)) == 6, out
     assert re.search(r"stopped: safe outputs for 3 cycles, slaves in PREOP", out), out
     assert f"plot written to {png}" in out
     assert png.read_bytes()[:8] == PNG_MAGIC
