@@ -31,6 +31,7 @@ from typing import Any, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
+from pyethercat.sim.cia402.keys import all_of, any_of
 from pyethercat.sim.cia402.objects import AXIS_OBJECT, AxisSub
 from pyethercat.sim.coe_model import CoeModel
 from pyethercat.sim.mailbox import MailboxDevice
@@ -92,6 +93,8 @@ class AxisModel(CoeModel):
         self._consts: _Constants | None = None
         #: Figures derived from the cached constants (dropped with them).
         self._derived: dict[object, float | bool] = {}
+        #: The constants of a slice of rows, as last handed out (dropped with the constants).
+        self._row_consts: dict[tuple[int | None, int | None], _Constants] = {}
         self._live: frozenset[tuple[int, int]] | None = None
         self._tx: frozenset[tuple[int, int]] | None = None
         self._live_count = -1
@@ -175,6 +178,11 @@ class AxisModel(CoeModel):
     def constants(self, r: Rows) -> _Constants:
         """The loops' gains and the mechanics of rows ``r``, from the parameters (cached with them)."""
         consts = self._consts
+        key = (r.start, r.stop) if isinstance(r, slice) else None
+        if consts is not None and key is not None:
+            hit = self._row_consts.get(key)
+            if hit is not None:  # the same rows as last time: their views
+                return hit
         if consts is None:
             live = self._live_keys()
             every = slice(None)
@@ -191,10 +199,14 @@ class AxisModel(CoeModel):
                 col(AXIS_OBJECT, _AX.COULOMB_FRICTION, every),
                 col(AXIS_OBJECT, _AX.LOAD_TORQUE, every),
                 self.max_torque(every), self.max_speed(every))
-            if not any(key in live for key in AXIS_FIELDS):
+            if not any(field in live for field in AXIS_FIELDS):
                 self._consts = consts
                 self._derived = {}
-        return _Constants(*(a[r] for a in consts))
+                self._row_consts = {}
+        out = _Constants(*(a[r] for a in consts))
+        if key is not None and self._consts is not None:
+            self._row_consts[key] = out
+        return out
 
     def counts_per_rad(self, r: Rows) -> F64:
         """Encoder increments per radian (0x608F:01 per 0x608F:02 revolutions)."""
@@ -239,13 +251,13 @@ class AxisModel(CoeModel):
         h = dt / n
         mode = self.plan_mode[r]
         pos = mode == CTRL_POSITION
-        all_pos = bool(pos.all())
+        all_pos = all_of(pos)
         if all_pos:  # the usual cycle (CSP, PP, stops): no mask work
             any_torque, trq, all_on, on = False, pos, True, pos
         else:
-            any_torque = bool((mode == CTRL_TORQUE).any())
+            any_torque = any_of(mode == CTRL_TORQUE)
             trq = mode == CTRL_TORQUE
-            all_on = bool((mode != CTRL_OFF).all())
+            all_on = all_of(mode != CTRL_OFF)
             on = (mode != CTRL_OFF).astype(np.float64)
         limit_speed = self._limit_speed(vmax)
         # The demand between two set-points: a parabola from plan_from to plan_to whose
@@ -264,7 +276,8 @@ class AxisModel(CoeModel):
         vcmd, tcmd = self.plan_v[r], self.plan_t[r]
         p, v, integ = self.p[r], self.v[r], self.integ[r]
         ki_h, gain_h = ki * h, acc_gain * h
-        neg_tmax, neg_tc = -tmax, -tc
+        neg_tmax, neg_tc, half_h = -tmax, -tc, 0.5 * h
+        neg_vmax = -vmax if limit_speed else vmax
         tq = np.zeros_like(p)
         for step in range(1, n + 1):
             # ufunc minimum/maximum rather than np.clip: clip's Python wrapper costs more
@@ -275,7 +288,7 @@ class AxisModel(CoeModel):
                 vff = vff + acc_h
             vref = vff + kp * (pref - p) if all_pos else np.where(pos, vff + kp * (pref - p), vcmd)
             if limit_speed:
-                vref = np.minimum(np.maximum(vref, -vmax), vmax)
+                vref = np.minimum(np.maximum(vref, neg_vmax), vmax)
             ev = vref - v
             integ = np.minimum(np.maximum(integ + ki_h * ev, neg_tmax), tmax)
             tq = kv * ev + integ + tff
@@ -288,11 +301,11 @@ class AxisModel(CoeModel):
             drive = tq - load - b * v
             vn = v + (drive - tc * np.sign(v)) * gain_h
             stick = vn * v <= 0.0  # standing, or friction would turn the axis round
-            if stick.any():
+            if any_of(stick):
                 # Coulomb friction holds the axis up to its value, and only stops it
                 rest = drive - np.minimum(np.maximum(drive, neg_tc), tc)
                 vn = np.where(stick, np.where(np.abs(drive) <= tc, 0.0, rest * gain_h), vn)
-            p = p + (v + vn) * (0.5 * h)
+            p = p + (v + vn) * half_h
             v = vn
         self.p[r], self.v[r], self.integ[r], self.torque[r] = p, v, integ, tq
 

@@ -63,6 +63,8 @@ from pyethercat.sim.cia402.keys import (
     THRESH_EPS,
     B,
     S,
+    all_of,
+    any_of,
 )
 from pyethercat.sim.cia402.objects import DRIVE_MODES
 from pyethercat.sim.cia402.power import COMMANDS, ENABLE, POWERED
@@ -182,10 +184,13 @@ class DriveEngine(AxisModel):
             self._quiet = None
         f, col = self.field, self.col
         # a fixed point needs the power off and the axes at rest already on the way in
-        rest_in = (self.idle_fast_path and len(dt) > 0 and dt.min() > 0
-                   and not self.plan_mode[r].any() and not self.v[r].any())
+        dt_ok = dt > 0
+        all_dt = all_of(dt_ok)
+        rest_in = (self.idle_fast_path and len(dt) > 0 and all_dt
+                   and not np.count_nonzero(self.plan_mode[r])
+                   and not np.count_nonzero(self.v[r]))
         self.integrate(r, dt)
-        safe_dt = dt if dt.min(initial=1.0) > 0 else np.where(dt > 0, dt, 1.0)
+        safe_dt = dt if all_dt else np.where(dt_ok, dt, 1.0)
         enc = self.encoder(r)
         v_act = (enc - self.enc_prev[r]) / safe_dt
         self.enc_prev[r] = enc
@@ -193,7 +198,7 @@ class DriveEngine(AxisModel):
         state = self.state[r].astype(np.int64)
         cw = f(*K_CW)[r].astype(np.int64)
         al = self.al_op[r]
-        if not al.all():
+        if not all_of(al):
             cw = np.where(al, cw, 0)  # outputs count in OP only
         prev = self.prev_cw[r].copy()
         self.prev_cw[r] = cw
@@ -210,7 +215,7 @@ class DriveEngine(AxisModel):
         faulted: B | None = None
         code = detail = None
         switch = neg | posl
-        if fe_fault.any() or switch.any():
+        if any_of(fe_fault) or any_of(switch):
             homing = self.hm_phase[r] >= 0
             moving_neg = (self.g_v[r] < 0) | (self.v[r] < -1.0)
             moving_pos = (self.g_v[r] > 0) | (self.v[r] > 1.0)
@@ -218,23 +223,24 @@ class DriveEngine(AxisModel):
             faulted = fe_fault | lim_fault
             code = np.where(fe_fault, DE.FOLLOWING_ERROR, np.where(lim_fault, DE.REFERENCE_LIMIT, 0))
             detail = np.where(fe_fault, np.round(fe), np.where(neg, 1, 2)).astype(np.int64)
-            if not faulted.any():
+            if not any_of(faulted):
                 faulted = None
         # --- power state machine ----------------------------------------------------------
         cmd = COMMANDS[cw & 0xFF]
         stopping = self.stop_opt[r] >= 0
-        if faulted is None and enabled.all() and (cmd == ENABLE).all() and not stopping.any():
+        if faulted is None and all_of(enabled) and all_of(cmd == ENABLE) and not any_of(stopping):
             new, start_stop = state, None  # the usual cycle: enabled, stays enabled
         else:
             new, start_stop = power.transitions(self, r, state, cmd, cw, prev, stopping, faulted)
         reset = None if new is state else (state == S.FAULT) & (new == S.SWITCH_ON_DISABLED)
         # --- modes and the next set-point -------------------------------------------------
         shown = f(*K_MODE_DISPLAY)[r]
-        rest_in = rest_in and faulted is None and not POWERED[new].any() and bool(
-            (new == state).all()) and not v_act.any() and bool((f(*K_MODE)[r] == shown).all())
+        rest_in = (rest_in and faulted is None and not any_of(POWERED[new])
+                   and all_of(new == state) and not np.count_nonzero(v_act)
+                   and all_of(f(*K_MODE)[r] == shown))
         mode = self._mode(r, inst)
         setpoint.plan(self, r, inst, new, mode, cw, prev, dt, safe_dt, start_stop, (neg, posl, home))
-        if self.stop_opt[r].max(initial=-1) >= 0:
+        if any_of(self.stop_opt[r] >= 0):
             new = power.stops_done(self, r, new, v_act)
         self.state[r] = new
         # --- inputs: the ones a PDO maps now; the others when an SDO reads them -------------
@@ -245,7 +251,7 @@ class DriveEngine(AxisModel):
         clear = _NONE if reset is None else inst[reset]
         if len(clear):
             f(*K_ERROR)[clear] = 0
-        elif rest_in and not self.v[r].any():
+        elif rest_in and not np.count_nonzero(self.v[r]):
             self._quiet = (inst.tobytes(), self.image[r].tobytes(), self.warn[r].tobytes())
         if faulted is None:
             return _NONE, _NONE, _NONE, clear
@@ -288,7 +294,7 @@ class DriveEngine(AxisModel):
         want = f(*K_MODE)[r].astype(np.int64)
         shown = f(*K_MODE_DISPLAY)[r].astype(np.int64)
         take = (want != shown) & _SUPPORTED[want + 128]
-        if not take.any():
+        if not any_of(take):
             return shown
         mode: I64 = np.where(take, want, shown)
         f(*K_MODE_DISPLAY)[r] = mode

@@ -42,6 +42,7 @@ import numpy as np
 import numpy.typing as npt
 
 from pyethercat.sim.cia402.engine import DriveEngine
+from pyethercat.sim.cia402.keys import all_of, any_of
 from pyethercat.sim.coe import coe_server
 from pyethercat.sim.mailbox import MailboxDevice
 from pyethercat.sim.od import SimObjectDictionary
@@ -206,7 +207,7 @@ class Cia402Model(DriveEngine):
         active = self.al_state[instances] >= _SAFEOP
         self.started[instances] |= active
         dc = self.sync_dc[instances]
-        if dc.any():
+        if any_of(dc):
             d = instances[dc]
             self.fresh[d] = True
             # The SYNC0 watchdog: the simulated cyclic unit fires every pulse it has planned
@@ -215,7 +216,7 @@ class Cia402Model(DriveEngine):
             # scheduling stalls as missing pulses.)
             act = io.memory.mem[self.slaves[d], R.DC_ACTIVATION]
             lost = (self.al_state[d] == _OP) & ((act & _SYNC0_ON) != _SYNC0_ON)
-            if lost.any():
+            if any_of(lost):
                 for i in d[lost].tolist():
                     self._sync_lost(i, 2)
         sm = instances[~dc & active]
@@ -231,12 +232,24 @@ class Cia402Model(DriveEngine):
             return
         now = io.now_ns()
         run = self.sync_dc[instances] & (self.al_state[instances] >= _SAFEOP)
-        inst = instances[run]
+        inst = instances if all_of(run) else instances[run]
         if not len(inst):
             self.last_sync_ns[instances] = now
             return
         cycle = np.maximum(self.sync_cycle[inst], 1)
         last = self.last_sync_sys[inst]
+        fresh = self.fresh[inst]
+        # The usual pulse: one cycle after the last, a frame came in between, nothing
+        # missed so far: no event missed, no sync error (the general case below gives
+        # the same with three times the array operations).
+        if (all_of(time_ns - last == cycle) and all_of(fresh) and all_of(self.started[inst])
+                and not np.count_nonzero(self.sync_errors[inst])):
+            self.last_sync_sys[inst] = time_ns
+            self.fresh[inst] = False
+            self.last_sync_ns[instances] = now
+            self.warn[inst] = False
+            self._cycle(inst, cycle * 1e-9)
+            return
         dt_ns = np.where(last >= 0, time_ns - last, cycle)
         dt_ns = np.where((dt_ns <= 0) | (dt_ns > 64 * cycle), cycle, dt_ns)
         self.last_sync_sys[inst] = time_ns
@@ -248,7 +261,6 @@ class Cia402Model(DriveEngine):
         pulses = np.maximum(np.rint(dt_ns / cycle), 1).astype(np.int64)
         held_up = now - self.last_sync_ns[inst] > 3 * cycle
         pulses = np.where(held_up, 1, pulses)
-        fresh = self.fresh[inst]
         started = self.started[inst]
         missed = (pulses - fresh) * started
         self.fresh[inst] = False

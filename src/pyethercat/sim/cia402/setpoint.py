@@ -32,6 +32,8 @@ from pyethercat.sim.cia402.keys import (
     SO,
     B,
     S,
+    all_of,
+    any_of,
 )
 from pyethercat.sim.cia402.profile import profile_move, ramp_velocity
 
@@ -45,10 +47,10 @@ __all__ = ["acc_dec", "max_velocity", "plan", "plan_csp", "profile_position", "s
 def plan(eng: DriveEngine, r: Rows, inst: I64, state: I64, mode: I64, cw: I64, prev: I64, dt: F64,
          safe_dt: F64, start_stop: I64 | None, switches: tuple[B, B, B]) -> None:
     """The next cycle's plan of every axis (see :class:`~pyethercat.sim.cia402.axis.AxisModel`)."""
-    if (start_stop is None and (state == S.OPERATION_ENABLED).all()
-            and (mode == OM.CYCLIC_SYNC_POSITION).all()
-            and (eng.plan_mode[r] == CTRL_POSITION).all()
-            and eng.stop_opt[r].max(initial=-1) < 0):
+    if (start_stop is None and all_of(state == S.OPERATION_ENABLED)
+            and all_of(mode == OM.CYCLIC_SYNC_POSITION)
+            and all_of(eng.plan_mode[r] == CTRL_POSITION)
+            and not any_of(eng.stop_opt[r] >= 0)):
         plan_csp(eng, r, safe_dt)  # the usual cycle of a CSP group: its own short path
         return
     col = eng.col
@@ -61,7 +63,7 @@ def plan(eng: DriveEngine, r: Rows, inst: I64, state: I64, mode: I64, cw: I64, p
     # a stop brakes from where the axis is and how fast it moves (after a following
     # error the demand may be far away)
     fresh = just_on if start_stop is None else just_on | (start_stop >= 0)
-    if powered.all() and not fresh.any():
+    if all_of(powered) and not any_of(fresh):
         g_p, g_v = eng.g_p[r].copy(), eng.g_v[r].copy()
     else:
         g_p = np.where(powered & ~fresh, eng.g_p[r], p)
@@ -78,7 +80,7 @@ def plan(eng: DriveEngine, r: Rows, inst: I64, state: I64, mode: I64, cw: I64, p
         (mode == OM.PROFILE_POSITION) | (mode == OM.PROFILE_VELOCITY) | (mode == OM.HOMING))
     # stop ramps (quick stop, fault reaction, disable with ramp) and halt
     ramp_to_zero = stopping | halt
-    if ramp_to_zero.any():
+    if any_of(ramp_to_zero):
         opt = np.where(stopping, stop, col(OBJ.HALT_OPTION_CODE, 0, r).astype(np.int64))
         dec = stop_deceleration(eng, r, opt)
         rv = ramp_velocity(g_v, np.zeros_like(g_v), dec, dec, dt)
@@ -89,7 +91,7 @@ def plan(eng: DriveEngine, r: Rows, inst: I64, state: I64, mode: I64, cw: I64, p
     limits = lo < hi
     limited = np.zeros(len(p), bool)
     m = active & (mode == OM.CYCLIC_SYNC_POSITION)
-    if m.any():
+    if any_of(m):
         tgt = col(OBJ.TARGET_POSITION, 0, r) + col(OBJ.POSITION_OFFSET, 0, r)
         clamped = np.where(limits, np.clip(tgt, lo, hi), tgt)
         limited |= m & (clamped != tgt)
@@ -99,26 +101,26 @@ def plan(eng: DriveEngine, r: Rows, inst: I64, state: I64, mode: I64, cw: I64, p
         vff_extra = np.where(m, col(OBJ.VELOCITY_OFFSET, 0, r), vff_extra)
         tff = np.where(m, torque(eng, r, col(OBJ.TORQUE_OFFSET, 0, r)), tff)
     m = active & (mode == OM.CYCLIC_SYNC_VELOCITY)
-    if m.any():
+    if any_of(m):
         vel = col(OBJ.TARGET_VELOCITY, 0, r) + col(OBJ.VELOCITY_OFFSET, 0, r)
         ctrl = np.where(m, CTRL_VELOCITY, ctrl)
         vcmd = np.where(m, vel, vcmd)
         new_v = np.where(m, vel, new_v)
         new_p = np.where(m, p, new_p)
     m = active & (mode == OM.CYCLIC_SYNC_TORQUE)
-    if m.any():
+    if any_of(m):
         ctrl = np.where(m, CTRL_TORQUE, ctrl)
         tcmd = np.where(m, torque(eng, r, col(OBJ.TARGET_TORQUE, 0, r)
                                        + col(OBJ.TORQUE_OFFSET, 0, r)), tcmd)
         new_v = np.where(m, v, new_v)
         new_p = np.where(m, p, new_p)
     m = running & (mode == OM.PROFILE_POSITION)
-    if m.any():
+    if any_of(m):
         new_p, new_v, lim = profile_position(eng, r, inst, m, halt, cw, prev, g_p, g_v,
                                                     new_p, new_v, dt, lo, hi, limits)
         limited |= lim
     m = active & (mode == OM.PROFILE_VELOCITY)
-    if m.any():
+    if any_of(m):
         goal = np.clip(col(OBJ.TARGET_VELOCITY, 0, r), -max_velocity(eng, r), max_velocity(eng, r))
         acc, dec = acc_dec(eng, r)
         rv = ramp_velocity(g_v, goal, acc, dec, dt)
@@ -127,7 +129,7 @@ def plan(eng: DriveEngine, r: Rows, inst: I64, state: I64, mode: I64, cw: I64, p
         new_v = np.where(m, rv, new_v)
         new_p = np.where(m, p, new_p)
     m = running & (mode == OM.HOMING)
-    if m.any():
+    if any_of(m):
         g_p, g_v, new_p, new_v = homing.run_homing(eng, r, inst, m, halt, cw, prev, p, g_p, g_v, new_p,
                                               new_v, dt, switches)
     # commit the plan
@@ -162,7 +164,7 @@ def plan_csp(eng: DriveEngine, r: Rows, safe_dt: F64) -> None:
     lo, hi = col(*K_LIMIT_MIN, r), col(*K_LIMIT_MAX, r)
     limits = lo < hi
     limited = np.zeros(len(g_p), bool)
-    if limits.any():
+    if any_of(limits):
         clamped = np.where(limits, np.minimum(np.maximum(tgt, lo), hi), tgt)
         limited = clamped != tgt
         tgt = clamped

@@ -31,6 +31,8 @@ from pyethercat.sim.cia402.keys import (
     OM,
     THRESH_EPS,
     S,
+    all_of,
+    any_of,
 )
 
 if TYPE_CHECKING:
@@ -49,15 +51,15 @@ def statusword(eng: DriveEngine, r: Rows, state: I64, mode: I64, cw: I64, fe: F6
     col, f = eng.col, eng.field
     sw = _STATE_BITS[state] | _VOLTAGE_REMOTE
     warn, limited = eng.warn[r], eng.limited[r]
-    if warn.any():
+    if any_of(warn):
         sw |= warn * 0x0080
-    if limited.any():
+    if any_of(limited):
         sw |= limited * 0x0800
     op = state == S.OPERATION_ENABLED
-    if not op.any():
+    if not any_of(op):
         f(*K_STATUSWORD)[r] = sw
         return
-    if op.all() and (mode == OM.CYCLIC_SYNC_POSITION).all():
+    if all_of(op) and all_of(mode == OM.CYCLIC_SYNC_POSITION):
         # the usual cycle of a CSP group, the general case below without the other modes
         in_win = (eng.g_v[r] == 0) & (np.abs((eng.plan_to[r] - eng.origin[r])
                                               - (eng.enc_prev[r] - eng.origin[r]))
@@ -76,7 +78,7 @@ def statusword(eng: DriveEngine, r: Rows, state: I64, mode: I64, cw: I64, fe: F6
     csx = csp | (mode == OM.CYCLIC_SYNC_VELOCITY) | (mode == OM.CYCLIC_SYNC_TORQUE)
     zero = _FALSE[: len(sw)] if isinstance(r, slice) else np.zeros(len(sw), bool)
     reached, bit12, bit13 = zero, zero, zero
-    if (pp | csp).any():
+    if any_of(pp | csp):
         user_act = eng.enc_prev[r] - eng.origin[r]
         tgt_user = eng.plan_to[r] - eng.origin[r]
         in_win = steady & (np.abs(tgt_user - user_act) <= col(*K_POS_WINDOW, r))
@@ -86,16 +88,16 @@ def statusword(eng: DriveEngine, r: Rows, state: I64, mode: I64, cw: I64, fe: F6
         fe_bit = np.abs(fe) > col(*K_FE_WINDOW, r)
         reached = reached | (csp & pos_reached)
         bit13 = bit13 | ((pp | csp) & fe_bit)
-    if (pp | pv | hm).any():
+    if any_of(pp | pv | hm):
         stand = np.abs(v_act) <= col(*K_V_THRESHOLD, r)
         vzero_t = (eng.vzero_t[r] + dt) * stand
         eng.vzero_t[r] = vzero_t
         speed_zero = stand & (vzero_t * 1000.0 >= col(*K_V_THRESHOLD_TIME, r) - THRESH_EPS)
-        if pp.any():
+        if any_of(pp):
             reached = reached | (pp & ((~eng.pp_active[r] & pos_reached)
                                        | (halted & speed_zero)))
             bit12 = bit12 | (pp & eng.pp_ack[r])
-        if pv.any():
+        if any_of(pv):
             v_goal = np.where(halted, 0.0, col(*K_TARGET_VELOCITY, r))
             v_in = np.abs(v_act - v_goal) <= col(*K_V_WINDOW, r)
             vwin_t = (eng.vwin_t[r] + dt) * v_in
@@ -103,13 +105,13 @@ def statusword(eng: DriveEngine, r: Rows, state: I64, mode: I64, cw: I64, fe: F6
             v_reached = v_in & (vwin_t * 1000.0 >= col(*K_V_WINDOW_TIME, r) - THRESH_EPS)
             reached = reached | (pv & v_reached)
             bit12 = bit12 | (pv & speed_zero)
-        if hm.any():
+        if any_of(hm):
             phase = eng.hm_phase[r]
             idle_hm = (phase < 0) | (phase >= PH.DONE)
             reached = reached | (hm & idle_hm & speed_zero & steady)
             bit12 = bit12 | (hm & eng.hm_attained[r])
             bit13 = bit13 | (hm & eng.hm_error[r])
-    if csx.any():
+    if any_of(csx):
         bit12 = bit12 | (csx & (eng.stop_opt[r] < 0))
     sw |= (op & reached) * 0x0400 | (op & bit12) * 0x1000 | (op & bit13) * 0x2000
     f(*K_STATUSWORD)[r] = sw
