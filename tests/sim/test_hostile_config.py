@@ -11,12 +11,16 @@ from __future__ import annotations
 
 import random
 import struct
+import tracemalloc
+from collections.abc import Callable
 
+import pytest
 from simhelp import fmmu_bytes, sm_bytes
 
 from pyethercat.clock import VirtualClock
 from pyethercat.link.pair import PairLink
 from pyethercat.master.master import Master
+from pyethercat.sim.segment import Segment
 from pyethercat.sim.topology import parse_topology
 from pyethercat.wire import registers as R
 from pyethercat.wire.al import AlState
@@ -62,6 +66,11 @@ def _hostile_frames() -> list[bytes]:
                                       fmmu_bytes(0x10, 0xFFFF, 3, 2, 0x0800, 5, 3))]),
         encode_frame([Datagram.logical(Command.LRW, 0, bytes(1486))]),
         encode_frame([Datagram.logical(Command.LRW, 0xFFFFFA00, bytes(1486))]),
+        # eight overlapping bit-wise FMMUs of 64 KiB on every slave
+        encode_frame([Datagram.device(Command.BWR, 0, R.fmmu_address(k),
+                                      fmmu_bytes(0xFFFF0000 + k * 0x1000, 0xFFFF, 5, 3, 0x1000 + 0x10 * k, 2, 3))
+                      for k in range(8)]),
+        encode_frame([Datagram.logical(Command.LRW, 0xFFFF0000, bytes(1486))]),
         encode_frame([Datagram.device(Command.BWR, 0, R.AL_CONTROL, struct.pack("<H", 0x18))]),
     ]
     # Mutated configuration frames: random bytes into the register space. Not
@@ -131,3 +140,102 @@ def test_after_hostile_frames_a_fresh_master_brings_the_segment_to_op() -> None:
     m.slaves[1].outputs["Output 1"] = 1
     assert runner.exchange_once() and runner.exchange_once()
     assert m.slaves[2].inputs["Input 1"] == 1
+
+
+# --- hostile FMMU configurations: plans bounded by the datagram -------------------------
+
+_RW = 3
+
+
+def _fmmus_over(seg: Segment, address: int, n: int) -> int:
+    """Active FMMUs of the segment's slaves with a byte in the logical window [address, address + n)
+    (the ESC compares logical addresses modulo 2**32), read off the FMMU registers."""
+    count = 0
+    for sl in seg.slaves:
+        nf = sl.spec.profile.fmmu_count
+        raw = sl.read(R.FMMU_BASE, nf * R.FMMU_SIZE)
+        for k in range(nf):
+            logical, length, _, _, _, _, ftype, act = R.FMMU_STRUCT.unpack_from(raw, k * R.FMMU_SIZE)
+            if act & 1 and length and ftype & 3:
+                d = (address - logical) % 2**32
+                count += d < length or d + n > 2**32
+    return count
+
+
+def _lrw_costs(seg: Segment, address: int, n: int = 1486) -> tuple[int, int, int, int]:
+    """Two LRWs of ``n`` bytes at ``address``: (FMMUs over the window, plan entries, bytes
+    allocated at the peak of the first LRW (planning it), and of the second (running it))."""
+    peaks = []
+    tracemalloc.start()
+    try:
+        for _ in range(2):
+            tracemalloc.reset_peak()
+            base = tracemalloc.get_traced_memory()[0]
+            _send(seg, Datagram.logical(Command.LRW, address, bytes(n)))
+            peaks.append(tracemalloc.get_traced_memory()[1] - base)
+    finally:
+        tracemalloc.stop()
+    lmap = seg.logical_map
+    size = lmap.plan_size(address, n) if lmap is not None else None
+    return _fmmus_over(seg, address, n), size or 0, peaks[0], peaks[1]
+
+
+def _set_all(seg: Segment, configs: list[bytes]) -> None:
+    for k, raw in enumerate(configs):
+        _send(seg, Datagram.device(Command.BWR, 0, R.fmmu_address(k), raw))
+
+
+def _wrap(seg: Segment) -> list[int]:
+    # 0xFFFF bytes from 0xFFFFFF02: the last 0xFE bytes of the logical space, then 0..0xFF00
+    _set_all(seg, [fmmu_bytes(0xFFFFFF02, 0xFFFF, 0, 7, 0x1000, 0, _RW)])
+    return [0xFFFFFA00, 0x0, 0x1000]
+
+
+def _bitwise_64k(seg: Segment) -> list[int]:
+    # eight overlapping bit-wise 64 KiB FMMUs per slave, most of them across the end of the space
+    _set_all(seg, [fmmu_bytes(0xFFFF0000 + k * 0x1000, 0xFFFF, 5, 3, 0x1000 + 0x10 * k, 2, _RW)
+                   for k in range(8)])
+    return [0xFFFF0000, 0xFFFFFA00, 0x0]
+
+
+def _sixteen_shifts(seg: Segment) -> list[int]:
+    # every FMMU a chip has over one window, each with its own bit offset: cross traffic
+    # along the whole route, read and written bit by bit
+    _set_all(seg, [fmmu_bytes(0xFFFF0000 - 3 * k, 0xFFFF, k % 8, 3 * k % 8, 0x1000 + 7 * k, 5 * k % 8, _RW)
+                   for k in range(16)])
+    return [0xFFFF0100]
+
+
+def _random_fmmus(seg: Segment) -> list[int]:
+    rng = random.Random(20251125)
+    addresses = []
+    for j in range(24):
+        logical = rng.choice([0xFFFFFF02, rng.randrange(2**32), 0xFFFF0000 + rng.randrange(0x10000)])
+        raw = fmmu_bytes(logical, rng.randrange(1, 0x10000), rng.randrange(8), rng.randrange(8),
+                         rng.randrange(0x10000), rng.randrange(8), rng.choice([1, 2, 3]))
+        d = (Datagram.device(Command.BWR, 0, R.fmmu_address(rng.randrange(16)), raw) if j % 2 else
+             Datagram.device(Command.FPWR, 0, R.fmmu_address(rng.randrange(16)), raw))
+        _send(seg, d)
+        addresses.append(rng.choice([0xFFFFFA00, 0, logical, (logical + 100) % 2**32]))
+    return addresses
+
+
+@pytest.mark.parametrize("slaves", [4, 20])
+@pytest.mark.parametrize("configure", [_wrap, _bitwise_64k, _sixteen_shifts, _random_fmmus],
+                         ids=["wrap", "bitwise-64k", "sixteen-shifts", "random"])
+def test_hostile_fmmus_cost_what_the_datagram_covers(configure: Callable[[Segment], list[int]],
+                                                     slaves: int) -> None:
+    # A real ESC handles any FMMU configuration at wire speed. Here the plan of a
+    # logical datagram holds at most one read and one write entry per datagram byte
+    # (and the byte after it, for a bit offset) and FMMU over it, whatever the FMMUs'
+    # lengths; planning allocates a fixed multiple of that (plus fixed-size working
+    # arrays), running a planned datagram a fraction of it.
+    kinds = ["coupler", "do8", "di8", "coe-io"] * (slaves // 4)
+    seg = parse_topology("".join(f'[[slave]]\nname = "s{i}"\ndevice = "builtin:{k}"\n'
+                                 for i, k in enumerate(kinds))).build()
+    n = 1486
+    for address in configure(seg):
+        fmmus, size, planning, running = _lrw_costs(seg, address, n)
+        assert size <= 2 * (n + 1) * fmmus, (hex(address), fmmus, size)
+        assert planning <= 128 * 2 * (n + 1) * fmmus + 1_000_000, (hex(address), fmmus, planning)
+        assert running <= 16 * size + 100_000, (hex(address), size, running)

@@ -3,25 +3,32 @@
 Each logical datagram shape (address, length, command) gets a plan, made the
 first time the shape is seen and then cached: the FMMUs of the route that
 overlap the datagram's window are resolved, for that window only, into flat
-index arrays over the memory array (``EscMemory.flat``):
+index arrays over the memory array (``EscMemory.flat``), one entry per byte:
 
-- byte entries (logical start bit 0, stop bit 7, physical start bit 0): one
-  logical byte <-> one physical byte;
-- bit entries (anything else): one logical bit <-> one physical bit.
+- a read entry fills (some bits of) one datagram byte from one or two
+  physical bytes: an FMMU maps logical bit j to physical bit j + k for a
+  constant k, so a logical byte's bits come from two neighbouring physical
+  bytes, shifted (a byte-aligned FMMU: one byte, no shift);
+- a write entry fills (some bits of) one physical byte from one or two
+  datagram bytes in the same way.
 
-A plan covers at most the datagram's bytes (2047) times the FMMUs that
-overlap them, whatever the FMMUs say: an FMMU of 64 KiB, or one whose
-logical range runs past 0xFFFFFFFF (logical addresses wrap at 32 bits, as
-the ESC compares them), costs what its part inside the window costs. The
-plan cache is bounded too.
+A plan therefore holds at most one read and one write entry per datagram
+byte (plus one for a bit offset) and FMMU over it, whatever the FMMUs say:
+an FMMU of 64 KiB, or one whose logical range runs past 0xFFFFFFFF (logical
+addresses wrap at 32 bits, as the ESC compares them), costs what its part
+inside the window costs. Planning expands the entries a few thousand at a
+time, and the plan cache is bounded by its entries.
 
 Executing a plan costs a fixed number of numpy operations: a gather for the
 read FMMUs, a scatter for the write FMMUs, the placing of the read values.
-The FMMU rules hold (ESC datasheet section I, "FMMU"; KickCAT
+Bytes read or written whole by one entry are plain copies; entries of the
+same byte own disjoint bits (the last on the route wins, within a slave its
+last FMMU) and are merged with one OR per further entry of a byte (at most
+8). The FMMU rules hold (ESC datasheet section I, "FMMU"; KickCAT
 ``EmulatedESC.cc`` ``copyFmmu``): a logical byte may be read by one FMMU and
-written by another, bit operations leave unmapped bits untouched
-(``ufunc.at`` read-modify-write), unconfigured logical addresses pass
-unchanged, a physical byte the chip lacks is neither read nor written.
+written by another, bit operations leave unmapped bits untouched,
+unconfigured logical addresses pass unchanged, a physical byte the chip
+lacks is neither read nor written.
 
 Sync managers (ESC datasheet section I, "SyncManager") are compiled in as
 well, so that a logical access obeys the same rules as FPRD/FPWR: write
@@ -31,13 +38,11 @@ not count in the working counter); read entries on the last byte of an
 enabled buffered ECAT-read SM complete a buffer read (status 'read event',
 the SM's AL event, its ECAT event cleared).
 
-Ordering along the ring matters only where mappings overlap: when a logical
-byte read by one slave is written by a later slave on the route (cross
-traffic), or when byte and bit entries of different slaves read the same
-byte. A datagram touching such a byte is processed pass by pass in route
-order (``_execute_ordered``). Several readers of the same byte/bit otherwise
-resolve by ordered assignment (the last slave on the route wins, as on the
-wire).
+Ordering along the ring matters only for cross traffic: a logical byte read
+into the frame by one slave and written from the frame by a later slave
+must carry the first slave's value to the second. The plan then runs in
+stages, in route order, each starting at such a writer (usually two stages;
+a stage is again one gather, scatter and placement).
 """
 
 from __future__ import annotations
@@ -49,6 +54,7 @@ import numpy.ma  # noqa: F401  (np.unique imports it lazily: ~12 ms in the first
 import numpy.typing as npt
 
 from pyethercat.wire import registers as R
+from pyethercat.wire.datagram import MAX_DATA
 
 __all__ = [
     "SLAVE_STRIDE",
@@ -61,11 +67,21 @@ __all__ = [
 I64 = npt.NDArray[np.int64]
 U8 = npt.NDArray[np.uint8]
 BoolA = npt.NDArray[np.bool_]
+I32 = npt.NDArray[np.int32]
 
 SLAVE_STRIDE = R.ADDRESS_SPACE
 _SPACE = 1 << 32
-#: Plans kept (each is bounded by the datagram size times the FMMUs it covers).
+_AS = R.ADDRESS_SPACE
+#: Plans kept, and index entries kept in all of them (each plan holds at most a
+#: few entries per datagram byte and FMMU that covers it).
 _PLAN_CACHE = 1024
+_CACHE_ENTRIES = 2_000_000
+#: Longest datagram a frame carries (a plan made ahead of time is no longer).
+_MAX_DATAGRAM = MAX_DATA
+_POS_SPAN = 1 << 32
+#: Entries expanded at once while planning.
+_CHUNK = 1 << 12
+_EMPTY = np.zeros(0, np.int64)
 
 
 @dataclass
@@ -106,10 +122,6 @@ def parse_fmmus(raw: bytes, count: int, pos: int, slave: int) -> list[FmmuConfig
     return out
 
 
-def _cat(parts: list[I64]) -> I64:
-    return np.concatenate(parts).astype(np.int64) if parts else np.zeros(0, np.int64)
-
-
 @dataclass
 class SmReads:
     """ECAT-read sync managers of a route, compiled by the segment (see the module docstring).
@@ -135,20 +147,6 @@ class SmReads:
         return SmReads({}, {}, z, z, np.zeros(0, np.uint8), z, np.zeros(0, np.uint8))
 
 
-def _in_ranges(phys: I64, ranges: list[tuple[int, int]]) -> BoolA:
-    m = np.zeros(len(phys), bool)
-    for a, b in ranges:
-        m |= (phys >= a) & (phys < b)
-    return m
-
-
-def _sm_ids(phys: I64, last: dict[int, int]) -> I64:
-    """Per physical byte: the SM entry whose last byte it is, else -1."""
-    ids = np.full(len(phys), -1, np.int64)
-    for byte, k in last.items():
-        ids[phys == byte] = k
-    return ids
-
 
 def _combine(idx: I64, val: U8, op: np.ufunc) -> tuple[I64, U8]:
     """Unique indices with their values combined by ``op`` (one fancy assignment then)."""
@@ -156,91 +154,229 @@ def _combine(idx: I64, val: U8, op: np.ufunc) -> tuple[I64, U8]:
         return idx, val
     order = np.argsort(idx, kind="stable")
     idx, val = idx[order], val[order]
-    first = np.ones(len(idx), bool)
-    first[1:] = idx[1:] != idx[:-1]
-    starts = np.nonzero(first)[0]
+    starts, _ = _runs(idx)
     return idx[starts], op.reduceat(val, starts).astype(np.uint8)
 
 
-def _pieces(logical: int, length: int, lo: int, n: int) -> list[tuple[int, int, int]]:
-    """Byte offsets [i0, i1) of an FMMU at ``logical`` (``length`` bytes) inside the window
-    [lo, lo + n) of the 32-bit logical space, with the window offset of i0 (both wrap)."""
-    d = (lo - logical) % _SPACE  # FMMU offset of the window's first byte
-    out = []
-    for start in (d, d - _SPACE):
-        i0, i1 = max(start, 0), min(start + n, length)
-        if i1 > i0:
-            out.append((i0, i1, i0 - start))
-    return out
+def _expand(lo: I64, hi: I64) -> tuple[I64, I64]:
+    """Every element of the ranges [lo, hi): (its range's index, its value), ranges in order."""
+    counts = hi - lo
+    total = int(counts.sum())
+    idx = np.repeat(np.arange(len(lo), dtype=np.int64), counts)
+    first = np.cumsum(counts) - counts
+    vals = np.arange(total, dtype=np.int64) - np.repeat(first - lo, counts)
+    return idx, vals
 
 
-@dataclass
-class _Entries:
-    """The mapped entries of one window, sorted by (window offset, route position)."""
+def _chunks(sizes: I64) -> list[I64]:
+    """Consecutive groups of the parts of these sizes, each of about :data:`_CHUNK` entries
+    (the arrays that expand them stay small whatever the FMMUs)."""
+    if not len(sizes):
+        return []
+    group = (np.cumsum(sizes) - sizes) // _CHUNK
+    cuts = np.nonzero(np.diff(group))[0] + 1
+    return np.split(np.arange(len(sizes), dtype=np.int64), cuts)
 
-    rb_rel: I64     # byte reads: window byte, flat index, SM entry, position
-    rb_phys: I64
-    rb_sm: I64
-    rb_pos: I64
-    wb_rel: I64     # byte writes: window byte, flat index, completes a buffer, position
-    wb_phys: I64
-    wb_done: BoolA
-    wb_pos: I64
-    rt_rel: I64     # bit reads: window bit, flat byte, bit, SM entry, position
-    rt_pbyte: I64
-    rt_shift: I64
-    rt_sm: I64
-    rt_pos: I64
-    wt_rel: I64     # bit writes: window bit, flat byte, bit, completes a buffer, position
-    wt_pbyte: I64
-    wt_shift: I64
-    wt_done: BoolA
-    wt_pos: I64
-    stride: int
 
-    @property
-    def wb_slave(self) -> I64:
-        return self.wb_phys // self.stride
+def _bit_mask(a: I64, b: I64) -> I64:
+    """Per byte: the bits k with a <= k < b (both clipped to 0..8)."""
+    return (1 << np.clip(b, 0, 8)) - (1 << np.clip(a, 0, 8))
 
-    @property
-    def wt_slave(self) -> I64:
-        return self.wt_pbyte // self.stride
+
+def _lookup(keys: I64, values: I64, q: I64) -> I64:
+    """``values`` at the positions of ``q`` in the sorted ``keys``; -1 where absent."""
+    if not len(keys):
+        return np.full(len(q), -1, np.int64)
+    i = np.minimum(np.searchsorted(keys, q), len(keys) - 1)
+    return np.where(keys[i] == q, values[i], -1)
+
+
+def _in_intervals(lo: I64, hi: I64, q: I64) -> BoolA:
+    """Whether each ``q`` lies in one of the disjoint, sorted intervals [lo, hi)."""
+    if not len(lo):
+        return np.zeros(len(q), bool)
+    i = np.searchsorted(lo, q, side="right") - 1
+    return (i >= 0) & (q < hi[np.maximum(i, 0)])
+
+
+def _runs(key: I64) -> tuple[I64, I64]:
+    """Of a sorted key column: the start of each run of equal keys, and each entry's run."""
+    first = np.ones(len(key), bool)
+    first[1:] = key[1:] != key[:-1]
+    return np.nonzero(first)[0], np.cumsum(first) - 1
+
+
+def _last_wins(key: I64, mask: U8) -> U8:
+    """Per entry (sorted by key, then by precedence): the bits of ``mask`` no later entry
+    of the same key covers, so that the entries of one key own disjoint bits."""
+    if len(key) < 2 or bool((key[1:] != key[:-1]).all()):
+        return mask
+    eff = np.zeros(len(key), np.uint8)
+    for k in range(8):
+        sel = np.nonzero((mask >> k) & 1)[0]
+        if not len(sel):
+            continue
+        ks = key[sel]
+        last = np.ones(len(sel), bool)
+        last[:-1] = ks[1:] != ks[:-1]
+        eff[sel[last]] |= 1 << k
+    return eff
+
+
+class _Side:
+    """Entries of one direction: read entries place bits of two gathered source bytes into
+    a destination byte, under a mask (a byte entry: the whole of one source byte).
+
+    Reads: destination = window byte, sources = flat memory bytes; writes:
+    destination = flat memory byte, sources = window bytes. ``shift`` selects
+    the 8 bits of (lo | hi << 8) that land on the destination byte.
+    """
+
+    __slots__ = ("dst", "lo", "hi", "shift", "mask", "pos")
+
+    def __init__(self, dst: I64, lo: I64, hi: I64, shift: U8, mask: U8, pos: I32) -> None:
+        self.dst, self.lo, self.hi, self.shift, self.mask, self.pos = dst, lo, hi, shift, mask, pos
+
+    @staticmethod
+    def join(parts: list[_Side]) -> _Side:
+        if len(parts) == 1:
+            return parts[0]
+        if not parts:
+            z = _EMPTY
+            return _Side(z, z, z, np.zeros(0, np.uint8), np.zeros(0, np.uint8), np.zeros(0, np.int32))
+        return _Side(*(np.concatenate([getattr(p, a) for p in parts]) for a in _Side.__slots__))
+
+    def __len__(self) -> int:
+        return len(self.dst)
+
+
+class _Moves:
+    """One side of a stage, compiled: destinations taken whole from one source byte (a plain
+    gather and assignment), the others merged bit by bit from their entries (see
+    :func:`_last_wins`; a byte has at most 8 entries then, one per layer).
+
+    ``idx`` selects the stage's entries of ``side``, sorted by destination (then
+    precedence)."""
+
+    __slots__ = ("whole_src", "whole_dst", "whole_view", "lo", "hi", "shift", "mask", "layers",
+                 "dst", "keep")
+
+    def __init__(self, side: _Side, idx: I64) -> None:
+        dst, mask, shift = side.dst[idx], side.mask[idx], side.shift[idx]
+        starts, run = _runs(dst)
+        count = np.diff(np.append(starts, len(idx)))
+        whole = (count[run] == 1) & (mask == 0xFF) & (shift == 0)
+        # (Slices where the indices are one run: the usual image is a copy, not a gather.)
+        self.whole_src: I64 | slice | None = None
+        self.whole_dst: I64 | slice | None = None
+        if whole.any():
+            self.whole_src, self.whole_dst = _run(side.lo[idx[whole]]), _run(dst[whole])
+        self.whole_view = isinstance(self.whole_src, slice)
+        self.lo: I64 | None = None
+        self.hi: I64 | None = None
+        self.shift: npt.NDArray[np.uint16] = np.zeros(0, np.uint16)
+        self.mask: U8 = np.zeros(0, np.uint8)
+        #: Entries past the first of their destination: (start, end, destination numbers).
+        self.layers: list[tuple[int, int, I64]] = []
+        self.dst: I64 = _EMPTY
+        self.keep: U8 = np.zeros(0, np.uint8)
+        rest = np.nonzero(~whole)[0]
+        if not len(rest):
+            return
+        dst = dst[rest]
+        eff = _last_wins(dst, mask[rest])
+        nz = np.nonzero(eff)[0]
+        rest, dst, eff = rest[nz], dst[nz], eff[nz]
+        starts, run = _runs(dst)
+        self.dst = dst[starts]
+        self.keep = (~np.bitwise_or.reduceat(eff, starts)).astype(np.uint8)
+        # Layer l: the l-th entry of each destination that has one; layer 0 is every
+        # destination in order, so the merge is one OR per further layer.
+        rank = np.arange(len(rest)) - starts[run]
+        order = np.lexsort((run, rank))
+        rank, run = rank[order], run[order]
+        bounds = np.searchsorted(rank, np.arange(int(rank[-1]) + 2)).tolist()
+        self.layers = [(a, b, run[a:b]) for a, b in zip(bounds[1:-1], bounds[2:], strict=True)]
+        sel = idx[rest[order]]
+        self.lo, self.shift, self.mask = side.lo[sel], side.shift[sel].astype(np.uint16), eff[order].astype(np.uint8)
+        # (No second source byte when every entry takes its bits from one byte.)
+        self.hi = side.hi[sel] if self.shift.any() else None
+
+    def merged(self, src: U8) -> U8:
+        """The merged bits of each destination of the bit entries, from source ``src``."""
+        assert self.lo is not None
+        if self.hi is None:
+            v = src[self.lo] & self.mask
+        else:
+            v = (((src[self.lo].astype(np.uint16) | (src[self.hi].astype(np.uint16) << 8))
+                  >> self.shift).astype(np.uint8) & self.mask)
+        if not self.layers:
+            return v
+        acc = v[: len(self.dst)]
+        for a, b, ids in self.layers:
+            acc[ids] |= v[a:b]
+        return acc
+
+
+class _Stage:
+    """Slaves of the route whose reads and writes may be applied at once: a gather of what
+    they read, a scatter of what they write, the placing of the reads."""
+
+    __slots__ = ("reads", "writes")
+
+    def __init__(self, reads: _Side, r_idx: I64, writes: _Side, w_idx: I64) -> None:
+        self.reads = _Moves(reads, r_idx) if len(r_idx) else None
+        self.writes = _Moves(writes, w_idx) if len(w_idx) else None
+
+    def apply(self, flat: U8, data: U8) -> None:
+        # Gather first (a slave reads its memory as it was), scatter the data as
+        # it arrived (``data`` is unchanged until the reads are placed), then place.
+        r, w = self.reads, self.writes
+        rvals = tvals = None
+        if r is not None:
+            if r.whole_src is not None:
+                rvals = flat[r.whole_src]
+                if r.whole_view:  # (a slice is a view: the writes below must not change it)
+                    rvals = rvals.copy()
+            if r.lo is not None:
+                tvals = r.merged(flat)
+        if w is not None:
+            if w.whole_src is not None:
+                flat[w.whole_dst] = data[w.whole_src]
+            if w.lo is not None:
+                flat[w.dst] = (flat[w.dst] & w.keep) | w.merged(data)
+        if r is not None:
+            if rvals is not None:
+                data[r.whole_dst] = rvals
+            if tvals is not None:
+                data[r.dst] = (data[r.dst] & r.keep) | tvals
 
 
 class _Plan:
     """Cached index arrays of one logical datagram shape."""
 
-    __slots__ = ("wkc", "ordered", "done", "r_phys", "r_rel", "t_pbyte", "t_shift", "t_rel",
-                 "w_phys", "w_rel", "b_pbyte", "b_shift", "b_clear", "b_rel",
-                 "or_idx", "or_val", "and_idx", "and_val", "and_hit", "entries", "size")
+    __slots__ = ("wkc", "stages", "done", "or_idx", "or_val", "and_idx", "and_val", "and_hit",
+                 "size")
 
     def __init__(self, wkc: int) -> None:
         self.wkc = wkc
+        #: One stage, or (cross traffic) several in route order.
+        self.stages: list[_Stage] = []
+        #: Slaves whose write SM this datagram completes.
+        self.done: I64 = _EMPTY
         #: Buffer-read completion: status/AL event bytes to OR, ECAT event bytes to AND.
         self.or_idx: I64 | None = None
         self.or_val: U8 | None = None
         self.and_idx: I64 | None = None
         self.and_val: U8 | None = None
         self.and_hit: U8 | None = None
-        self.ordered = False
-        self.done: I64 = np.zeros(0, np.int64)
-        self.r_phys: I64 | None = None
-        #: Window offsets of the gathered bytes: a slice where they are one run
-        #: (the usual image: a view of the datagram, not a gather of its bytes).
-        self.r_rel: I64 | slice | None = None
-        self.t_pbyte: I64 | None = None
-        self.t_shift: I64 | None = None
-        self.t_rel: I64 | None = None
-        self.w_phys: I64 | None = None
-        self.w_rel: I64 | slice | None = None
-        self.b_pbyte: I64 | None = None
-        self.b_shift: I64 | None = None
-        self.b_clear: U8 | None = None
-        self.b_rel: I64 | None = None
-        #: The window's entries (kept for the ordered path only).
-        self.entries: _Entries | None = None
         #: Index entries the plan holds (for the cache bound).
         self.size = 0
+
+    @property
+    def ordered(self) -> bool:
+        """Whether the datagram is applied in several stages (cross traffic)."""
+        return len(self.stages) > 1
 
 
 class LogicalMap:
@@ -256,18 +392,41 @@ class LogicalMap:
                  complete: dict[int, set[int]], implemented: list[npt.NDArray[np.bool_]],
                  sm_reads: SmReads | None = None, stride: int = SLAVE_STRIDE) -> None:
         self.configs = configs
-        self._writable = writable
-        self._implemented = implemented
-        self._complete = complete
-        self._smr = sm_reads if sm_reads is not None else SmReads.empty()
+        smr = sm_reads if sm_reads is not None else SmReads.empty()
+        self._smr = smr
         self._stride = stride
         self.empty = not configs
-        # FMMU-level arrays, to find the FMMUs a window overlaps with array operations.
-        self.f_lo = np.array([c.logical for c in configs], dtype=np.int64)
-        self.f_len = np.array([c.length for c in configs], dtype=np.int64)
-        self.f_pos = np.array([c.pos for c in configs], dtype=np.int64)
+
+        def col(attr: str) -> I64:
+            return np.array([getattr(c, attr) for c in configs], dtype=np.int64)
+
+        # FMMU-level arrays: a window's FMMUs are found, and its entries expanded,
+        # with array operations.
+        self.f_lo, self.f_len, self.f_pos, self.f_slave = col("logical"), col("length"), col("pos"), col("slave")
+        self.f_sbit, self.f_bits = col("start_bit"), col("bits")
+        self.f_phys_bit = 8 * col("physical") + col("physical_bit")
         self.f_read = np.array([c.read for c in configs], dtype=bool)
         self.f_write = np.array([c.write for c in configs], dtype=bool)
+        # Per slave of an FMMU: implemented and writable bytes, one table row per
+        # distinct mask (the chips of one profile share theirs).
+        slaves = sorted({c.slave for c in configs})
+        self._impl, self._impl_row = _mask_table(implemented, slaves)
+        self._wr, self._wr_row = _mask_table(writable, slaves)
+        # Keyed by slave * 64 KiB + byte: refused ranges (merged), the last bytes of
+        # buffered ECAT-read SMs (SmReads entry) and of buffered write SMs.
+        ranges = sorted((s * _AS + a, s * _AS + b) for s, rs in smr.refused.items() for a, b in rs if b > a)
+        merged: list[list[int]] = []
+        for a, b in ranges:
+            if merged and a <= merged[-1][1]:
+                merged[-1][1] = max(merged[-1][1], b)
+            else:
+                merged.append([a, b])
+        self._ref_lo = np.array([m[0] for m in merged], np.int64)
+        self._ref_hi = np.array([m[1] for m in merged], np.int64)
+        last = sorted((s * _AS + byte, k) for s, d in smr.last.items() for byte, k in d.items())
+        self._last_key = np.array([k for k, _ in last], np.int64)
+        self._last_id = np.array([v for _, v in last], np.int64)
+        self._done_key = np.array(sorted(s * _AS + b for s, bs in complete.items() for b in bs), np.int64)
         self._plans: dict[tuple[int, int, bool, bool], _Plan] = {}
         self._plan_entries = 0
 
@@ -277,12 +436,17 @@ class LogicalMap:
         """The datagram shapes (address, length, reads, writes) planned so far."""
         return list(self._plans)
 
+    def plan_size(self, address: int, length: int, reads: bool = True, writes: bool = True) -> int | None:
+        """Index entries held by the plan of this datagram shape (None: not planned yet)."""
+        plan = self._plans.get((address, length, reads, writes))
+        return None if plan is None else plan.size
+
     def span_key(self) -> tuple[int, int, bool, bool] | None:
         """The shape of one LRW over every mapped byte (what most masters send), or None."""
         if self.empty:
             return None
         lo = int(self.f_lo.min())
-        return lo, int((self.f_lo + self.f_len).max()) - lo, True, True
+        return lo, min(int((self.f_lo + self.f_len).max()) - lo, _MAX_DATAGRAM), True, True
 
     def prepare(self, keys: list[tuple[int, int, bool, bool]]) -> list[I64]:
         """Plan these datagram shapes now (those a previous map had seen); returns the
@@ -310,37 +474,15 @@ class LogicalMap:
         plan = self._plans.get(key)
         if plan is None:
             plan = self._plan(lo, len(data), reads, writes)
-            if len(self._plans) >= _PLAN_CACHE or self._plan_entries > 8_000_000:
+            if len(self._plans) >= _PLAN_CACHE or self._plan_entries > _CACHE_ENTRIES:
                 self._plans.clear()
                 self._plan_entries = 0
             self._plans[key] = plan
             self._plan_entries += plan.size
         if not plan.wkc:
             return 0, plan.done, False
-        if plan.ordered:
-            assert plan.entries is not None
-            done = _execute_ordered(plan.entries, flat, data, reads, writes)
-            return plan.wkc, done, self._sm_read_events(flat, plan)
-        # Gather first (a slave reads its memory as it was), scatter the data as
-        # it arrived (``data`` is unchanged until the reads are placed), then place.
-        rvals = flat[plan.r_phys] if plan.r_phys is not None else None
-        tvals = None
-        if plan.t_pbyte is not None:
-            assert plan.t_shift is not None
-            tvals = (flat[plan.t_pbyte] >> plan.t_shift) & 1
-        if plan.w_phys is not None:
-            flat[plan.w_phys] = data[plan.w_rel]
-        if plan.b_pbyte is not None:
-            assert plan.b_rel is not None and plan.b_shift is not None and plan.b_clear is not None
-            vals = ((data[plan.b_rel >> 3] >> (plan.b_rel & 7)) & 1).astype(np.uint8)
-            np.bitwise_and.at(flat, plan.b_pbyte, plan.b_clear)
-            np.bitwise_or.at(flat, plan.b_pbyte, (vals << plan.b_shift).astype(np.uint8))
-        if rvals is not None:
-            data[plan.r_rel] = rvals
-        if tvals is not None:
-            bits = np.unpackbits(data, bitorder="little")
-            bits[plan.t_rel] = tvals
-            data[:] = np.packbits(bits, bitorder="little")
+        for stage in plan.stages:
+            stage.apply(flat, data)
         if plan.or_idx is None:
             return plan.wkc, plan.done, False
         return plan.wkc, plan.done, self._sm_read_events(flat, plan)
@@ -366,139 +508,134 @@ class LogicalMap:
     def _overlapping(self, lo: int, n: int) -> I64:
         """Indices of the FMMUs with a byte in the window (32-bit wrap included)."""
         if self.empty:
-            return np.zeros(0, np.int64)
+            return _EMPTY
         d = (lo - self.f_lo) % _SPACE
         hit = (d < self.f_len) | (d + n > _SPACE)
         return np.nonzero(hit)[0]
 
-    def _entries(self, lo: int, n: int, fmmus: I64, reads: bool, writes: bool
-                 ) -> tuple[_Entries, I64, I64]:
-        """The entries of the window (sorted) and the write-countable (window byte, position) pairs."""
-        smr = self._smr
-        rb: list[list[I64]] = [[], [], [], []]
-        wb: list[list[I64]] = [[], [], [], []]
-        rt: list[list[I64]] = [[], [], [], [], []]
-        wt: list[list[I64]] = [[], [], [], [], []]
-        wc_rel: list[I64] = []
-        wc_pos: list[I64] = []
-        stride = self._stride
-        for f in fmmus.tolist():
-            c = self.configs[f]
-            if not ((c.read and reads) or (c.write and writes)):
-                continue
-            base = c.slave * stride
-            impl = self._implemented[c.slave]
-            wmask = self._writable[c.slave]
-            done = self._complete.get(c.slave)
-            refused = smr.refused.get(c.slave)
-            last = smr.last.get(c.slave)
-            for i0, i1, r0 in _pieces(c.logical, c.length, lo, n):
-                if c.byte_aligned:
-                    rel = np.arange(r0, r0 + i1 - i0, dtype=np.int64)
-                    phys = np.arange(c.physical + i0, c.physical + i1, dtype=np.int64)
-                    pbyte = phys
-                else:
-                    j0 = max(8 * i0, c.start_bit)
-                    j1 = min(8 * i1, c.start_bit + c.bits)
-                    if j1 <= j0:
-                        continue
-                    jj = np.arange(j0, j1, dtype=np.int64)
-                    rel = 8 * r0 + (jj - 8 * i0)
-                    pbit = c.physical * 8 + c.physical_bit + (jj - c.start_bit)
-                    pbyte = pbit >> 3
-                if c.write and writes:
-                    cnt = ~_in_ranges(pbyte, refused) if refused else np.ones(len(rel), bool)
-                    wc_rel.append(np.unique(rel[cnt] >> (0 if c.byte_aligned else 3)))
-                    wc_pos.append(np.full(len(wc_rel[-1]), c.pos, np.int64))
-                keep = pbyte < R.ADDRESS_SPACE
-                rel, pbyte = rel[keep], pbyte[keep]
-                shift = None if c.byte_aligned else (pbit[keep] & 7)
-                pos = np.full(len(rel), c.pos, np.int64)
-                if c.read and reads:
-                    ok = impl[pbyte]
-                    sm = _sm_ids(pbyte[ok], last) if last else np.full(int(ok.sum()), -1, np.int64)
-                    parts = (rel[ok], pbyte[ok] + base, sm, pos[ok])
-                    if shift is None:
-                        for k, p in enumerate(parts):
-                            rb[k].append(p)
-                    else:
-                        for k, p in enumerate((parts[0], parts[1], shift[ok], parts[2], parts[3])):
-                            rt[k].append(p)
-                if c.write and writes:
-                    ok = wmask[pbyte]
-                    if refused:
-                        ok &= ~_in_ranges(pbyte, refused)
-                    fin = (np.isin(pbyte[ok], list(done)) if done else np.zeros(int(ok.sum()), bool))
-                    parts = (rel[ok], pbyte[ok] + base, fin.astype(np.int64), pos[ok])
-                    if shift is None:
-                        for k, p in enumerate(parts):
-                            wb[k].append(p)
-                    else:
-                        for k, p in enumerate((parts[0], parts[1], shift[ok], parts[2], parts[3])):
-                            wt[k].append(p)
+    def _pieces(self, lo: int, n: int, fmmus: I64) -> tuple[I64, I64, I64, I64]:
+        """The FMMUs' parts inside the window [lo, lo + n) of the 32-bit logical space (an FMMU
+        across the end of the space has two): (FMMU, first window bit, end window bit, the
+        physical bit of window bit 0), in FMMU order."""
+        d = (lo - self.f_lo[fmmus]) % _SPACE  # FMMU offset of the window's first byte
+        start = np.concatenate([d, d - _SPACE])
+        f = np.concatenate([fmmus, fmmus])
+        i0 = np.maximum(start, 0)
+        i1 = np.minimum(start + n, self.f_len[f])
+        ok = np.nonzero(i1 > i0)[0]
+        ok = ok[np.argsort(f[ok], kind="stable")]
+        f, start, i0, i1 = f[ok], start[ok], i0[ok], i1[ok]
+        sbit = self.f_sbit[f]
+        # FMMU bits j (from the first logical byte's bit 0) sit at window bit 8 * start + j.
+        j0 = np.maximum(8 * i0, sbit)
+        j1 = np.minimum(8 * i1, sbit + self.f_bits[f])
+        ok = np.nonzero(j1 > j0)[0]
+        f, start, j0, j1, sbit = f[ok], start[ok], j0[ok], j1[ok], sbit[ok]
+        # Physical bit = window bit + k for every bit of the FMMU.
+        k = self.f_phys_bit[f] - sbit + 8 * start
+        return f, j0 - 8 * start, j1 - 8 * start, k
 
-        def sort(cols: list[list[I64]]) -> list[I64]:
-            arrays = [_cat(c) for c in cols]
-            if not len(arrays[0]):
-                return arrays
-            # Stable by (window offset, route position): ordered assignment = last reader wins.
-            order = np.lexsort((arrays[-1], arrays[0]))
-            return [a[order] for a in arrays]
+    def _reads(self, f: I64, w0: I64, w1: I64, k: I64) -> tuple[_Side, I64]:
+        """Read entries, one per window byte of each read part; and the SmReads entries of the
+        buffered ECAT-read SMs whose last byte they read."""
+        parts: list[_Side] = []
+        sms: list[I64] = []
+        b0, b1 = w0 >> 3, ((w1 - 1) >> 3) + 1
+        for c in _chunks(b1 - b0):
+            pi, b = _expand(b0[c], b1[c])
+            pi = c[pi]
+            kk, slave = k[pi], self.f_slave[f[pi]]
+            mask = _bit_mask(w0[pi] - 8 * b, w1[pi] - 8 * b)
+            # Window byte b bit i is physical bit 8 * b + k + i: bits 0..7-r of
+            # byte b + q, the others of byte b + q + 1.
+            r = kk & 7
+            plo = b + (kk >> 3)
+            phi = plo + 1
+            low = (1 << (8 - r)) - 1
+            lo_ok = ((mask & low) != 0) & (plo >= 0) & (plo < _AS)
+            lo_ok[lo_ok] = self._impl[self._impl_row[slave[lo_ok]], plo[lo_ok]]
+            hi_ok = ((mask & ~low) != 0) & (phi < _AS)
+            hi_ok[hi_ok] = self._impl[self._impl_row[slave[hi_ok]], phi[hi_ok]]
+            bits = (np.where(lo_ok, mask & low, 0) | np.where(hi_ok, mask & ~low & 0xFF, 0)).astype(np.uint8)
+            if len(self._last_key):
+                sms.append(_lookup(self._last_key, self._last_id, slave[lo_ok] * _AS + plo[lo_ok]))
+                sms.append(_lookup(self._last_key, self._last_id, slave[hi_ok] * _AS + phi[hi_ok]))
+            keep = np.nonzero(bits)[0]
+            base = slave[keep] * self._stride
+            lo_ok, hi_ok, plo, phi = lo_ok[keep], hi_ok[keep], plo[keep], phi[keep]
+            parts.append(_Side(b[keep], np.where(lo_ok, plo, phi) + base, np.where(hi_ok, phi, plo) + base,
+                               r[keep].astype(np.uint8), bits[keep],
+                               self.f_pos[f[pi[keep]]].astype(np.int32)))
+        sm = np.concatenate(sms) if sms else _EMPTY
+        return _Side.join(parts), sm[sm >= 0]
 
-        rbs, wbs, rts, wts = sort(rb), sort(wb), sort(rt), sort(wt)
-        entries = _Entries(rbs[0], rbs[1], rbs[2], rbs[3],
-                           wbs[0], wbs[1], wbs[2].astype(bool), wbs[3],
-                           rts[0], rts[1], rts[2], rts[3], rts[4],
-                           wts[0], wts[1], wts[2], wts[3].astype(bool), wts[4], stride)
-        return entries, _cat(wc_rel), _cat(wc_pos)
+    def _writes(self, f: I64, w0: I64, w1: I64, k: I64, n: int) -> tuple[_Side, I64, I64]:
+        """Write entries, one per physical byte of each write part; the route positions that
+        count a write (a byte an ECAT-read SM refuses does not); the slaves whose write SM
+        a write completes."""
+        parts: list[_Side] = []
+        counted: list[I64] = []
+        dones: list[I64] = []
+        p0, p1 = w0 + k, w1 + k
+        q0, q1 = p0 >> 3, ((p1 - 1) >> 3) + 1
+        for c in _chunks(q1 - q0):
+            pi, p = _expand(q0[c], q1[c])
+            pi = c[pi]
+            kk, slave, pos = k[pi], self.f_slave[f[pi]], self.f_pos[f[pi]]
+            mask = _bit_mask(p0[pi] - 8 * p, p1[pi] - 8 * p)
+            key = slave * _AS + p
+            inside = p < _AS
+            refused = inside & _in_intervals(self._ref_lo, self._ref_hi, key)
+            counted.append(np.unique(pos[~refused]))
+            ok = inside & ~refused
+            ok[ok] = self._wr[self._wr_row[slave[ok]], p[ok]]
+            keep = np.nonzero(ok)[0]
+            # Physical byte p bit i is window bit 8 * p - k + i: bits of window bytes a, a + 1.
+            src = 8 * p[keep] - kk[keep]
+            a = src >> 3
+            parts.append(_Side(p[keep] + slave[keep] * self._stride, np.clip(a, 0, n - 1),
+                               np.clip(a + 1, 0, n - 1), (src & 7).astype(np.uint8),
+                               mask[keep].astype(np.uint8), pos[keep].astype(np.int32)))
+            if len(self._done_key):
+                dones.append(slave[keep][np.isin(key[keep], self._done_key)])
+        return (_Side.join(parts), np.unique(np.concatenate(counted)) if counted else _EMPTY,
+                np.concatenate(dones) if dones else _EMPTY)
 
     def _plan(self, lo: int, n: int, reads: bool, writes: bool) -> _Plan:
         fmmus = self._overlapping(lo, n)
         if not len(fmmus) or n == 0:
             return _Plan(0)
-        e, wc_rel, wc_pos = self._entries(lo, n, fmmus, reads, writes)
-        wkc = 0
-        if reads:
-            wkc += len(np.unique(self.f_pos[fmmus][self.f_read[fmmus]]))
-        if writes:
-            # Per slave: at least one byte it may write (bytes an ECAT-read SM
-            # refuses do not count, as for FPWR).
-            nw = len(np.unique(wc_pos))
-            wkc += 2 * nw if reads else nw
+        f, w0, w1, k = self._pieces(lo, n, fmmus)
+        rd = self.f_read[f] if reads else np.zeros(len(f), bool)
+        wr = self.f_write[f] if writes else np.zeros(len(f), bool)
+        wkc = len(np.unique(self.f_pos[f[rd]]))
+        rs, sm = self._reads(f[rd], w0[rd], w1[rd], k[rd])
+        ws, counted, done = self._writes(f[wr], w0[wr], w1[wr], k[wr], n)
+        # Per slave: at least one byte it may write (bytes an ECAT-read SM
+        # refuses do not count, as for FPWR).
+        wkc += 2 * len(counted) if reads else len(counted)
         plan = _Plan(wkc)
         if not wkc:
             return plan
-        plan.size = len(e.rb_rel) + len(e.wb_rel) + len(e.rt_rel) + len(e.wt_rel)
-        plan.ordered = _ordered(e)
-        if plan.ordered:
-            plan.entries = e
-        if len(e.rb_rel):
-            plan.r_phys, plan.r_rel = e.rb_phys, _run(e.rb_rel)
-        if len(e.rt_rel):
-            plan.t_pbyte, plan.t_shift, plan.t_rel = e.rt_pbyte, e.rt_shift, e.rt_rel
-        done_parts: list[I64] = []
-        if len(e.wb_rel):
-            plan.w_phys, plan.w_rel = e.wb_phys, _run(e.wb_rel)
-            done_parts.append(e.wb_slave[e.wb_done])
-        if len(e.wt_rel):
-            plan.b_pbyte, plan.b_shift, plan.b_rel = e.wt_pbyte, e.wt_shift, e.wt_rel
-            plan.b_clear = (~(np.left_shift(1, e.wt_shift))).astype(np.uint8)
-            done_parts.append(e.wt_slave[e.wt_done])
-        if done_parts:
-            plan.done = np.unique(np.concatenate(done_parts)).astype(np.int64)
-        if reads:
-            self._plan_sm_reads(plan, e)
+        # Last reader on the route wins (within a slave: its last FMMU).
+        r_idx = np.lexsort((rs.pos, rs.dst))
+        w_idx = np.argsort(ws.dst, kind="stable")
+        plan.size = len(rs) + len(ws)
+        cuts = _stage_starts(rs.dst[r_idx], rs.pos[r_idx], ws)
+        if not cuts:
+            plan.stages = [_Stage(rs, r_idx, ws, w_idx)]
+        else:
+            plan.stages = [_Stage(rs, r, ws, w) for r, w in zip(_split(rs.pos, r_idx, cuts),
+                                                                  _split(ws.pos, w_idx, cuts), strict=True)]
+        if len(done):
+            plan.done = np.unique(done)
+        if len(sm):
+            self._plan_sm_reads(plan, np.unique(sm))
         return plan
 
-    def _plan_sm_reads(self, plan: _Plan, e: _Entries) -> None:
+    def _plan_sm_reads(self, plan: _Plan, ids: I64) -> None:
         """The buffered ECAT-read SMs whose last byte this datagram reads, as status updates."""
         smr = self._smr
-        if not len(smr.status):
-            return
-        ids = np.concatenate([e.rb_sm, e.rt_sm])
-        ids = np.unique(ids[ids >= 0])
-        if not len(ids):
-            return
         al = smr.al_bit[ids] != 0
         or_idx = np.concatenate([smr.status[ids], smr.al_byte[ids][al]])
         or_val = np.concatenate([np.full(len(ids), R.SM_STATUS_READ_EVENT, np.uint8), smr.al_bit[ids][al]])
@@ -510,67 +647,71 @@ class LogicalMap:
             plan.and_val = (~hit).astype(np.uint8)
 
 
+def _mask_table(masks: list[npt.NDArray[np.bool_]], slaves: list[int]) -> tuple[npt.NDArray[np.bool_], I64]:
+    """The distinct masks of ``slaves`` stacked, and per slave index its row (0 elsewhere)."""
+    rows: dict[int, int] = {}
+    stack: list[npt.NDArray[np.bool_]] = []
+    row = np.zeros(max(slaves, default=0) + 1, np.int64)
+    for s in slaves:
+        m = masks[s]
+        r = rows.get(id(m))
+        if r is None:
+            r = rows[id(m)] = len(stack)
+            stack.append(m)
+        row[s] = r
+    table = np.stack(stack) if stack else np.zeros((1, _AS), bool)
+    return table, row
+
+
+def _split(pos: I32, idx: I64, cuts: list[int]) -> list[I64]:
+    """``idx`` cut into stages (stages start at the route positions ``cuts``), each in order."""
+    stage = np.searchsorted(np.array(cuts, np.int64), pos[idx], side="right")
+    order = np.argsort(stage, kind="stable")
+    bounds = np.searchsorted(stage[order], np.arange(len(cuts) + 2)).tolist()
+    idx = idx[order]
+    return [idx[a:b] for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+
+
+def _stage_starts(r_dst: I64, r_pos: I32, ws: _Side) -> list[int]:
+    """Route positions where a new stage must start: a slave writes a window byte that an
+    earlier slave of the same stage read into the frame (it must see that value). The
+    read entries come sorted by (window byte, position)."""
+    if not len(r_dst) or not len(ws):
+        return []
+    # Window bytes each write entry takes bits from: bits 0..7-s of the first, the
+    # others of the second.
+    s, m = ws.shift.astype(np.int64), ws.mask.astype(np.int64)
+    one = (m & ((1 << (8 - s)) - 1)) != 0
+    two = (m >> (8 - s)) != 0
+    src = np.concatenate([ws.lo[one], ws.hi[two]])
+    wpos = np.concatenate([ws.pos[one], ws.pos[two]])
+    # Latest reader before the writer, per (byte, writer): read entries are sorted by
+    # (window byte, position).
+    rkey = r_dst * _POS_SPAN + r_pos
+    i = np.searchsorted(rkey, src * _POS_SPAN + wpos) - 1
+    ic = np.maximum(i, 0)
+    prev = np.where((i >= 0) & (r_dst[ic] == src), r_pos[ic], -1)
+    hit = prev >= 0
+    if not hit.any():
+        return []
+    # Per writer position, the latest such reader; a stage starting after it holds both apart.
+    wpos, prev = wpos[hit], prev[hit]
+    order = np.lexsort((prev, wpos))
+    wpos, prev = wpos[order], prev[order]
+    last = np.ones(len(wpos), bool)
+    last[:-1] = wpos[1:] != wpos[:-1]
+    cuts: list[int] = []
+    start = -1
+    for q, p in zip(wpos[last].tolist(), prev[last].tolist(), strict=True):
+        if p >= start:
+            start = q
+            cuts.append(q)
+    return cuts
+
+
 def _run(rel: I64) -> I64 | slice:
     """``rel`` as a slice when it is consecutive offsets, else itself."""
     first = int(rel[0])
     if int(rel[-1]) - first == len(rel) - 1 and bool((np.diff(rel) == 1).all()):
         return slice(first, first + len(rel))
     return rel
-
-
-def _ordered(e: _Entries) -> bool:
-    """Whether the window's result depends on the order along the route (see the module docstring)."""
-    read_rel = np.concatenate([e.rb_rel, e.rt_rel >> 3])
-    read_pos = np.concatenate([e.rb_pos, e.rt_pos])
-    write_rel = np.concatenate([e.wb_rel, e.wt_rel >> 3])
-    write_pos = np.concatenate([e.wb_pos, e.wt_pos])
-    if len(read_rel) and len(write_rel):
-        # Earliest reader of each logical byte versus the writers of that byte.
-        order = np.lexsort((read_pos, read_rel))
-        rl, rp = read_rel[order], read_pos[order]
-        first = np.ones(len(rl), bool)
-        first[1:] = rl[1:] != rl[:-1]
-        ul, up = rl[first], rp[first]
-        idx = np.searchsorted(ul, write_rel)
-        idx_c = np.minimum(idx, len(ul) - 1)
-        if ((idx < len(ul)) & (ul[idx_c] == write_rel) & (up[idx_c] < write_pos)).any():
-            return True
-    if len(e.rb_rel) and len(e.rt_rel):
-        tb = e.rt_rel >> 3
-        for b in np.intersect1d(e.rb_rel, tb).tolist():
-            if len(set(e.rb_pos[e.rb_rel == b].tolist()) | set(e.rt_pos[tb == b].tolist())) > 1:
-                return True
-    return False
-
-
-def _execute_ordered(e: _Entries, flat: U8, data: U8, reads: bool, writes: bool) -> I64:
-    """Pass-by-pass processing in route order (only for windows whose result depends on it)."""
-    positions = sorted(set(e.rb_pos.tolist()) | set(e.rt_pos.tolist())
-                       | set(e.wb_pos.tolist()) | set(e.wt_pos.tolist()))
-    done: set[int] = set()
-    wb_slave, wt_slave = e.wb_slave, e.wt_slave
-    for p in positions:
-        arriving = data.copy()
-        rsel = np.nonzero(e.rb_pos == p)[0] if reads else np.zeros(0, np.int64)
-        tsel = np.nonzero(e.rt_pos == p)[0] if reads else np.zeros(0, np.int64)
-        rvals = flat[e.rb_phys[rsel]]
-        tvals = (flat[e.rt_pbyte[tsel]] >> e.rt_shift[tsel]) & 1
-        if writes:
-            wsel = np.nonzero(e.wb_pos == p)[0]
-            if len(wsel):
-                flat[e.wb_phys[wsel]] = arriving[e.wb_rel[wsel]]
-                done.update(wb_slave[wsel][e.wb_done[wsel]].tolist())
-            bsel = np.nonzero(e.wt_pos == p)[0]
-            if len(bsel):
-                lb = e.wt_rel[bsel]
-                vals = ((arriving[lb >> 3] >> (lb & 7)) & 1).astype(np.uint8)
-                np.bitwise_and.at(flat, e.wt_pbyte[bsel], (~np.left_shift(1, e.wt_shift[bsel])).astype(np.uint8))
-                np.bitwise_or.at(flat, e.wt_pbyte[bsel], (vals << e.wt_shift[bsel]).astype(np.uint8))
-                done.update(wt_slave[bsel][e.wt_done[bsel]].tolist())
-        if len(rsel):
-            data[e.rb_rel[rsel]] = rvals
-        if len(tsel):
-            bits = np.unpackbits(data, bitorder="little")
-            bits[e.rt_rel[tsel]] = tvals
-            data[:] = np.packbits(bits, bitorder="little")
-    return np.array(sorted(done), dtype=np.int64)

@@ -344,6 +344,11 @@ class Segment(RingMixin):
             self._bplan.clear()
         return self._route
 
+    @property
+    def logical_map(self) -> LogicalMap | None:
+        """The FMMU plans of the current route as last compiled (None: none compiled yet)."""
+        return self._lmap
+
     # --- faults ------------------------------------------------------------------------
 
     def break_link(self, slave: int, port: int) -> None:
