@@ -271,8 +271,8 @@ class DcSetup:
             self._pending = _Stage.TRACE
             return DcRequest(_Stage.TRACE.value, self._difference_reads())
         if stage is _Stage.LATCH:
-            # Sampled before the latching frame leaves (the issue's "master time
-            # before the latch"); the offsets make every system time equal it
+            # Sampled before the latching frame leaves (the master's time just
+            # before the latch); the offsets make every system time equal it
             # at the moment the frame passed the reference.
             self._master_time = now_ns
             dgs = [Datagram.device(Command.BWR, 0, R.DC_RECEIVE_TIME_PORT0, bytes(4))]

@@ -321,8 +321,8 @@ class Seed002Model(Cia402Model):
     """``builtin:seed002-drive``: the controller's communication objects and a CiA 402 drive.
 
     The drive itself (power state machine, modes, motor and load, its
-    EtherCAT errors) is ``sim.cia402``; this kind adds the seed's objects and
-    the EoE diagnostic page.
+    EtherCAT errors) is ``sim.cia402``; this kind adds the controller's
+    communication objects (:func:`add_seed002_objects`) and the EoE diagnostic page.
     """
 
     def __init__(self) -> None:
