@@ -59,7 +59,7 @@ __all__ = [
     "telemetry_of",
 ]
 
-#: Snapshots per second at most (the issue of the dashboard: 20 Hz).
+#: Snapshots per second at most (the dashboard refreshes at 20 Hz).
 MAX_RATE = 20.0
 #: Register readings per second at most.
 REGISTER_RATE = 4.0

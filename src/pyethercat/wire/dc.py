@@ -78,8 +78,8 @@ EPOCH_UNIX_OFFSET_NS = 946_684_800 * 1_000_000_000
 #: a short cable. Only used where the latches say nothing.
 DEFAULT_HOP_NS = 150
 
-#: 0x092C bit 31. The sources disagree on its sense (facts: Infineon's
-#: register file vs hpm_sdk and KickCAT's emulator); masters use the magnitude.
+#: 0x092C bit 31. The sources disagree on its sense (Infineon's ESC register description
+#: vs hpm_sdk and KickCAT's EmulatedESC); masters use the magnitude.
 TIME_DIFFERENCE_SIGN = 0x8000_0000
 _MAGNITUDE = 0x7FFF_FFFF
 
