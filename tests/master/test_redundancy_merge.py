@@ -10,12 +10,14 @@ from __future__ import annotations
 from hypothesis import given
 from hypothesis import strategies as st
 
+from pyethercat.master.pdu import Request
 from pyethercat.master.redundancy import (
     GIVE_UP_AFTER,
     PORT_A,
     PORT_B,
     Redundancy,
     copy_wkcs,
+    hand_copies,
     mark_for_port,
     merge_copies,
     order_dependent,
@@ -145,12 +147,15 @@ def test_one_late_copy_in_a_split_ring_leaves_both_ports_awaited() -> None:
     a_half = processed(sent, 0, wkc=3, adp_step=3)
     b_half = mark_for_port(processed(sent, 0, wkc=2, adp_step=2), PORT_B)
     cs, _ = red.plan(sent)
+    red.seen(PORT_A)
     red.arrived(cs, PORT_A, a_half, sent)
     red.expired(cs, sent)  # B's copy late: this frame is partial ...
-    assert cs.partial and red.returning == {PORT_A, PORT_B}
+    assert cs.partial and red.returning == {PORT_A, PORT_B} and red.misses == [0, 1]
     # ... the next one waits for both halves again
     cs, _ = red.plan(sent)
+    red.seen(PORT_A)
     assert red.arrived(cs, PORT_A, a_half, sent)[0] == "wait"
+    red.seen(PORT_B)
     action, reply, _ = red.arrived(cs, PORT_B, b_half, sent)
     assert action == "done" and decode_frame(reply).datagrams[0].wkc == 5
     assert red.misses == [0, 0]
@@ -158,9 +163,13 @@ def test_one_late_copy_in_a_split_ring_leaves_both_ports_awaited() -> None:
 
 def test_a_copy_looped_back_on_its_own_port_waits_for_a_port_that_came_back() -> None:
     red = Redundancy()
-    red.marks = True  # (an Ethernet medium: copies keep the source MAC they were sent with)
-    red.returning = {PORT_A}  # B was given up ...
     sent = frame(Datagram.device(Command.BRD, 0, 0, 2))
+    # A closed ring first: the copies keep the source MAC they were sent with (Ethernet)
+    cs, _ = red.plan(sent)
+    red.arrived(cs, PORT_B, processed(sent, 0, wkc=5, adp_step=5), sent)
+    red.arrived(cs, PORT_A, mark_for_port(sent, PORT_B), sent)
+    assert red.marks is True
+    red.returning = {PORT_A}  # B was given up ...
     cs, _ = red.plan(sent)
     assert cs.need == {PORT_A}
     red.seen(PORT_B)  # ... and a frame came on B since this one was sent
@@ -173,18 +182,23 @@ def test_a_copy_looped_back_on_its_own_port_waits_for_a_port_that_came_back() ->
 def test_whether_copies_carry_the_port_they_were_sent_on_is_learnt() -> None:
     sent = frame(Datagram.device(Command.BRD, 0, 0, 2))
     whole = processed(sent, 0, wkc=5, adp_step=5)
-    # Ethernet: the copy sent on B keeps its mark (it came back on A untouched)
-    red = Redundancy()
-    cs, _ = red.plan(sent)
-    red.arrived(cs, PORT_B, whole, sent)
-    assert red.arrived(cs, PORT_A, mark_for_port(sent, PORT_B), sent)[0] == "done"
-    assert red.marks is True and cs.origin == {PORT_B: PORT_A, PORT_A: PORT_B}
-    # UDP: both copies come back with one synthetic source: nobody can tell
-    red = Redundancy()
-    cs, _ = red.plan(sent)
-    red.arrived(cs, PORT_B, whole, sent)
-    assert red.arrived(cs, PORT_A, sent, sent)[0] == "done"
-    assert red.marks is False and cs.origin == {}
+    for carried in (True, False):
+        # Ethernet: the copy sent on B keeps its mark (it came back on A untouched);
+        # UDP: both copies come back with one synthetic source, nobody can tell
+        untouched = mark_for_port(sent, PORT_B) if carried else sent
+        red = Redundancy()
+        cs, _ = red.plan(sent)
+        assert cs.mark is None  # not known yet
+        red.arrived(cs, PORT_B, whole, sent)
+        assert red.arrived(cs, PORT_A, untouched, sent)[0] == "done"
+        assert red.marks is carried
+        cs, _ = red.plan(sent)
+        req = Request(None, Datagram.device(Command.BRD, 0, 0, 2), 0)
+        red.arrived(cs, PORT_B, whole, sent)
+        red.arrived(cs, PORT_A, untouched, sent)
+        hand_copies(cs, None, [req])
+        assert req.copies is not None and set(req.copies) == {PORT_A, PORT_B}
+        assert req.copies.origin == ({PORT_B: PORT_A, PORT_A: PORT_B} if carried else {})
 
 
 def test_frames_with_no_copy_back_give_up_no_port() -> None:

@@ -276,9 +276,9 @@ def _worked(frame: bytes | bytearray) -> bool:
     return any(copy_wkcs(frame))
 
 
-def _origin(copy: bytes | bytearray, sent: bytes | bytearray) -> int:
-    """The port a copy of ``sent`` (the frame as sent on A) was sent on (:func:`mark_for_port`)."""
-    return PORT_A if copy[_MARK_AT:_MARK_AT + 2] == sent[_MARK_AT:_MARK_AT + 2] else PORT_B
+def _origin(copy: bytes | bytearray, mark: bytes) -> int:
+    """The port a copy was sent on; ``mark``: bytes 2-3 of the source MAC sent on A."""
+    return PORT_A if copy[_MARK_AT:_MARK_AT + 2] == mark else PORT_B
 
 
 class PortCopies(dict[int, Datagram]):
@@ -308,10 +308,11 @@ class CopySet:
     #: Ports whose copy completes a "both" frame; ``need0``: as planned at sending.
     need: set[int] = field(default_factory=set)
     need0: frozenset[int] = frozenset()
-    #: Copies received, by the port they came in on; ``origin``: the port each was sent on
-    #: (empty when the medium does not carry the mark, see ``Redundancy.marks``).
+    #: Copies received, by the port they came in on.
     got: dict[int, bytes] = field(default_factory=dict)
-    origin: dict[int, int] = field(default_factory=dict)
+    #: Bytes 2-3 of the source MAC of the copy sent on A, where copies keep it
+    #: (``Redundancy.marks``; None: which port sent a copy cannot be told).
+    mark: bytes | None = None
     #: A chain frame was sent on through the other port; ``held`` is what came back first.
     forwarded: bool = False
     held: bytes | None = None
@@ -360,6 +361,7 @@ class Redundancy:
         #: back on two ports. A medium that does not carry MACs (EtherCAT over UDP) gives
         #: every copy the same source, so which port sent a copy is unknown there.
         self.marks: bool | None = None
+        self._mark: bytes | None = None
         self.counters = [PortCounters() for _ in range(ports)]
         #: Frames whose copies were merged, completed with fewer copies than
         #: awaited (at their deadline), and chain frames passed on.
@@ -423,7 +425,8 @@ class Redundancy:
         ports = self._alive() or list(range(self.ports))
         for p in ports:
             self.counters[p].sent += 1
-        return CopySet(False, need=need, need0=frozenset(need)), ports
+        return CopySet(False, need=need, need0=frozenset(need),
+                       mark=self._mark if self.marks else None), ports
 
     def refused(self, copies: CopySet, port: int) -> None:
         """The link refused to send on ``port`` (no carrier, interface down)."""
@@ -434,18 +437,19 @@ class Redundancy:
     # -- receiving ----------------------------------------------------------------------
 
     def seen(self, port: int) -> None:
-        """A frame came in on ``port`` (any frame: the port works)."""
+        """A frame came in on ``port`` (any frame: the port works); the core calls this
+        before :meth:`arrived`."""
         self.counters[port].received += 1
         self.returning.add(port)
-        self.misses[port] = 0
-        self.silent = 0
+        if self.misses[port]:
+            self.misses[port] = 0
+        if self.silent:
+            self.silent = 0
 
     def arrived(self, copies: CopySet, port: int, raw: bytes,
                 sent: bytes) -> tuple[str, bytes | None, int]:
         """A copy came in on ``port``: ('done', reply, -1), ('forward', frame, port) or ('wait', None, -1)."""
         self.returning.add(port)
-        self.misses[port] = 0
-        self.silent = 0
         if copies.chain:
             if not copies.forwarded:
                 other = PORT_B if port == PORT_A else PORT_A
@@ -466,22 +470,22 @@ class Redundancy:
             copies.extra.append(raw)
         else:
             copies.got[port] = raw
-            copies.origin[port] = _origin(raw, sent)
-            if len(copies.got) == 2:
-                # One copy was sent on each port: two origins, unless MACs are not carried.
-                self.marks = len(set(copies.origin.values())) == 2
-        if not _worked(raw):
-            if len(copies.need) == 1 and len(copies.got) == 1:
+            if self.marks is None and len(copies.got) == 2:
+                # One copy was sent on each port: two marks, unless MACs are not carried.
+                first, second = (c[_MARK_AT:_MARK_AT + 2] for c in copies.got.values())
+                self.marks = first != second
+                self._mark = bytes(sent[_MARK_AT:_MARK_AT + 2])
+        if len(copies.need) == 1 and len(copies.got) == 1:
+            # (with both ports awaited already, neither rule adds one)
+            if not _worked(raw):
                 # The only copy awaited went through no slave: the ring may be closed
                 # again, so the processed copy comes on the other port.
                 copies.need.update(self._alive())
-        elif self.marks and copies.origin.get(port) == port:
-            # Back on the port it was sent on: the ring is open, the slaves behind the
-            # break are served by the other ports' copies.
-            copies.need.update(p for p in self._alive() if p in self.returning)
+            elif copies.mark is not None and _origin(raw, copies.mark) == port:
+                # Back on the port it was sent on: the ring is open, the slaves behind
+                # the break are served by the other ports' copies.
+                copies.need.update(p for p in self._alive() if p in self.returning)
         if copies.need <= copies.got.keys():
-            if not self.marks:
-                copies.origin.clear()  # (the sides are then inferred from the ports)
             return "done", self._merge(sent, copies), -1
         return "wait", None, -1
 
@@ -530,6 +534,8 @@ def hand_copies(copies: CopySet, ticket: CyclicFrame | None, requests: Sequence[
     if not requests:
         return
     ncyc = ticket.count if ticket is not None else 0
+    mark = copies.mark
+    origin = {} if mark is None else {p: _origin(c, mark) for p, c in got.items()}
     for port, c in got.items():
         try:
             dgs = decode_frame(c).datagrams[ncyc:]
@@ -537,5 +543,5 @@ def hand_copies(copies: CopySet, ticket: CyclicFrame | None, requests: Sequence[
             continue
         for r, d in zip(requests, dgs, strict=False):
             if r.copies is None:
-                r.copies = PortCopies(copies.origin)
+                r.copies = PortCopies(origin)
             r.copies[port] = d
