@@ -296,7 +296,8 @@ def register(cli: click.Group) -> None:
                        "instead of one switched TAP.")
     @click.option("--hot-connect", "hot_connect", multiple=True, metavar="NAME=ALIAS[:SIZE]",
                   help="A hot connect group: the slave with ALIAS and SIZE-1 behind it may go "
-                       "and come back while cycling (repeatable).")
+                       "and come back while cycling, or be absent at the start and be "
+                       "configured when it appears (repeatable).")
     @click.option("--final-state", "final_state", default="PREOP", show_default=True,
                   type=click.Choice(FINAL_STATES, case_sensitive=False),
                   help="State the slaves are left in when the run ends.")
