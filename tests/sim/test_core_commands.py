@@ -199,7 +199,7 @@ def test_circulating_bit_destroys_frame_on_second_pass() -> None:
     seg = line(2)
     # close port 0 of the first slave: the frame comes back into its processing unit
     seg.slaves[0].write(R.DL_CONTROL_LOOP, bytes([R.LoopControl.CLOSED]))
-    seg.topology_dirty = True
+    seg.state.topology_dirty = True
     assert seg.process(encode_frame([Datagram.device(Command.BWR, 0, R.USER_RAM, b"\x01")])) is None
     # both slaves were passed once before the frame was destroyed
     assert seg.slaves[1].read(R.USER_RAM, 1) == b"\x01"

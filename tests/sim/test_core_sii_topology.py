@@ -169,7 +169,7 @@ def test_loop_control_open_loses_frames_closed_cuts_off() -> None:
     one_slave_fix = Segment()
     del one_slave_fix
     seg.slaves[2].write(R.DL_CONTROL_LOOP, b"\x00")
-    seg.topology_dirty = True
+    seg.state.topology_dirty = True
     # first slave: port 1 forced closed -> only it answers
     one(seg, Datagram.positional(Command.APWR, 0, R.DL_CONTROL_LOOP, bytes([R.LoopControl.CLOSED << 2])))
     assert one(seg, Datagram.device(Command.BRD, 0, 0, 1)).wkc == 1

@@ -119,7 +119,7 @@ def test_an_fmmu_across_the_end_of_the_logical_space_wraps_and_costs_its_window(
     assert (bytes(d.data), d.wkc) == (b"\xaa", 3)
     assert seg.slaves[0].read(0x1000 + 0xFE, 1) == b"\x55"
     # The plan holds the window's one byte, not the FMMU's 64 KiB.
-    lmap = seg._lmap
+    lmap = seg.state.lmap
     assert lmap is not None and sum(p.size for p in lmap._plans.values()) == 2
     assert peak < 2_000_000, peak
 
@@ -133,7 +133,7 @@ def test_bit_fmmus_of_64_kib_cost_the_window_only() -> None:
     seg.invalidate(Dirty.FMMU)
     d = one(seg, Datagram.logical(Command.LRW, 0x100, bytes(1486)))
     assert d.wkc == 12
-    lmap = seg._lmap
+    lmap = seg.state.lmap
     assert lmap is not None
     # at most every byte of the window (and one more) per FMMU, read and write
     assert sum(p.size for p in lmap._plans.values()) <= 2 * 8 * 1487 * 4

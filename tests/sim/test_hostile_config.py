@@ -175,7 +175,7 @@ def _lrw_costs(seg: Segment, address: int, n: int = 1486) -> tuple[int, int, int
             peaks.append(tracemalloc.get_traced_memory()[1] - base)
     finally:
         tracemalloc.stop()
-    lmap = seg.logical_map
+    lmap = seg.state.lmap
     size = lmap.plan_size(address, n) if lmap is not None else None
     return _fmmus_over(seg, address, n), size or 0, peaks[0], peaks[1]
 

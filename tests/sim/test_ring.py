@@ -16,6 +16,7 @@ import pytest
 from simhelp import line, spec
 
 from pyethercat.errors import ConfigError
+from pyethercat.sim.host import Dirty
 from pyethercat.sim.ports import PORT_A, PORT_B
 from pyethercat.wire import registers as R
 from pyethercat.wire.datagram import CIRCULATING_BIT, Command, Datagram
@@ -51,7 +52,7 @@ def positions_answering(seg, port: int) -> list[int]:
 def address(seg) -> None:
     for i in range(len(seg.slaves)):
         seg.slaves[i].write(R.STATION_ADDRESS, struct.pack("<H", 0x1000 + i))
-    seg.topology_dirty = True
+    seg.state.topology_dirty = True
 
 
 def test_intact_ring_a_copy_is_processed_and_leaves_at_b() -> None:
@@ -172,7 +173,7 @@ def test_alternating_ports_keep_separate_compiled_state() -> None:
         assert positions_answering(seg, PORT_B) == [3, 4, 5]
     # a change made while frames enter at B reaches the A side's compiled state too
     seg.slaves[0].write(R.STATION_ADDRESS, struct.pack("<H", 0x2000))
-    seg.addressing_dirty = True
+    seg.invalidate(Dirty.ADDRESSING)
     send(seg, PORT_B, brd())
     _, (d,) = send(seg, PORT_A, Datagram.device(Command.FPRD, 0x2000, R.TYPE, 1))
     assert d.wkc == 1

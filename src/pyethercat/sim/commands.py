@@ -189,6 +189,18 @@ class Commands:
             wkc += 2
         return wkc
 
+    def addressed(self, cmd: int, passes: I64, hits: list[int] | None, ado: int, data: U8, n: int) -> int:
+        """Positional or configured-address command: ``hits`` are the route positions (in
+        ``passes``) of the addressed slave(s), an RMW's reader first (None or []: none)."""
+        count = len(passes)
+        if cmd in RMW:
+            return self.rmw(passes, hits[0] if hits and hits[0] < count else None, ado, data, n)
+        wkc = 0
+        for pos in hits or ():
+            if pos < count:
+                wkc += self.single(cmd, int(passes[pos]), ado, data, n)
+        return wkc
+
     def rmw(self, passes: I64, reader: int | None, ado: int, data: U8, n: int) -> int:
         """ARMW/FRMW: the addressed slave reads, every other slave writes."""
         if reader is None:

@@ -45,6 +45,10 @@ class Faults:
         #: Probability that a frame arriving at (slave, port) carries a CRC error.
         self.rates: dict[tuple[int, int], float] = {}
         self.drop_p = 0.0
+        #: The frame being processed: passes before its CRC-corrupted arrival (-1: none),
+        #: and that arrival's index into Route.arrivals (what :meth:`apply_corruption` found).
+        self.crc_cut = -1
+        self.crc_at = NEVER
         self._rng = random.Random()
         self._crc_rng = random.Random()
 

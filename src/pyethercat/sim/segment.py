@@ -13,8 +13,11 @@ This module is the segment's frame path and the place its parts meet:
   logical addressing, compiled into index arrays;
 - ``sim.dc``: local clocks, latches, system time, SYNC pulses;
 - ``sim.faults``, ``sim.watchdog``, ``sim.wiring``;
+- ``sim.compiled``: what the frame path compiles (walk, SM areas, station
+  map, logical map, IRQ field) and what of it is stale, per master port;
+- ``sim.ring``: the master's ports A and B (a ring);
 - ``sim.esc``: one ESC per slave, which reaches the segment only through
-  the host protocol ``sim.host.EscHost`` that :class:`Segment` implements.
+  the host protocol ``sim.host.EscHost`` (``sim.host.SegmentHost``).
 
 Datagrams are processed one after the other, each for all slaves on the
 route ("datagram-major"). This is equivalent to the wire order because
@@ -34,7 +37,6 @@ and cable delays), so DC times move as on a real segment; set
 from __future__ import annotations
 
 import struct
-from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
@@ -43,25 +45,22 @@ from pyethercat.clock import TimeSource, VirtualClock
 from pyethercat.errors import ConfigError
 from pyethercat.sim.apps import DeviceApps
 from pyethercat.sim.arrival import OutputArrival
-from pyethercat.sim.commands import RMW, Commands
+from pyethercat.sim.commands import Commands
+from pyethercat.sim.compiled import CompiledState
 from pyethercat.sim.datagrams import MALFORMED, Head, scan_frame
 from pyethercat.sim.dc import DcClocks
-from pyethercat.sim.device import DeviceApp
 from pyethercat.sim.esc import Esc
 from pyethercat.sim.faults import NEVER, Faults
-from pyethercat.sim.fmmu import LogicalMap
-from pyethercat.sim.host import Dirty
+from pyethercat.sim.host import Dirty, SegmentHost
 from pyethercat.sim.memory import EscMemory
-from pyethercat.sim.model import DeviceModel
 from pyethercat.sim.pdio import ProcessIo
-from pyethercat.sim.ports import MASTER, NEXT_PORT, PORT_A, Ports, Route
-from pyethercat.sim.profiles import EscProfile
-from pyethercat.sim.ring import RingMixin
+from pyethercat.sim.ports import MASTER, NEXT_PORT, Ports, Route
+from pyethercat.sim.ring import MasterPorts
+from pyethercat.sim.slave import SimSlave, SimSlaveSpec
 from pyethercat.sim.syncman import SmAreas
 from pyethercat.sim.watchdog import Watchdogs
 from pyethercat.sim.wiring import Wiring
 from pyethercat.wire import registers as R
-from pyethercat.wire.al import AlState
 from pyethercat.wire.datagram import (
     CIRCULATING_BIT,
     HEADER_SIZE,
@@ -74,7 +73,6 @@ from pyethercat.wire.frame import (
     FrameType,
     ecat_offset,
 )
-from pyethercat.wire.sii import SiiInfo
 
 __all__ = [
     "FCS_SIZE",
@@ -109,68 +107,11 @@ _DATAGRAMS = int(FrameType.DATAGRAMS)
 _MIN_FRAME = ETH_HEADER_SIZE + ECAT_HEADER_SIZE
 _OR_REDUCE = np.bitwise_or.reduce
 _EMPTY = np.zeros(0, np.int64)
-_BELOW_SAFEOP = (AlState.INIT, AlState.PREOP, AlState.BOOT)
 #: Processing time of one frame past which watchdogs are paused by it (see process()).
 _SLOW_FRAME_NS = 1_000_000
 
 
-@dataclass
-class SimSlaveSpec:
-    """What a slave is: its EEPROM image, its ESC and its application.
-
-    ``alias`` overrides SII word 4; ``drift_ppm`` makes its local clock run
-    fast (positive) or slow; ``forwarding_delay_ns`` overrides the profile's
-    delay; ``initial_inputs`` fills the input SM as soon as it is enabled.
-    ``sii_info`` is the parsed image when the caller has it (saves a parse).
-    """
-
-    name: str
-    sii: bytes
-    profile: EscProfile
-    app: DeviceApp | None = None
-    alias: int | None = None
-    drift_ppm: float = 0.0
-    forwarding_delay_ns: int | None = None
-    initial_inputs: bytes | None = None
-    sii_info: SiiInfo | None = None
-    #: The device model of the slave's kind (shared by its instances) and the
-    #: slave's instance number in it (-1: a new instance).
-    model: DeviceModel | None = None
-    instance: int = -1
-
-
-class SimSlave:
-    """One slave of a segment. ``esc`` is its ESC model; ``read``/``write`` are raw test helpers."""
-
-    def __init__(self, name: str, spec: SimSlaveSpec, index: int, esc: Esc) -> None:
-        self.name = name
-        self.spec = spec
-        self.index = index
-        self.esc = esc
-
-    def read(self, address: int, length: int) -> bytes:
-        """Raw memory bytes (no side effects; memory the chip lacks reads 0)."""
-        data = self.esc.row[address: address + length].tobytes()
-        return data + bytes(length - len(data))
-
-    def write(self, address: int, data: bytes) -> None:
-        """Raw memory write (no side effects; for test set-up)."""
-        if address + len(data) > len(self.esc.row):
-            raise ValueError(f"raw write 0x{address:04X}+{len(data)} past the simulated memory")
-        self.esc.row[address: address + len(data)] = np.frombuffer(bytes(data), np.uint8)
-
-    def u16(self, address: int) -> int:
-        return self.esc.u16(address)
-
-    @property
-    def al_state(self) -> AlState:
-        return self.esc.al_state()
-
-    def __repr__(self) -> str:
-        return f"SimSlave({self.index}, {self.name!r}, {self.spec.profile.name})"
-
-
-class Segment(RingMixin):
+class Segment:
     """A segment of simulated slaves; :meth:`process` answers one frame.
 
     With a ring (``sim.ring``) frames enter at master port A or B
@@ -178,7 +119,7 @@ class Segment(RingMixin):
 
     def __init__(self, clock: TimeSource | None = None, mac_wire_ns: int = 80) -> None:
         self.clock = clock if clock is not None else VirtualClock()
-        self._host = _EscHost(self)
+        self._host = SegmentHost(self)
         self.mac_wire_ns = mac_wire_ns
         #: Whether each processed frame advances a virtual clock by its wire time.
         self.advance_clock = True
@@ -199,28 +140,14 @@ class Segment(RingMixin):
         self.pdio = ProcessIo(self.memory, self.escs, self.now_ns, self._host.has_outputs)
         self.dc.sync0_sink = self.apps.sync0
         self.dc.sync0_models = self.apps.sync0_models
-        # dirty flags (see sim.host.Dirty)
-        self.topology_dirty = True
-        self.sm_dirty = True
-        self.watchdog_dirty = True
-        # The route-dependent kinds count their invalidations (see _use_entry).
-        self._inval = [0, 0, 0]
-        self._computed = [-1, -1, -1]
-        self._addressing_dirty = self._fmmu_dirty = self._irq_dirty = True
-        self._route: Route | None = None
-        #: One route per master port (see sim.ports); ``_route`` is the entry's.
-        self._routes: list[Route] = []
-        #: The master port the current frame entered at, and per port the compiled
-        #: state saved when frames last entered there (a ring alternates A and B).
-        self._entry = PORT_A
-        self._saved: dict[int, tuple[dict[int, list[int]], LogicalMap | None, int, list[int]]] = {}
+        #: Compiled state and its staleness (see sim.compiled), the master's ports.
+        self.state = CompiledState(self.ports, self.memory, self.escs, self.sm, self.commands,
+                                   self.pdio, self.wiring, self.watchdogs)
+        self.master_ports = MasterPorts(self.ports, self.state)
         #: The master port the last processed frame left by (-1: lost).
         self.last_exit = -1
         #: Slaves unplugged by remove_slave (hot swap).
         self._removed: set[int] = set()
-        self._stations: dict[int, list[int]] = {}
-        self._lmap: LogicalMap | None = None
-        self._irq = 0
         #: ECAT event bits that may be set in some slave (cleared by vectorised reads).
         self.event_bits = 0xFFFF
         #: Parses of single-datagram frames by bytes 12..25: (end, headers, circulating).
@@ -232,10 +159,6 @@ class Segment(RingMixin):
         self._sync = self.dc.sync_next
         self._drop_p = 0.0
         self._cur_passes: I64 = _EMPTY
-        #: Passes before a CRC-corrupted arrival in the current frame (-1: none),
-        #: and that arrival's index into Route.arrivals.
-        self._crc_cut = -1
-        self._crc_at = NEVER
         self.frames = 0
         self.frames_lost = 0
 
@@ -267,10 +190,10 @@ class Segment(RingMixin):
         hangs on that port of that slave (a tree branch).
         """
         index = len(self.slaves)
-        esc = self._esc(index, spec)
+        esc = spec.make_esc(self._host, self.memory, index)
         self.escs.append(esc)  # (Ports.add looks the new slave's profile up)
         try:
-            self.ports.add(index, spec.name, self._delay(spec), parent, port, cable_delay_ns)
+            self.ports.add(index, spec.name, spec.delay_ns, parent, port, cable_delay_ns)
         except ConfigError:
             self.escs.pop()
             raise
@@ -283,7 +206,7 @@ class Segment(RingMixin):
         esc.power_on()
         self._install(index, spec, esc)
         self.apps.power_on(index)
-        self._invalidate_all()
+        self.state.invalidate_all()
         return index
 
     def replace_slave(self, index: int, spec: SimSlaveSpec) -> None:
@@ -292,22 +215,13 @@ class Segment(RingMixin):
         Its cables stay where they were (ports the new chip lacks have no
         link); :meth:`insert_slave` switches it on."""
         self.power_off(index)
-        esc = self._esc(index, spec)
+        esc = spec.make_esc(self._host, self.memory, index)
         self.escs[index] = esc
         self.slaves[index] = SimSlave(spec.name, spec, index, esc)
-        self.ports.fwd_delay[index] = self._delay(spec)
+        self.ports.fwd_delay[index] = spec.delay_ns
         self.commands.replace_slave(index, esc)
         self._install(index, spec, esc)
-        self._invalidate_all()
-
-    def _esc(self, index: int, spec: SimSlaveSpec) -> Esc:
-        return Esc(self._host, self.memory, index, spec.name, spec.sii, spec.profile, spec.app,
-                   spec.alias, spec.initial_inputs, spec.sii_info)
-
-    @staticmethod
-    def _delay(spec: SimSlaveSpec) -> int:
-        d = spec.forwarding_delay_ns
-        return d if d is not None else spec.profile.default_forwarding_delay_ns
+        self.state.invalidate_all()
 
     def _install(self, index: int, spec: SimSlaveSpec, esc: Esc) -> None:
         """The slave's clock, model instance and application (new slave or hot swap)."""
@@ -334,32 +248,61 @@ class Segment(RingMixin):
     @property
     def route(self) -> Route:
         """The walk of frames entering at the current master port (recomputed after topology changes)."""
-        if self.topology_dirty or self._route is None:
-            self._routes = self.ports.update()
-            if self._entry >= len(self._routes):
-                self._entry = PORT_A
-            self._route = self._routes[self._entry]
-            self.topology_dirty = False
-            self.addressing_dirty = self.fmmu_dirty = self.irq_dirty = True
-            self._bplan.clear()
-        return self._route
+        return self.state.walk()
+
+    def invalidate(self, what: Dirty) -> None:
+        """Compiled state ``what`` must be rebuilt before its next use."""
+        self.state.invalidate(what)
+
+    def sm_span(self) -> tuple[int, int]:
+        """[lo, hi) covered by any enabled SM of any slave (compiled on demand)."""
+        return self.state.sm_span()
 
     @property
-    def logical_map(self) -> LogicalMap | None:
-        """The FMMU plans of the current route as last compiled (None: none compiled yet)."""
-        return self._lmap
+    def unsettled(self) -> bool:
+        """Whether the next frame would compile state again (``CompiledState.unsettled``)."""
+        return self.state.unsettled
+
+    def settle(self) -> None:
+        """Compile between frames what a change made stale (``CompiledState.settle``)."""
+        self.state.settle()
+
+    # --- the master's ports (sim.ring) ----------------------------------------------------
+
+    def close_ring(self, slave: int | None = None, port: int | None = None) -> tuple[int, int]:
+        """Cable master port B to ``slave``'s ``port`` (``MasterPorts.close_ring``)."""
+        return self.master_ports.close_ring(slave, port)
+
+    @property
+    def ring(self) -> tuple[int, int] | None:
+        """The (slave, port) cabled to master port B, or None (no ring)."""
+        return self.ports.ring
+
+    def attach_port_b(self, attached: bool = True) -> None:
+        """Whether a master NIC listens at port B (``MasterPorts.attach_port_b``)."""
+        self.master_ports.attach_port_b(attached)
+
+    def master_port_fault(self, port: int, broken: bool = True) -> None:
+        """Cut (or reconnect) the cable at master port A (0) or B (1)."""
+        self.master_ports.master_port_fault(port, broken)
+
+    def process_from(self, frame: bytes | bytearray, port: int) -> tuple[int, bytes] | None:
+        """A frame entering at master port ``port``: (the port it leaves by, the frame), or None if lost."""
+        self.master_ports.enter_at(port)
+        out = self.process(frame)
+        return None if out is None else (self.last_exit, out)
 
     # --- faults ------------------------------------------------------------------------
 
     def break_link(self, slave: int, port: int) -> None:
         """Cut the cable at ``slave``'s ``port`` (both ends lose the link)."""
         self.ports.break_link(slave, port)
-        self.topology_dirty = True
+        self.state.topology_dirty = True
 
     def restore_link(self, slave: int, port: int) -> None:
         """Reconnect a cable cut with :meth:`break_link`."""
         self.ports.restore_link(slave, port)
-        self.topology_dirty = True
+        self.state.topology_dirty = True
 
     def power_off(self, slave: int) -> None:
         """Switch a slave off: it disappears, its neighbours lose their links."""
@@ -367,11 +310,28 @@ class Segment(RingMixin):
         self.memory.clear(slave)
         self.arrival.stop(slave)
         self.dc.sync_drop(slave)
-        self._invalidate_all()
+        self.state.invalidate_all()
 
     def power_on(self, slave: int) -> None:
         """Switch a slave on: INIT, station address 0, alias from the SII."""
         self.reset_slave(slave)
+
+    def remove_slave(self, index: int) -> None:
+        """Unplug slave ``index`` (hot swap): its neighbours lose their links, as at a power-off."""
+        self.power_off(index)
+        self._removed.add(index)
+
+    def insert_slave(self, index: int, spec: SimSlaveSpec | None = None) -> None:
+        """Plug a device into the place of slave ``index``: the same one (``spec`` None) or another,
+        starting as after power-on (INIT, station address 0, its EEPROM's alias)."""
+        if spec is not None:
+            self.replace_slave(index, spec)
+        self._removed.discard(index)
+        self.power_on(index)
+
+    def removed(self, index: int) -> bool:
+        """Whether slave ``index`` is unplugged."""
+        return index in self._removed
 
     # --- distributed clocks -----------------------------------------------------------
 
@@ -394,7 +354,7 @@ class Segment(RingMixin):
         self.escs[slave].power_on()
         self.ports.slave_reset(slave)
         self.apps.power_on(slave)
-        self._invalidate_all()
+        self.state.invalidate_all()
 
     def corrupt_frames(self, slave: int, port: int, count: int = 1) -> None:
         """The next ``count`` frames arriving at ``slave``'s ``port`` carry a CRC error."""
@@ -424,15 +384,10 @@ class Segment(RingMixin):
 
     def complete_write_sms(self, slaves: I64) -> None:
         """Buffered write SMs of ``slaves`` got their last byte (``sim.arrival``)."""
-        if self.sm_dirty:
-            self._refresh_sm_state()
+        if self.state.sm_dirty:
+            self.state.compile_sm()
         if len(slaves):
             self.arrival.completed(slaves)
-
-    @property
-    def outputs_received(self) -> npt.NDArray[np.bool_]:
-        """Per slave: a complete output buffer arrived since it last went below SAFEOP."""
-        return self.arrival.received
 
     # --- time ---------------------------------------------------------------------------------
 
@@ -441,11 +396,8 @@ class Segment(RingMixin):
         if now is None:
             now = self.clock.now_ns()
         wd = self.watchdogs
-        if self.watchdog_dirty or self.sm_dirty:
-            if self.sm_dirty:
-                self._refresh_sm_state()
-            wd.refresh(len(self.slaves))
-            self.watchdog_dirty = False
+        if self.state.watchdog_dirty or self.state.sm_dirty:
+            self.state.compile_watchdogs()
         # Deadlines only move later when outputs arrive, so the earliest one
         # computed at the last check is a safe lower bound until then.
         if now > wd.deadline:
@@ -458,10 +410,6 @@ class Segment(RingMixin):
 
     # --- frames -------------------------------------------------------------------------------
 
-    def wire_time_ns(self, frame_len: int) -> int:
-        """Modelled time for a frame of ``frame_len`` bytes (without FCS) to go round."""
-        return (max(frame_len, 60) + FCS_SIZE) * self.mac_wire_ns + self.route.delay_ns
-
     def process(self, frame: bytes | bytearray) -> bytes | None:
         """Process one frame from the master (at port A unless :meth:`process_from` chose B).
 
@@ -469,14 +417,15 @@ class Segment(RingMixin):
         master port it came back (in a ring: B when the ring is closed)."""
         vclock = self._vclock
         now = vclock.ns if vclock is not None else self._clock.now_ns()
+        state = self.state
         # tick() only when time-driven work can be due: watchdog configuration
         # changed, the earliest watchdog deadline passed, or SYNC pulses planned.
-        if self.watchdog_dirty or self.sm_dirty or now > self.watchdogs.deadline or self._sync:
+        if state.watchdog_dirty or state.sm_dirty or now > self.watchdogs.deadline or self._sync:
             self.tick(now)
         self.frames += 1
-        route = self._route
-        if route is None or self.topology_dirty:
-            route = self.route
+        route = state.route
+        if route is None or state.topology_dirty:
+            route = state.walk()
         self.last_exit = route.exit
         if self._drop_p and self.faults.drops():
             self.frames_lost += 1
@@ -500,41 +449,37 @@ class Segment(RingMixin):
             heads, any_c = parsed
         passes = route.passes
         count = route.count
-        destroy = False
-        set_c = False
-        closed_idx = route.closed_idx
-        if closed_idx:
-            if any_c:
-                passes, destroy = passes[: closed_idx[0]], True
-                count = len(passes)
-            elif len(closed_idx) > 1:
-                passes, destroy = passes[: closed_idx[1]], True
-                count = len(passes)
+        destroy = set_c = False
+        if route.closed_idx:
+            # A closed port 0 loops the frame back: marked circulating, or destroyed.
+            done = route.passes_done(any_c)
+            if done < count:
+                passes, count, destroy = passes[:done], done, True
             else:
                 set_c = True
-        if self._crc_cut >= 0:
+        faults = self.faults
+        if faults.crc_cut >= 0:
             # CRC error on a link (sim.faults): the slaves passed before the bad
             # link took the frame; the receiving slave and all after it discard it.
-            if self._crc_cut < count:
-                passes = passes[: self._crc_cut]
-                count = self._crc_cut
+            if faults.crc_cut < count:
+                passes, count = passes[: faults.crc_cut], faults.crc_cut
             destroy = True
-            self._crc_cut = -1
+            faults.crc_cut = -1
             if not route.reopen:
-                self._crc_at = NEVER
+                faults.crc_at = NEVER
         self.dc.frame_t0 = now
         self._cur_passes = passes
-        if self._irq_dirty:
-            self._refresh_irq()
+        if state.irq_stale:
+            state.compile_irq()
         bplan = self._bplan
-        fast_key = (count << 32) | (self._entry << 48)
+        fast_key = (count << 32) | (state.entry << 48)
         for off, cmd, address, lw, irq, n in heads:
             doff = off + HEADER_SIZE
             if set_c:
                 lw |= CIRCULATING_BIT
             if cmd == _BRD:
                 plan = bplan.get((address & 0xFFFF0000) | n | fast_key)
-                if plan is not None and not plan.clear & self.event_bits and not self.topology_dirty:
+                if plan is not None and not plan.clear & self.event_bits and not state.topology_dirty:
                     # BRD of a 1/2/4/8-byte register read by every slave of a line
                     # (a topology change earlier in this frame takes the general
                     # path, which first brings DL status up to date).
@@ -556,15 +501,15 @@ class Segment(RingMixin):
                     d, w = dw.unpack_from(buf, doff)
                     dw.pack_into(buf, doff, d | v, (w + count) & 0xFFFF)
                     _HEADER_TAIL.pack_into(buf, off + 2, ((address + count) & 0xFFFF) | (address & 0xFFFF0000),
-                                           lw, irq | self._irq)
+                                           lw, irq | state.irq)
                     continue
             # The IRQ field passes each slave in the header, before the slave
             # executes the datagram: it shows the events as they were before it.
-            irq |= self._irq
+            irq |= state.irq
             if cmd in _CLASS:
                 add, address = self._datagram(cmd, address, np.frombuffer(buf, np.uint8, n, doff), n)
-                if self._irq_dirty:
-                    self._refresh_irq()
+                if state.irq_stale:
+                    state.compile_irq()
             else:
                 add = 0  # NOP and unknown commands pass untouched
             _HEADER_TAIL.pack_into(buf, off + 2, address, lw, irq)
@@ -578,9 +523,9 @@ class Segment(RingMixin):
             if spent > _SLOW_FRAME_NS:
                 self.watchdogs.pause(spent)
         elif self.advance_clock:
-            walk = self._route
-            if walk is None or self.topology_dirty:
-                walk = self.route
+            walk = state.route
+            if walk is None or state.topology_dirty:
+                walk = state.walk()
             size = len(buf)  # (no max(): a builtin call costs more than the whole sum)
             vclock.ns += ((size if size > 60 else 60) + FCS_SIZE) * self.mac_wire_ns + walk.delay_ns
         if route.reopen:
@@ -601,30 +546,26 @@ class Segment(RingMixin):
             if len(route.passes) and self.memory.mem[route.passes[0], R.DL_CONTROL] & R.DL_CONTROL_FORWARDING_RULE:
                 return None
             return bytes(buf) if route.returned else None  # passed on unchanged
-        cut, cut_at = (self.faults.apply_corruption(route) if self._corrupt or self._rates
-                       else (-1, NEVER))
+        cut = self.faults.apply_corruption(route) if self._corrupt or self._rates else (-1, NEVER)
         scanned = scan_frame(buf, start)  # all headers first: a malformed frame is not processed
         if isinstance(scanned, int):
             if scanned == MALFORMED:
-                self._processing_error(route)
+                self.frames_lost += 1
+                self.faults.processing_error(route)
             return None
         end, heads, any_c = scanned
         if start == ETH_HEADER_SIZE and len(heads) == 1:
             if len(self._parsed) >= 1024:
                 self._parsed.clear()
             self._parsed[bytes(buf[12:26])] = (end, heads, any_c)
-        self._crc_cut, self._crc_at = cut, cut_at
+        self.faults.crc_cut, self.faults.crc_at = cut
         return heads, any_c
-
-    def _processing_error(self, route: Route) -> None:
-        self.frames_lost += 1
-        self.faults.processing_error(route)
 
     def _reopen_ports(self, route: Route, any_c: bool) -> None:
         """A valid frame arrived at latched auto-close ports (``sim.ports``): the next walk has them open."""
-        crc_at, self._crc_at = self._crc_at, NEVER
+        crc_at, self.faults.crc_at = self.faults.crc_at, NEVER
         if self.ports.reopen(route, any_c, crc_at):
-            self.topology_dirty = True
+            self.state.topology_dirty = True
 
     # --- datagrams ------------------------------------------------------------------------------
 
@@ -640,36 +581,23 @@ class Segment(RingMixin):
         if kind == 2:
             wkc = self.commands.broadcast(cmd, self.route, passes, ado, data, n)
             return wkc, ((adp + count) & 0xFFFF) | (ado << 16)
-        if kind == 3:
-            pos = (-adp) & 0xFFFF
+        if kind == 3:  # auto-increment: the slave that sees ADP 0
             new_address = ((adp + count) & 0xFFFF) | (ado << 16)
-            if cmd in RMW:
-                return self.commands.rmw(passes, pos if pos < count else None, ado, data, n), new_address
-            if pos >= count:
-                return 0, new_address
-            return self.commands.single(cmd, int(passes[pos]), ado, data, n), new_address
+            return self.commands.addressed(cmd, passes, [(-adp) & 0xFFFF], ado, data, n), new_address
         if kind == 4:
-            if self._addressing_dirty:
-                self._refresh_addressing()
-            hits = self._stations.get(adp)
-            if cmd in RMW:
-                reader = hits[0] if hits and hits[0] < count else None
-                return self.commands.rmw(passes, reader, ado, data, n), address
-            if not hits:
-                return 0, address
-            wkc = 0
-            for pos in hits:
-                if pos < count:
-                    wkc += self.commands.single(cmd, int(passes[pos]), ado, data, n)
-            return wkc, address
+            state = self.state
+            if state.addressing_stale:
+                state.compile_addressing()
+            return self.commands.addressed(cmd, passes, state.stations.get(adp), ado, data, n), address
         return 0, address  # NOP and unknown commands pass untouched
 
     def _logical(self, cmd: int, address: int, data: npt.NDArray[np.uint8], n: int) -> int:
-        if self.sm_dirty:
-            self._refresh_sm_state()
-        if self._fmmu_dirty or self._lmap is None:
-            self._refresh_fmmus()
-        lmap = self._lmap
+        state = self.state
+        if state.sm_dirty:
+            state.compile_sm()
+        if state.fmmu_stale or state.lmap is None:
+            state.compile_fmmus()
+        lmap = state.lmap
         assert lmap is not None
         if lmap.empty or n == 0:
             return 0
@@ -677,70 +605,7 @@ class Segment(RingMixin):
         writes = cmd != _LRD
         wkc, done, events = lmap.run(self.memory.flat, address & 0xFFFFFFFF, data, reads, writes)
         if events:
-            self.irq_dirty = True
+            state.irq_changed()
         if len(done):
             self.complete_write_sms(done)
         return wkc
-
-
-class _EscHost:
-    """The segment as its ESCs see it (``sim.host.EscHost``)."""
-
-    __slots__ = ("_seg",)
-
-    def __init__(self, seg: Segment) -> None:
-        self._seg = seg
-
-    @property
-    def sii_busy_ns(self) -> int:
-        return self._seg.sii_busy_ns
-
-    def now_ns(self) -> int:
-        return self._seg.clock.now_ns()
-
-    def invalidate(self, what: Dirty) -> None:
-        self._seg.invalidate(what)
-
-    def ecat_event_raised(self, bits: int) -> None:
-        seg = self._seg
-        seg.event_bits |= bits
-        seg.irq_dirty = True
-
-    def al_state_changed(self, index: int, old: AlState, new: AlState) -> None:
-        if new in _BELOW_SAFEOP:
-            self._seg.arrival.stop(index)
-        self._seg.apps.state_changed(index, old, new)
-
-    def has_outputs(self, index: int) -> bool:
-        return bool(self._seg.arrival.received[index])
-
-    def wait_for_outputs(self, index: int, waiting: bool) -> None:
-        pending = self._seg.arrival.pending_op
-        if waiting:
-            pending.add(index)
-        else:
-            pending.discard(index)
-
-    def output_buffer_completed(self, index: int) -> None:
-        self._seg.complete_write_sms(np.array([index], dtype=np.int64))
-
-    def reset_requested(self, index: int) -> None:
-        self._seg.reset_slave(index)
-
-    def loop_control_written(self, index: int, old: int, new: int) -> None:
-        self._seg.ports.loop_control_written(index, new)
-        self._seg.topology_dirty = True
-
-    def dc_written(self, index: int, lo: int, data: bytes) -> None:
-        seg = self._seg
-        seg.dc.written(np.array([index], dtype=np.int64), lo, data, seg.escs[index].profile.dc_system_time)
-
-    def dc_refresh(self, index: int) -> None:
-        self._seg.dc.refresh_system_time(np.array([index], dtype=np.int64))
-
-    def dc_sync_status(self, index: int, lo: int, hi: int, pdi: bool) -> None:
-        seg = self._seg
-        seg.dc.refresh_sync_status(index, lo, hi, seg.clock.now_ns() if pdi else None)
-
-    def dc_latch_input(self, index: int, unit: int, rising: bool, t_ns: int | None) -> None:
-        self._seg.latch_input(index, unit, rising, t_ns)
