@@ -1,6 +1,7 @@
 """Opening a master from the command line's global options.
 
-``--iface IF`` and ``--udp HOST:PORT`` open a real link, with
+``--iface IF`` and ``--udp HOST:PORT`` open a real link (``--iface`` also takes
+any link name with a scheme, ``--iface unix:/run/seg.sock``), with
 ``--redundant-iface``/``--redundant-udp`` the second port of a ring; ``--sim
 TOPOLOGY.toml`` builds the simulated segment and joins it to the master: in
 this process through the in-process pair link (the segment answers each
@@ -97,15 +98,15 @@ def connect(obj: dict[str, Any] | None, *, child: bool = False, pcap: str | None
             process.stop()
             raise
     else:
-        from pyethercat.link.registry import open_link
+        from pyethercat.link.registry import iface_link, open_link
 
-        link = open_link(f"raw:{iface}" if iface is not None else f"udp:{udp}")
+        link = open_link(iface_link(iface) if iface is not None else f"udp:{udp}")
         if second_iface or second_udp:
             from pyethercat.link.redundant import RedundantLink
 
             try:
                 link = RedundantLink(link, open_link(
-                    f"raw:{second_iface}" if second_iface else f"udp:{second_udp}"))
+                    iface_link(second_iface) if second_iface else f"udp:{second_udp}"))
             except BaseException:
                 link.close()
                 raise

@@ -180,7 +180,8 @@ def _one_line(text: str) -> str:
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
-@click.option("--iface", metavar="IF", help="Network interface of the EtherCAT segment (raw socket).")
+@click.option("--iface", metavar="IF", help="Network interface of the EtherCAT segment (raw socket), "
+              "or a link name with a scheme: unix:PATH, udp:HOST:PORT, ring:A,B.")
 @click.option("--udp", metavar="HOST:PORT", help="EtherCAT over UDP peer.")
 @click.option("--sim", metavar="TOPOLOGY.toml", help="Simulated segment from a topology file.")
 @click.option("--redundant-iface", metavar="IF",

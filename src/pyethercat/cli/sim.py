@@ -57,7 +57,7 @@ def sim_command(
     the last slave's free port is cabled to the second one (or where the
     topology's [segment] ring = "SLAVE:PORT" says).
     """
-    from pyethercat.sim.server import DEFAULT_BUSY_POLL_S, open_link, serve
+    from pyethercat.sim.server import DEFAULT_BUSY_POLL_S, serve, serving_link
     from pyethercat.sim.topology import load_topology
 
     if check:
@@ -98,12 +98,12 @@ def sim_command(
     load_topology(topology)
     if control is not None:
         check_control_path(control)
-    link = open_link(iface=iface, udp=udps[0] if udps else None, fd=fds[0] if fds else None,
+    link = serving_link(iface=iface, udp=udps[0] if udps else None, fd=fds[0] if fds else None,
                      pcap=pcap)
     link_b = None
     try:
         if spec_b is not None:
-            link_b = open_link(**spec_b, pcap=None if pcap is None else _port_b_capture(pcap))  # type: ignore[arg-type]
+            link_b = serving_link(**spec_b, pcap=None if pcap is None else _port_b_capture(pcap))  # type: ignore[arg-type]
         stats = serve(topology, link, control=control, log=log, realtime=realtime, link_b=link_b,
                       busy_poll_s=DEFAULT_BUSY_POLL_S if busy_poll is None else busy_poll / 1e6,
                       cpu=cpu)

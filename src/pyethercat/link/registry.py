@@ -21,6 +21,8 @@ The one place where a link is made from text, for :meth:`Master.open
 
 Further schemes plug in with :func:`register_link` (the EoE TAP link).
 Keyword options go to the link's factory (for ``ring:``, to both ports).
+:func:`iface_link` reads a command line's ``--iface`` argument: an interface
+name, or any name with a known scheme (``--iface unix:/run/seg.sock``).
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ from typing import Any
 from pyethercat.errors import LinkError
 from pyethercat.link.base import Link
 
-__all__ = ["LinkFactory", "link_schemes", "open_link", "register_link"]
+__all__ = ["LinkFactory", "iface_link", "link_schemes", "open_link", "register_link"]
 
 #: Makes a link from the rest of its name (after ``SCHEME:``) and keyword options.
 LinkFactory = Callable[..., Link]
@@ -97,6 +99,14 @@ def register_link(scheme: str, factory: LinkFactory) -> None:
 def link_schemes() -> list[str]:
     """The schemes :func:`open_link` knows."""
     return sorted(_SCHEMES)
+
+
+def iface_link(iface: str) -> str:
+    """The link name for an interface argument: ``iface`` itself when it starts with a
+    known scheme (``unix:PATH``, ``udp:HOST:PORT``, ``raw:eth1``, a registered one), else
+    ``raw:IFACE``."""
+    scheme, sep, _ = iface.strip().partition(":")
+    return iface.strip() if sep and scheme in _SCHEMES else f"raw:{iface}"
 
 
 def open_link(name: str, **options: Any) -> Link:

@@ -74,7 +74,7 @@ from pyethercat.sim.eoe import eoe_server
 from pyethercat.wire.frame import is_ethercat
 from pyethercat.wire.registers import AL_STATUS
 
-__all__ = ["ServerStats", "SimProcess", "SimServer", "open_link", "start_sim_process"]
+__all__ = ["ServerStats", "SimProcess", "SimServer", "serving_link", "start_sim_process"]
 
 #: Default period of the segment's periodic work (watchdogs, SYNC), seconds.
 DEFAULT_TICK_S = 0.001
@@ -547,33 +547,29 @@ def _pdi(slave: Any) -> Any:
 # --- links from a command-line spec ---------------------------------------------------
 
 
-def open_link(
+def serving_link(
     iface: str | None = None,
     udp: str | None = None,
     fd: int | None = None,
     pcap: str | os.PathLike[str] | None = None,
 ) -> Link:
-    """The serving link: a raw interface, a UDP address to bind, or an inherited fd.
+    """The link a simulator serves on, opened by :func:`pyethercat.link.open_link`: a
+    network interface (raw socket), a UDP address to bind (the segment answers whoever
+    sends; a master's ``udp:`` link sends to it instead), or an inherited socket fd.
 
     With ``pcap`` every frame in and out is recorded to that file.
     """
+    from pyethercat.link.registry import open_link
+
     given = [x for x in (iface, udp, fd) if x is not None]
     if len(given) != 1:
         raise ConfigError("serve on exactly one of an interface, a UDP address or a socket fd")
-    link: Link
     if iface is not None:
-        from pyethercat.link.raw import RawLink
-
-        link = RawLink(iface)
+        link = open_link(f"raw:{iface}")
     elif udp is not None:
-        from pyethercat.link.udp import UdpLink, parse_hostport
-
-        link = UdpLink(bind=parse_hostport(udp))
+        link = open_link(f"udp:{udp}", serve=True)
     else:
-        from pyethercat.link.unix import UnixLink
-
-        assert fd is not None
-        link = UnixLink.from_fd(fd, name=f"unix-fd{fd}")
+        link = open_link(f"unix:fd:{fd}")
     if pcap is not None:
         from pyethercat.link.capture import CaptureLink
 
