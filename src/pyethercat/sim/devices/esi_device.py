@@ -19,6 +19,7 @@ the ESI declares, and the SM lengths it computes match what the ESC checks.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -229,6 +230,28 @@ def _capacity(device: EsiDevice, kind: str) -> int:
     return max([_PD_CAPACITY, *sizes])
 
 
+class _EsiDictionaries:
+    """One ESI device's dictionary for each instance: the ESI's objects built once (then
+    completed by ``complete``, if given), copied per instance with its serial number."""
+
+    def __init__(self, slave: EsiSlave,
+                 complete: Callable[[SimObjectDictionary], None] | None = None) -> None:
+        self.slave = slave
+        self._complete = complete
+        self._template: SimObjectDictionary | None = None
+        #: The largest SM2/SM3 buffers the device takes (the models' capacities).
+        self.capacity_out = _capacity(slave.device, "Outputs")
+        self.capacity_in = _capacity(slave.device, "Inputs")
+
+    def __call__(self, info: SiiInfo, app: MailboxDevice) -> SimObjectDictionary:
+        if self._template is None:
+            od = esi_dictionary(self.slave.device, vendor_id=self.slave.vendor_id)
+            if self._complete is not None:
+                self._complete(od)
+            self._template = od
+        return _instance_dictionary(self._template, info)
+
+
 class EsiCoeModel(CoeModel):
     """The CoE slaves of one ESI device: a copy of its dictionary each; inputs keep their defaults.
 
@@ -238,15 +261,9 @@ class EsiCoeModel(CoeModel):
 
     def __init__(self, slave: EsiSlave, details: int) -> None:
         self.slave = slave
-        self._template: SimObjectDictionary | None = None
-        super().__init__(self._dictionary, details=details,
-                         capacity_out=_capacity(slave.device, "Outputs"),
-                         capacity_in=_capacity(slave.device, "Inputs"))
-
-    def _dictionary(self, info: SiiInfo, app: MailboxDevice) -> SimObjectDictionary:
-        if self._template is None:
-            self._template = esi_dictionary(self.slave.device, vendor_id=self.slave.vendor_id)
-        return _instance_dictionary(self._template, info)
+        dictionaries = _EsiDictionaries(slave)
+        super().__init__(dictionaries, details=details, capacity_out=dictionaries.capacity_out,
+                         capacity_in=dictionaries.capacity_in)
 
     def instance_app(self, info: SiiInfo) -> tuple[int, MailboxDevice]:
         """An instance; it speaks EoE too (with a diagnostic page) when its ESI lists EoE."""
@@ -283,17 +300,9 @@ class EsiDriveModel(Cia402Model):
 
     def __init__(self, slave: EsiSlave, details: int) -> None:
         self.slave = slave
-        self._template: SimObjectDictionary | None = None
-        super().__init__(self._dictionary, details=details,
-                         capacity_out=_capacity(slave.device, "Outputs"),
-                         capacity_in=_capacity(slave.device, "Inputs"))
-
-    def _dictionary(self, info: SiiInfo, app: MailboxDevice) -> SimObjectDictionary:
-        if self._template is None:
-            od = esi_dictionary(self.slave.device, vendor_id=self.slave.vendor_id)
-            add_cia402_objects(od)
-            self._template = od
-        return _instance_dictionary(self._template, info)
+        dictionaries = _EsiDictionaries(slave, add_cia402_objects)
+        super().__init__(dictionaries, details=details, capacity_out=dictionaries.capacity_out,
+                         capacity_in=dictionaries.capacity_in)
 
     def instance_app(self, info: SiiInfo) -> tuple[int, MailboxDevice]:
         """An instance; it speaks EoE too when its ESI lists EoE."""
