@@ -134,8 +134,10 @@ _DC_FULL_SYNC = int(_DC_FULL | Feature.ENHANCED_DC_SYNC)
 # (EL2828), 630.8-774.2 us (EL2889); a one-word write for 296.8-297.5 us;
 # after a write, commands 2.95 ms later were not acknowledged (0x0502 bit 13)
 # and 3.67 ms later accepted (alias-address). Held out: replay-dc,
-# replay-issue-255, soem-sdinfo-ek1100-only (tests/sim/test_replay_corpus.py
-# checks that 690 us lies in the busy window each of them shows).
+# replay-issue-255, soem-sdinfo-ek1100-only, and for the EL1004 (no capture of
+# its own fitted) soem-sdinfo-ek1100-el1004, 541-773 us
+# (tests/sim/test_replay_corpus.py checks that 690 us lies in the busy window
+# each of them shows).
 _EE_READ, _EE_WRITE, _EE_CYCLE = 690_000, 297_000, 3_300_000
 # The generic chips answer SII commands at once. Their datasheets give the
 # EEPROM times (ET1100 section III table 79, ET1200 table 47: ~680 us for a
