@@ -92,6 +92,8 @@ class SiiInterface:
         regs = self.regs
         prof = regs.profile
         control = int(R.SiiControl.READ_8_BYTES) if prof.sii_read_bytes == 8 else 0
+        if prof.sii_emulated:
+            control |= R.SiiControl.EMULATION
         if regs.al_state() in _BELOW_SAFEOP:
             control |= prof.sii_control_static
         # EEPROMs of 32 Kbit and more need two address bytes (1-16 Kbit: one).
@@ -103,7 +105,7 @@ class SiiInterface:
         if not ok:
             control |= R.SiiControl.CHECKSUM_ERROR
         else:
-            word0 = self.word(0)
+            word0 = self.word(0) if prof.pdi_control is None else prof.pdi_control
             row[R.PDI_CONTROL] = word0 & 0xFF
             row[R.ESC_CONFIG] = word0 >> 8
             regs.set_u16(R.DC_SYNC_PULSE_LENGTH, self.word(2))

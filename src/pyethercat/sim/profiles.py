@@ -11,7 +11,7 @@ Microchip LAN9252, an FPGA IP core); where a value was not found in a public
 source it is a plausible default and can be overridden per device with
 :meth:`EscProfile.replace`.
 
-Board profiles (``EK1100``, ``EL1004``, ``EL2828``, ``EL2889``) are a chip
+Board profiles (``EK1100``, ``EL1004``, ``EL2828``, ``EL2889``, ``AKD``) are a chip
 family with the values the real devices read in the corpus captures
 (../shared/corpus): identity registers, port descriptor, features, which DC
 registers exist, SII control quirks. ``DEVICE_PROFILES`` maps SII identities
@@ -86,6 +86,13 @@ class EscProfile(EscFeaturesMixin):
     sii_read_ns: int = 0
     sii_write_ns: int = 0
     sii_write_cycle_ns: int = 0
+    #: The PDI emulates the EEPROM (SII control 0x0502 bit 5 set; ESC
+    #: datasheet section II, 0x0502): the device's firmware answers the SII
+    #: commands, at once as far as the master sees.
+    sii_emulated: bool = False
+    #: PDI control and ESC configuration (0x0140-0x0141) fixed by the chip's
+    #: own configuration (an FPGA IP core) instead of SII word 0; None: from the SII.
+    pdi_control: int | None = None
 
     def replace(self, **changes: object) -> EscProfile:
         """A copy with some fields changed (e.g. ports of a particular board)."""
@@ -205,6 +212,24 @@ PROFILES: dict[str, EscProfile] = {
                          dc_receive_time_reset=_BECKHOFF_LATCH_RESET, family="ET1200",
                          sii_read_ns=_EE_READ, sii_write_ns=_EE_WRITE,
                          sii_write_cycle_ns=_EE_CYCLE),
+    # Kollmorgen AKD servo drive, an EtherCAT IP core in its FPGA. Read off
+    # soem-sdinfo-akd: type 0x04 rev 0x02 (BRD 0x0000), port descriptor 0x0F
+    # (ports 0 and 1 MII), features 0x0184 (DC with 32-bit system time:
+    # 0x0918 reads 0 in its upper half; separate FCS error counters,
+    # enhanced DC SYNC), PDI control 0x0C08 (16-bit asynchronous
+    # microcontroller; DC SYNC out and latch in units) although the SII's word
+    # 0 says 0x0009, SII control 0x0020 (EEPROM emulated by the firmware,
+    # 4-byte reads, never busy when polled 560 us after a command), port 1
+    # receive time "hoff" before it latched, ports 2 and 3 0. Not read there
+    # and taken from twincat-akd-nc-mode (APRD 0x0000, 10 bytes): build
+    # 0x0043, 3 FMMUs, 4 SMs, 4 KiB RAM. twincat-akd-nc-mode checks the
+    # rest: it reads type, revision, port descriptor and features as above,
+    # and SII control 0x0020.
+    "AKD": EscProfile("AKD", 0x04, 0x02, 0x0043, 3, 4, 4,
+                      (_MII, _MII, _NONE, _NONE),
+                      int(Feature.DC_SUPPORTED | Feature.SEPARATE_FCS_ERRORS | Feature.ENHANCED_DC_SYNC),
+                      sii_read_bytes=4, family="IPCORE", sii_emulated=True, pdi_control=0x0C08,
+                      dc_receive_time_reset=bytes(4) + b"hoff" + bytes(8)),
 }
 
 #: Profiles of known devices, by SII identity (vendor, product code): a slave
@@ -214,6 +239,7 @@ DEVICE_PROFILES: dict[tuple[int, int], str] = {
     (0x0000_0002, 0x03EC_3052): "EL1004",
     (0x0000_0002, 0x0B0C_3052): "EL2828",
     (0x0000_0002, 0x0B49_3052): "EL2889",
+    (0x0000_006A, 0x0041_4B44): "AKD",
 }
 
 
