@@ -70,7 +70,6 @@ from pyethercat.wire.frame import (
     ECAT_HEADER_SIZE,
     ETH_HEADER_SIZE,
     LOCALLY_ADMINISTERED_BIT,
-    FrameType,
     ecat_offset,
 )
 
@@ -103,7 +102,6 @@ _CLASS: dict[int, int] = {
     int(Command.APRD): 3, int(Command.APWR): 3, int(Command.APRW): 3, int(Command.ARMW): 3,
     int(Command.FPRD): 4, int(Command.FPWR): 4, int(Command.FPRW): 4, int(Command.FRMW): 4,
 }
-_DATAGRAMS = int(FrameType.DATAGRAMS)
 _MIN_FRAME = ETH_HEADER_SIZE + ECAT_HEADER_SIZE
 _OR_REDUCE = np.bitwise_or.reduce
 _EMPTY = np.zeros(0, np.int64)
@@ -157,7 +155,6 @@ class Segment:
         self._corrupt = self.faults.corrupt
         self._rates = self.faults.rates
         self._sync = self.dc.sync_next
-        self._drop_p = 0.0
         self._cur_passes: I64 = _EMPTY
         self.frames = 0
         self.frames_lost = 0
@@ -248,7 +245,9 @@ class Segment:
     @property
     def route(self) -> Route:
         """The walk of frames entering at the current master port (recomputed after topology changes)."""
-        return self.state.walk()
+        state = self.state
+        route = state.route
+        return route if route is not None and not state.topology_dirty else state.walk()
 
     def invalidate(self, what: Dirty) -> None:
         """Compiled state ``what`` must be rebuilt before its next use."""
@@ -372,15 +371,12 @@ class Segment:
     def drop_probability(self, p: float, seed: int | None = None) -> None:
         """Lose each frame with probability ``p`` (before any slave sees it)."""
         self.faults.set_drop_probability(p, seed)
-        self._drop_p = p
 
-    # --- process-data wiring -------------------------------------------------------------
+    # --- process data ---------------------------------------------------------------------
 
     def wire(self, src_slave: int, src_bit: int, dst_slave: int, dst_bit: int, bits: int) -> None:
         """Bits of ``src``'s outputs (SM2 image) appear in ``dst``'s inputs (SM3 image)."""
         self.wiring.add(src_slave, src_bit, dst_slave, dst_bit, bits, len(self.slaves))
-
-    # --- process data ---------------------------------------------------------------------
 
     def complete_write_sms(self, slaves: I64) -> None:
         """Buffered write SMs of ``slaves`` got their last byte (``sim.arrival``)."""
@@ -427,7 +423,8 @@ class Segment:
         if route is None or state.topology_dirty:
             route = state.walk()
         self.last_exit = route.exit
-        if self._drop_p and self.faults.drops():
+        faults = self.faults
+        if faults.drop_p and faults.drops():
             self.frames_lost += 1
             return None
         if len(frame) < _MIN_FRAME or not route.live:
@@ -457,7 +454,6 @@ class Segment:
                 passes, count, destroy = passes[:done], done, True
             else:
                 set_c = True
-        faults = self.faults
         if faults.crc_cut >= 0:
             # CRC error on a link (sim.faults): the slaves passed before the bad
             # link took the frame; the receiving slave and all after it discard it.
