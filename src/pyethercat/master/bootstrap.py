@@ -54,12 +54,11 @@ def boot_mailbox(slave: Slave) -> tuple[int, int, int, int]:
     sii = slave.sii
     if sii is None:
         raise ConfigError(f"{slave.describe()}: SII not read, its bootstrap mailbox is unknown")
-    box = (sii.boot_rx_mailbox_offset, sii.boot_rx_mailbox_size,
-           sii.boot_tx_mailbox_offset, sii.boot_tx_mailbox_size)
-    if not box[1] or not box[3]:
+    (rx_off, rx_size), (tx_off, tx_size) = sii.mailbox_layout(boot=True)
+    if not rx_size or not tx_size:
         raise ConfigError(f"{slave.describe()}: no bootstrap mailbox in the SII (words "
                           "0x0014-0x0017 are zero): BOOT refused")
-    return box
+    return rx_off, rx_size, tx_off, tx_size
 
 
 def bootstrap_update(master: BootMaster, slave: Slave | int, firmware: bytes, *,

@@ -448,11 +448,8 @@ def apply_sii(slave: SlaveInfo, image: bytes) -> None:
     slave.identity = Identity(info.vendor_id, info.product_code, info.revision, info.serial)
     slave.name = (info.device_name or info.order_number
                   or f"0x{info.vendor_id:08X}:0x{info.product_code:08X}")
-    slave.mailbox = MailboxInfo(info.rx_mailbox_offset, info.rx_mailbox_size,
-                                info.tx_mailbox_offset, info.tx_mailbox_size,
-                                int(info.mailbox_protocols), info.boot_rx_mailbox_offset,
-                                info.boot_rx_mailbox_size, info.boot_tx_mailbox_offset,
-                                info.boot_tx_mailbox_size)
+    (rx, tx), (boot_rx, boot_tx) = info.mailbox_layout(), info.mailbox_layout(boot=True)
+    slave.mailbox = MailboxInfo(*rx, *tx, int(info.mailbox_protocols), *boot_rx, *boot_tx)
     if not slave.alias and info.station_alias not in (0, 0xFFFF):
         # The register wins; the SII word only fills in when the ESC did not load it.
         slave.alias = info.station_alias

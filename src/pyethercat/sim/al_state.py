@@ -223,12 +223,7 @@ class AlStateMachine:
         info = self.sii.info
         if info is None:
             return False
-        if boot:
-            rx_off, rx_size = info.boot_rx_mailbox_offset, info.boot_rx_mailbox_size
-            tx_off, tx_size = info.boot_tx_mailbox_offset, info.boot_tx_mailbox_size
-        else:
-            rx_off, rx_size = info.rx_mailbox_offset, info.rx_mailbox_size
-            tx_off, tx_size = info.tx_mailbox_offset, info.tx_mailbox_size
+        (rx_off, rx_size), (tx_off, tx_size) = info.mailbox_layout(boot)
         if not rx_size and not tx_size:
             return False
         sm0, sm1 = self.regs.sm(0), self.regs.sm(1)

@@ -280,10 +280,9 @@ def _check_image(image: bytes, info: SiiInfo, profile: EscProfile, where: str) -
         if len(head) > 1 and head[0] == "category" and head[1] in CategoryType.__members__:
             raise ConfigError(f"{where}: {w}")
     end = profile.ram_end
-    boxes = (("receive mailbox", info.rx_mailbox_offset, info.rx_mailbox_size),
-             ("send mailbox", info.tx_mailbox_offset, info.tx_mailbox_size),
-             ("bootstrap receive mailbox", info.boot_rx_mailbox_offset, info.boot_rx_mailbox_size),
-             ("bootstrap send mailbox", info.boot_tx_mailbox_offset, info.boot_tx_mailbox_size))
+    (rx, tx), (boot_rx, boot_tx) = info.mailbox_layout(), info.mailbox_layout(boot=True)
+    boxes = (("receive mailbox", *rx), ("send mailbox", *tx),
+             ("bootstrap receive mailbox", *boot_rx), ("bootstrap send mailbox", *boot_tx))
     # Mailboxes live in the process RAM; process-data SMs may also use the digital
     # I/O registers 0x0F00-0x0FFF (ET1200 terminals such as the EL2004 do).
     windows = [(what, start, size, 0x1000) for what, start, size in boxes if size]
