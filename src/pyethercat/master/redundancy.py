@@ -60,7 +60,7 @@ from __future__ import annotations
 import struct
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 from pyethercat.errors import FrameError
 from pyethercat.wire.datagram import (
@@ -79,15 +79,14 @@ from pyethercat.wire.frame import (
     ecat_offset,
 )
 
-if TYPE_CHECKING:
-    from pyethercat.master.pdu import CyclicFrame, Request
-
 __all__ = [
     "PORT_A",
     "PORT_B",
     "PORT_NAMES",
     "GIVE_UP_AFTER",
     "CopySet",
+    "CopiesRequest",
+    "CopiesTicket",
     "PortCopies",
     "Redundancy",
     "copy_wkcs",
@@ -520,7 +519,22 @@ class Redundancy:
         return merge_copies(sent, got)
 
 
-def hand_copies(copies: CopySet, ticket: CyclicFrame | None, requests: Sequence[Request]) -> None:
+class CopiesTicket(Protocol):
+    """A frame's ticket as :func:`hand_copies` fills it (``master.pdu.CyclicFrame``)."""
+
+    #: Cyclic datagrams at the front of the frame (the requests' datagrams follow).
+    count: int
+    copies: dict[int, bytes] | None
+
+
+class CopiesRequest(Protocol):
+    """A datagram's request as :func:`hand_copies` fills it (``master.pdu.Request``)."""
+
+    copies: dict[int, Datagram] | None
+
+
+def hand_copies(copies: CopySet, ticket: CopiesTicket | None,
+                requests: Sequence[CopiesRequest]) -> None:
     """Give a completed ring frame's ticket and requests its copies by port (for diagnostics).
 
     A chain frame passed every slave in one copy, a disturbed one came back twice on one
