@@ -18,9 +18,10 @@ number of numpy operations (a few more only for modes some axis is in):
 6. the statusword with the mode-dependent bits (``sim.cia402.statusword``)
    and the other inputs.
 
-The engine holds the per-axis state arrays and runs the cycle; the parts
-above are functions of the engine in their own modules, so a reader finds
-each concern by file name.
+The engine runs the cycle over the per-axis state arrays of
+``sim.cia402.arrays`` (:class:`DriveArrays`, its base); the parts above are
+functions of those arrays in their own modules, so a reader finds each
+concern by file name, and no part imports the engine.
 
 Faults found here are returned to the caller (the device model), which
 sends the emergencies: rare events, plain Python per instance.
@@ -33,8 +34,8 @@ from collections.abc import Callable
 import numpy as np
 
 from pyethercat.sim.cia402 import power, setpoint, statusword
-from pyethercat.sim.cia402.axis import CTRL_POSITION, AxisModel, Rows
-from pyethercat.sim.cia402.homing import PH
+from pyethercat.sim.cia402.arrays import DRIVE_FIELDS, DriveArrays
+from pyethercat.sim.cia402.axis import CTRL_POSITION, Rows
 from pyethercat.sim.cia402.keys import (
     DE,
     F64,
@@ -57,9 +58,7 @@ from pyethercat.sim.cia402.keys import (
     K_TORQUE_DEMAND,
     K_VELOCITY,
     K_VELOCITY_DEMAND,
-    NO_STOP,
-    OBJ,
-    STAY,
+    PH,
     THRESH_EPS,
     B,
     S,
@@ -70,7 +69,6 @@ from pyethercat.sim.cia402.objects import DRIVE_MODES
 from pyethercat.sim.cia402.power import COMMANDS, ENABLE, POWERED
 from pyethercat.sim.mailbox import MailboxDevice
 from pyethercat.sim.od import SimObjectDictionary
-from pyethercat.wire.mailbox.objects import StandardObject
 from pyethercat.wire.sii import SiiInfo
 
 __all__ = ["DRIVE_FIELDS", "DriveEngine", "Faults"]
@@ -78,27 +76,6 @@ __all__ = ["DRIVE_FIELDS", "DriveEngine", "Faults"]
 #: What a cycle found: (instances, error codes, detail values) of new faults, and the
 #: instances whose fault was reset.
 Faults = tuple[I64, I64, I64, I64]
-
-#: Parameter entries the engine reads (beyond the PDO-mappable ones and the axis').
-DRIVE_FIELDS: tuple[tuple[int, int], ...] = (
-    (OBJ.ERROR_CODE, 0), (OBJ.QUICK_STOP_OPTION_CODE, 0), (OBJ.SHUTDOWN_OPTION_CODE, 0),
-    (OBJ.DISABLE_OPERATION_OPTION_CODE, 0), (OBJ.HALT_OPTION_CODE, 0),
-    (OBJ.FAULT_REACTION_OPTION_CODE, 0), (OBJ.FOLLOWING_ERROR_WINDOW, 0),
-    (OBJ.FOLLOWING_ERROR_TIMEOUT, 0), (OBJ.POSITION_WINDOW, 0), (OBJ.POSITION_WINDOW_TIME, 0),
-    (OBJ.VELOCITY_WINDOW, 0), (OBJ.VELOCITY_WINDOW_TIME, 0), (OBJ.VELOCITY_THRESHOLD, 0),
-    (OBJ.VELOCITY_THRESHOLD_TIME, 0), (OBJ.HOME_OFFSET, 0), (OBJ.SOFTWARE_POSITION_LIMIT, 1),
-    (OBJ.SOFTWARE_POSITION_LIMIT, 2), (OBJ.MAX_PROFILE_VELOCITY, 0), (OBJ.PROFILE_VELOCITY, 0),
-    (OBJ.PROFILE_ACCELERATION, 0), (OBJ.PROFILE_DECELERATION, 0), (OBJ.QUICK_STOP_DECELERATION, 0),
-    (OBJ.MAX_ACCELERATION, 0), (OBJ.MAX_DECELERATION, 0), (OBJ.HOMING_METHOD, 0),
-    (OBJ.HOMING_SPEEDS, 1), (OBJ.HOMING_SPEEDS, 2), (OBJ.HOMING_ACCELERATION, 0),
-    (OBJ.TARGET_POSITION, 0), (OBJ.TARGET_VELOCITY, 0), (OBJ.TARGET_TORQUE, 0),
-    (OBJ.POSITION_OFFSET, 0), (OBJ.VELOCITY_OFFSET, 0), (OBJ.TORQUE_OFFSET, 0),
-    (OBJ.CONTROLWORD, 0), (OBJ.MODES_OF_OPERATION, 0), (OBJ.STATUSWORD, 0),
-    (OBJ.MODES_OF_OPERATION_DISPLAY, 0), (OBJ.POSITION_ACTUAL_VALUE, 0),
-    (OBJ.VELOCITY_ACTUAL_VALUE, 0), (OBJ.TORQUE_ACTUAL_VALUE, 0), (OBJ.POSITION_DEMAND_VALUE, 0),
-    (OBJ.VELOCITY_DEMAND_VALUE, 0), (OBJ.TORQUE_DEMAND, 0), (OBJ.FOLLOWING_ERROR_ACTUAL_VALUE, 0),
-    (OBJ.DIGITAL_INPUTS, 0), (StandardObject.ERROR_SETTINGS, 2),
-)
 
 # Supported modes by the int8 value of 0x6060 (+128).
 _SUPPORTED = np.zeros(256, bool)
@@ -110,50 +87,13 @@ _LAZY = frozenset({K_POSITION, K_VELOCITY, K_TORQUE, K_TORQUE_DEMAND, K_POSITION
                    K_VELOCITY_DEMAND, K_FE, K_INPUTS})
 
 
-class DriveEngine(AxisModel):
+class DriveEngine(DriveArrays):
     """CiA 402 behaviour of a drive kind over its axes (see the module docstring)."""
 
     def __init__(self, dictionary: Callable[[SiiInfo, MailboxDevice], SimObjectDictionary], *,
                  details: int, capacity_out: int = 128, capacity_in: int = 128) -> None:
         super().__init__(dictionary, details=details, capacity_out=capacity_out,
-                         capacity_in=capacity_in, fields=DRIVE_FIELDS)
-        arr = self.array
-        self.state = arr("state", np.int8, int(S.SWITCH_ON_DISABLED))
-        self.prev_cw = arr("prev_cw", np.int64, 0)
-        #: The slave is in EtherCAT OP (its outputs are valid).
-        self.al_op = arr("al_op", bool, False)
-        #: Stop in progress: deceleration option (-1 none) and the state it ends in (-1: stay).
-        self.stop_opt = arr("stop_opt", np.int8, NO_STOP)
-        self.stop_goal = arr("stop_goal", np.int8, STAY)
-        #: Set-point generator: demand position (raw inc) and velocity (inc/s).
-        self.g_p: F64 = arr("g_p", np.float64, 0.0)
-        self.g_v: F64 = arr("g_v", np.float64, 0.0)
-        #: Raw encoder position of user position 0 (homing moves it).
-        self.origin: F64 = arr("origin", np.float64, 0.0)
-        # profile position: goal, buffered set-point, set-point acknowledge
-        self.pp_goal: F64 = arr("pp_goal", np.float64, 0.0)
-        self.pp_buf: F64 = arr("pp_buf", np.float64, 0.0)
-        self.pp_active = arr("pp_active", bool, False)
-        self.pp_buffered = arr("pp_buffered", bool, False)
-        self.pp_ack = arr("pp_ack", bool, False)
-        # homing
-        self.hm_phase = arr("hm_phase", np.int8, int(PH.IDLE))
-        self.hm_method = arr("hm_method", np.int64, 0)
-        self.hm_var = arr("hm_var", np.int8, 0)
-        self.hm_home: F64 = arr("hm_home", np.float64, 0.0)
-        self.hm_attained = arr("hm_attained", bool, False)
-        self.hm_error = arr("hm_error", bool, False)
-        # window timers (s)
-        self.fe_t: F64 = arr("fe_t", np.float64, 0.0)
-        self.win_t: F64 = arr("win_t", np.float64, 0.0)
-        self.vwin_t: F64 = arr("vwin_t", np.float64, 0.0)
-        self.vzero_t: F64 = arr("vzero_t", np.float64, 0.0)
-        self.limited = arr("limited", bool, False)
-        #: Actual velocity (encoder, inc/s) and following error of the last cycle.
-        self.v_act: F64 = arr("v_act", np.float64, 0.0)
-        self.fe_val: F64 = arr("fe_val", np.float64, 0.0)
-        #: Warning bit (statusword bit 7): sync fallback, missed SM events.
-        self.warn = arr("warn", bool, False)
+                         capacity_in=capacity_in)
         #: Skip the cycle of axes at rest with the power off while nothing they read changes
         #: (see :meth:`step`); off runs every cycle in full (the tests compare both).
         self.idle_fast_path = True

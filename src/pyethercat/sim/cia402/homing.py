@@ -20,19 +20,16 @@ variant and step, evaluated for every homing axis at once.
 from __future__ import annotations
 
 from enum import IntEnum
-from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
 
+from pyethercat.sim.cia402.arrays import DriveArrays
 from pyethercat.sim.cia402.axis import Rows
-from pyethercat.sim.cia402.keys import AX, F64, I64, OBJ, B, ints
+from pyethercat.sim.cia402.keys import AX, F64, I64, OBJ, PH, B, Phase, ints
 from pyethercat.sim.cia402.objects import AXIS_OBJECT
 from pyethercat.sim.cia402.profile import ramp_velocity
 from pyethercat.wire.cia402 import HOMING_METHODS
-
-if TYPE_CHECKING:
-    from pyethercat.sim.cia402.engine import DriveEngine
 
 __all__ = ["HOMING", "PH", "HomingTable", "Phase", "Rule", "Signal", "home_found", "run_homing"]
 
@@ -53,18 +50,6 @@ class Rule(IntEnum):
     EDGE = 1
     INDEX = 2
     CURRENT = 3
-
-
-class Phase(IntEnum):
-    """Homing phases beyond the search steps (0 .. steps-1)."""
-
-    IDLE = -1
-    APPROACH = 10
-    """Moving on at zero-search speed until the index pulse is passed."""
-    STOP = 11
-    """Decelerating with the homing acceleration 0x609A."""
-    DONE = 12
-    ERROR = 13
 
 
 _MAX_METHOD = 40
@@ -128,7 +113,6 @@ class HomingTable:
 
 
 HOMING = HomingTable()
-PH = ints(Phase)
 RU = ints(Rule)
 SG = ints(Signal)
 
@@ -136,7 +120,7 @@ SG = ints(Signal)
 # --- the homing mode of a drive's cycle ------------------------------------------------------
 
 
-def run_homing(eng: DriveEngine, r: Rows, inst: I64, m: B, halt: B, cw: I64, prev: I64, p: F64,
+def run_homing(eng: DriveArrays, r: Rows, inst: I64, m: B, halt: B, cw: I64, prev: I64, p: F64,
                g_p: F64, g_v: F64, new_p: F64, new_v: F64, dt: F64,
                switches: tuple[B, B, B]) -> tuple[F64, F64, F64, F64]:
     """Homing: start on the rising edge of bit 4, run the method's program (``sim.cia402.homing``).
@@ -234,7 +218,7 @@ def run_homing(eng: DriveEngine, r: Rows, inst: I64, m: B, halt: B, cw: I64, pre
     return g_p, g_v, new_p, new_v
 
 
-def home_found(eng: DriveEngine, sel: I64, home_raw: F64, r: Rows, mask: B) -> None:
+def home_found(eng: DriveArrays, sel: I64, home_raw: F64, r: Rows, mask: B) -> None:
     """Homing attained: user position of the home position = -home offset (IEC 61800-7-201:
     "the zero position is offset from the home position by adding the home offset")."""
     offset = eng.col(OBJ.HOME_OFFSET, 0, r)[mask]

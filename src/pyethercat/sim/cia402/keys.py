@@ -28,8 +28,8 @@ __all__ = [
     "K_STATUSWORD", "K_TARGET_POSITION", "K_TARGET_VELOCITY", "K_TORQUE",
     "K_TORQUE_DEMAND", "K_TORQUE_OFFSET", "K_VELOCITY", "K_VELOCITY_DEMAND",
     "K_VELOCITY_OFFSET", "K_V_THRESHOLD", "K_V_THRESHOLD_TIME", "K_V_WINDOW",
-    "K_V_WINDOW_TIME", "NO_STOP", "OBJ", "OM", "S", "SO", "STAY", "THRESH_EPS", "all_of",
-    "any_of", "ints",
+    "K_V_WINDOW_TIME", "NO_STOP", "OBJ", "OM", "PH", "Phase", "S", "SO", "STAY", "THRESH_EPS",
+    "all_of", "any_of", "ints",
 ]
 
 F64 = npt.NDArray[np.float64]
@@ -57,12 +57,25 @@ def ints(enum: type[IntEnum]) -> Any:
     return SimpleNamespace(**{m.name: int(m) for m in enum})
 
 
+class Phase(IntEnum):
+    """Homing phases beyond the search steps (0 .. steps-1); ``sim.cia402.homing`` runs them."""
+
+    IDLE = -1
+    APPROACH = 10
+    """Moving on at zero-search speed until the index pulse is passed."""
+    STOP = 11
+    """Decelerating with the homing acceleration 0x609A."""
+    DONE = 12
+    ERROR = 13
+
+
 OBJ = ints(Cia402Object)
 S = ints(DriveState)
 OM = ints(OperationMode)
 AX = ints(AxisSub)
 SO = ints(StopOption)
 DE = ints(DriveErrorCode)
+PH = ints(Phase)
 
 # The entries the cycle reads and writes, as (index, subindex).
 K_CW, K_MODE, K_MODE_DISPLAY = (0x6040, 0), (0x6060, 0), (0x6061, 0)

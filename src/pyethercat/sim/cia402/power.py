@@ -9,10 +9,9 @@ found this cycle; and the end of stop ramps once the axis stands.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
+from pyethercat.sim.cia402.arrays import DriveArrays
 from pyethercat.sim.cia402.axis import Rows
 from pyethercat.sim.cia402.keys import (
     F64,
@@ -29,9 +28,6 @@ from pyethercat.sim.cia402.keys import (
     S,
 )
 from pyethercat.wire.cia402 import DriveCommand, DriveState, decode_command
-
-if TYPE_CHECKING:
-    from pyethercat.sim.cia402.engine import DriveEngine
 
 __all__ = ["COMMANDS", "ENABLE", "POWERED", "TRANSITIONS", "quick_stop_code", "stops_done",
            "transitions"]
@@ -65,7 +61,7 @@ POWERED[[DriveState.OPERATION_ENABLED, DriveState.QUICK_STOP_ACTIVE,
          DriveState.FAULT_REACTION_ACTIVE]] = True
 
 
-def transitions(eng: DriveEngine, r: Rows, state: I64, cmd: I64, cw: I64, prev: I64, stopping: B,
+def transitions(eng: DriveArrays, r: Rows, state: I64, cmd: I64, cw: I64, prev: I64, stopping: B,
                 faulted: B | None) -> tuple[I64, I64]:
     """New states and the stops they start (-1: none; else a stop option)."""
     col = eng.col
@@ -123,14 +119,14 @@ def transitions(eng: DriveEngine, r: Rows, state: I64, cmd: I64, cw: I64, prev: 
     return new, start
 
 
-def quick_stop_code(eng: DriveEngine, r: Rows) -> I64:
+def quick_stop_code(eng: DriveArrays, r: Rows) -> I64:
     """0x605A; negative (manufacturer-specific) values act as 2, the quick stop ramp."""
     code = eng.col(*K_QS_OPTION, r).astype(np.int64)
     out: I64 = np.where(code < 0, 2, code)
     return out
 
 
-def stops_done(eng: DriveEngine, r: Rows, new: I64, v_act: F64) -> I64:
+def stops_done(eng: DriveArrays, r: Rows, new: I64, v_act: F64) -> I64:
     """States after stops that finished this cycle (the axis stands)."""
     stop = eng.stop_opt[r]
     still = (eng.g_v[r] == 0) & (np.abs(v_act) <= eng.col(OBJ.VELOCITY_THRESHOLD, 0, r))

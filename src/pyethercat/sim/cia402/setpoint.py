@@ -11,11 +11,10 @@ the usual cycle of a CSP group, the general case without the other modes.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
 from pyethercat.sim.cia402 import homing
+from pyethercat.sim.cia402.arrays import DriveArrays
 from pyethercat.sim.cia402.axis import CTRL_OFF, CTRL_POSITION, CTRL_TORQUE, CTRL_VELOCITY, Rows
 from pyethercat.sim.cia402.keys import (
     F64,
@@ -37,14 +36,11 @@ from pyethercat.sim.cia402.keys import (
 )
 from pyethercat.sim.cia402.profile import profile_move, ramp_velocity
 
-if TYPE_CHECKING:
-    from pyethercat.sim.cia402.engine import DriveEngine
-
 __all__ = ["acc_dec", "max_velocity", "plan", "plan_csp", "profile_position", "stop_deceleration",
            "torque"]
 
 
-def plan(eng: DriveEngine, r: Rows, inst: I64, state: I64, mode: I64, cw: I64, prev: I64, dt: F64,
+def plan(eng: DriveArrays, r: Rows, inst: I64, state: I64, mode: I64, cw: I64, prev: I64, dt: F64,
          safe_dt: F64, start_stop: I64 | None, switches: tuple[B, B, B]) -> None:
     """The next cycle's plan of every axis (see :class:`~pyethercat.sim.cia402.axis.AxisModel`)."""
     if (start_stop is None and all_of(state == S.OPERATION_ENABLED)
@@ -156,7 +152,7 @@ def plan(eng: DriveEngine, r: Rows, inst: I64, state: I64, mode: I64, cw: I64, p
     eng.limited[r] = limited
 
 
-def plan_csp(eng: DriveEngine, r: Rows, safe_dt: F64) -> None:
+def plan_csp(eng: DriveArrays, r: Rows, safe_dt: F64) -> None:
     """Every axis enabled in CSP and running: the target is the next demand."""
     col = eng.col
     g_p = eng.g_p[r].copy()
@@ -183,18 +179,18 @@ def plan_csp(eng: DriveEngine, r: Rows, safe_dt: F64) -> None:
     eng.limited[r] = limited
 
 
-def torque(eng: DriveEngine, r: Rows, per_mille: F64) -> F64:
+def torque(eng: DriveArrays, r: Rows, per_mille: F64) -> F64:
     out: F64 = per_mille * eng.col(OBJ.MOTOR_RATED_TORQUE, 0, r) * 1e-6
     return out
 
 
-def max_velocity(eng: DriveEngine, r: Rows) -> F64:
+def max_velocity(eng: DriveArrays, r: Rows) -> F64:
     cap = eng.col(OBJ.MAX_PROFILE_VELOCITY, 0, r)
     out: F64 = np.where(cap > 0, cap, np.inf)
     return out
 
 
-def acc_dec(eng: DriveEngine, r: Rows) -> tuple[F64, F64]:
+def acc_dec(eng: DriveArrays, r: Rows) -> tuple[F64, F64]:
     col = eng.col
     acc = col(OBJ.PROFILE_ACCELERATION, 0, r)
     dec = col(OBJ.PROFILE_DECELERATION, 0, r)
@@ -204,7 +200,7 @@ def acc_dec(eng: DriveEngine, r: Rows) -> tuple[F64, F64]:
     return np.maximum(acc, 1.0), np.maximum(dec, 1.0)
 
 
-def stop_deceleration(eng: DriveEngine, r: Rows, option: I64) -> F64:
+def stop_deceleration(eng: DriveArrays, r: Rows, option: I64) -> F64:
     """Deceleration of a stop by :class:`StopOption` (inc/s²)."""
     col = eng.col
     _acc, slow = acc_dec(eng, r)
@@ -215,7 +211,7 @@ def stop_deceleration(eng: DriveEngine, r: Rows, option: I64) -> F64:
     return out
 
 
-def profile_position(eng: DriveEngine, r: Rows, inst: I64, m: B, halt: B, cw: I64, prev: I64,
+def profile_position(eng: DriveArrays, r: Rows, inst: I64, m: B, halt: B, cw: I64, prev: I64,
                      g_p: F64, g_v: F64, new_p: F64, new_v: F64, dt: F64, lo: F64, hi: F64,
                      limits: B) -> tuple[F64, F64, B]:
     """Profile position: set-point handshake (bits 4, 5, 6, 9 / status bit 12) and the move."""

@@ -10,12 +10,10 @@ error (13). The window timers of 0x6067/0x6068 (position), 0x606D/0x606E
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
+from pyethercat.sim.cia402.arrays import DriveArrays
 from pyethercat.sim.cia402.axis import Rows
-from pyethercat.sim.cia402.homing import PH
 from pyethercat.sim.cia402.keys import (
     F64,
     I64,
@@ -29,14 +27,12 @@ from pyethercat.sim.cia402.keys import (
     K_V_WINDOW,
     K_V_WINDOW_TIME,
     OM,
+    PH,
     THRESH_EPS,
     S,
     all_of,
     any_of,
 )
-
-if TYPE_CHECKING:
-    from pyethercat.sim.cia402.engine import DriveEngine
 
 __all__ = ["statusword"]
 
@@ -46,7 +42,7 @@ _VOLTAGE_REMOTE = 0x0010 | 0x0200
 _FALSE = np.zeros(1 << 16, bool)
 
 
-def statusword(eng: DriveEngine, r: Rows, state: I64, mode: I64, cw: I64, fe: F64, v_act: F64,
+def statusword(eng: DriveArrays, r: Rows, state: I64, mode: I64, cw: I64, fe: F64, v_act: F64,
                dt: F64) -> None:
     col, f = eng.col, eng.field
     sw = _STATE_BITS[state] | _VOLTAGE_REMOTE
