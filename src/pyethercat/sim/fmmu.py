@@ -173,6 +173,8 @@ def _chunks(sizes: I64) -> list[I64]:
     (the arrays that expand them stay small whatever the FMMUs)."""
     if not len(sizes):
         return []
+    if int(sizes.sum()) <= _CHUNK:
+        return [np.arange(len(sizes), dtype=np.int64)]
     group = (np.cumsum(sizes) - sizes) // _CHUNK
     cuts = np.nonzero(np.diff(group))[0] + 1
     return np.split(np.arange(len(sizes), dtype=np.int64), cuts)
@@ -180,7 +182,7 @@ def _chunks(sizes: I64) -> list[I64]:
 
 def _bit_mask(a: I64, b: I64) -> I64:
     """Per byte: the bits k with a <= k < b (both clipped to 0..8)."""
-    return (1 << np.clip(b, 0, 8)) - (1 << np.clip(a, 0, 8))
+    return (1 << np.minimum(np.maximum(b, 0), 8)) - (1 << np.minimum(np.maximum(a, 0), 8))
 
 
 def _lookup(keys: I64, values: I64, q: I64) -> I64:
@@ -261,25 +263,30 @@ class _Moves:
     __slots__ = ("whole_src", "whole_dst", "whole_view", "lo", "hi", "shift", "mask", "layers",
                  "dst", "keep")
 
+    _EMPTY_U8: U8 = np.zeros(0, np.uint8)
+
     def __init__(self, side: _Side, idx: I64) -> None:
-        dst, mask, shift = side.dst[idx], side.mask[idx], side.shift[idx]
-        starts, run = _runs(dst)
-        count = np.diff(np.append(starts, len(idx)))
-        whole = (count[run] == 1) & (mask == 0xFF) & (shift == 0)
         # (Slices where the indices are one run: the usual image is a copy, not a gather.)
         self.whole_src: I64 | slice | None = None
         self.whole_dst: I64 | slice | None = None
-        if whole.any():
-            self.whole_src, self.whole_dst = _run(side.lo[idx[whole]]), _run(dst[whole])
-        self.whole_view = isinstance(self.whole_src, slice)
+        self.whole_view = False
         self.lo: I64 | None = None
         self.hi: I64 | None = None
         self.shift: npt.NDArray[np.uint16] = np.zeros(0, np.uint16)
-        self.mask: U8 = np.zeros(0, np.uint8)
+        self.mask: U8 = self._EMPTY_U8
         #: Entries past the first of their destination: (start, end, destination numbers).
         self.layers: list[tuple[int, int, I64]] = []
         self.dst: I64 = _EMPTY
-        self.keep: U8 = np.zeros(0, np.uint8)
+        self.keep: U8 = self._EMPTY_U8
+        dst, mask, shift = side.dst[idx], side.mask[idx], side.shift[idx]
+        if bool((mask == 0xFF).all()) and not shift.any() and bool((dst[1:] != dst[:-1]).all()):
+            self._whole(side.lo[idx], dst)  # the usual byte-aligned image: nothing to merge
+            return
+        starts, run = _runs(dst)
+        count = np.append(starts[1:], len(idx)) - starts
+        whole = (count[run] == 1) & (mask == 0xFF) & (shift == 0)
+        if whole.any():
+            self._whole(side.lo[idx[whole]], dst[whole])
         rest = np.nonzero(~whole)[0]
         if not len(rest):
             return
@@ -301,6 +308,10 @@ class _Moves:
         self.lo, self.shift, self.mask = side.lo[sel], side.shift[sel].astype(np.uint16), eff[order].astype(np.uint8)
         # (No second source byte when every entry takes its bits from one byte.)
         self.hi = side.hi[sel] if self.shift.any() else None
+
+    def _whole(self, src: I64, dst: I64) -> None:
+        self.whole_src, self.whole_dst = _run(src), _run(dst)
+        self.whole_view = isinstance(self.whole_src, slice)
 
     def merged(self, src: U8) -> U8:
         """The merged bits of each destination of the bit entries, from source ``src``."""
@@ -593,8 +604,8 @@ class LogicalMap:
             # Physical byte p bit i is window bit 8 * p - k + i: bits of window bytes a, a + 1.
             src = 8 * p[keep] - kk[keep]
             a = src >> 3
-            parts.append(_Side(p[keep] + slave[keep] * self._stride, np.clip(a, 0, n - 1),
-                               np.clip(a + 1, 0, n - 1), (src & 7).astype(np.uint8),
+            parts.append(_Side(p[keep] + slave[keep] * self._stride, np.minimum(np.maximum(a, 0), n - 1),
+                               np.minimum(a + 1, n - 1), (src & 7).astype(np.uint8),
                                mask[keep].astype(np.uint8), pos[keep].astype(np.int32)))
             if len(self._done_key):
                 dones.append(slave[keep][np.isin(key[keep], self._done_key)])
@@ -647,6 +658,11 @@ class LogicalMap:
             plan.and_val = (~hit).astype(np.uint8)
 
 
+#: Stacked mask tables by the masks they stack (the masks are kept alive with them, so an
+#: id stays theirs); chips of one profile share their masks, so a segment needs few.
+_TABLES: dict[tuple[int, ...], tuple[tuple[npt.NDArray[np.bool_], ...], npt.NDArray[np.bool_]]] = {}
+
+
 def _mask_table(masks: list[npt.NDArray[np.bool_]], slaves: list[int]) -> tuple[npt.NDArray[np.bool_], I64]:
     """The distinct masks of ``slaves`` stacked, and per slave index its row (0 elsewhere)."""
     rows: dict[int, int] = {}
@@ -659,8 +675,15 @@ def _mask_table(masks: list[npt.NDArray[np.bool_]], slaves: list[int]) -> tuple[
             r = rows[id(m)] = len(stack)
             stack.append(m)
         row[s] = r
-    table = np.stack(stack) if stack else np.zeros((1, _AS), bool)
-    return table, row
+    if not stack:
+        return np.zeros((1, _AS), bool), row
+    key = tuple(id(m) for m in stack)
+    hit = _TABLES.get(key)
+    if hit is None:
+        if len(_TABLES) >= 64:
+            _TABLES.clear()
+        hit = _TABLES[key] = (tuple(stack), np.stack(stack))
+    return hit[1], row
 
 
 def _split(pos: I32, idx: I64, cuts: list[int]) -> list[I64]:
@@ -712,6 +735,6 @@ def _stage_starts(r_dst: I64, r_pos: I32, ws: _Side) -> list[int]:
 def _run(rel: I64) -> I64 | slice:
     """``rel`` as a slice when it is consecutive offsets, else itself."""
     first = int(rel[0])
-    if int(rel[-1]) - first == len(rel) - 1 and bool((np.diff(rel) == 1).all()):
+    if int(rel[-1]) - first == len(rel) - 1 and bool((rel[1:] - rel[:-1] == 1).all()):
         return slice(first, first + len(rel))
     return rel
