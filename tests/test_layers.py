@@ -143,6 +143,8 @@ ALLOWED = {
     "wire": {"errors"},
     "esi": {"errors", "wire"},
     "clock": set(),
+    # The package's version string.
+    "version": set(),
     # Real-time settings of a process (SCHED_FIFO, affinity, mlockall).
     "realtime": set(),
     # The topology file format (text in, typed entries out), read by both sides.
@@ -150,7 +152,8 @@ ALLOWED = {
     # Motion profiles (numpy only), sampled for the master's drive helper and for users.
     "trajectory": {"errors"},
     "link": {"errors", "wire"},
-    "master": {"errors", "wire", "esi", "link", "clock", "topology", "trajectory", "realtime"},
+    "master": {"errors", "wire", "esi", "link", "clock", "topology", "trajectory", "realtime",
+               "version"},
     "sim": {"errors", "wire", "esi", "link", "clock", "topology", "realtime"},
     # The dashboard: a client of the master (never of the simulator or the command line).
     "web": {"errors", "wire", "esi", "link", "clock", "master"},

@@ -44,13 +44,12 @@ from typing import TYPE_CHECKING, Any
 from pyethercat import errors
 from pyethercat.errors import EtherCATError
 
-__version__ = "0.1.0"
-
 if TYPE_CHECKING:
     from pyethercat.master.master import Master
     from pyethercat.master.slave import Slave
     from pyethercat.sim.segment import Segment
     from pyethercat.sim.topology import load_topology
+    from pyethercat.version import __version__
     from pyethercat.wire.al import AlState
 
 __all__ = [
@@ -71,6 +70,7 @@ _HOME = {
     "AlState": "pyethercat.wire.al",
     "Segment": "pyethercat.sim.segment",
     "load_topology": "pyethercat.sim.topology",
+    "__version__": "pyethercat.version",
 }
 
 

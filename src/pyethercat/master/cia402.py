@@ -44,7 +44,7 @@ import threading
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -64,12 +64,13 @@ from pyethercat.wire.mailbox.objects import Cia402Object, StandardObject
 
 if TYPE_CHECKING:
     from pyethercat.master.coe import EmergencyEvent
+    from pyethercat.master.config import ProcessDataConfig
     from pyethercat.master.cyclic import Cycle, CyclicRunner
-    from pyethercat.master.master import Master
+    from pyethercat.master.mailboxes import MailboxService
     from pyethercat.master.slave import Slave
 
 __all__ = ["Drive", "DriveEmergency", "DriveErrorRecord", "DriveEvent", "DriveFault", "DriveGroup",
-           "MotionRecord", "read_error_history"]
+           "DriveMaster", "MotionRecord", "read_error_history"]
 
 I64 = npt.NDArray[np.int64]
 F64 = npt.NDArray[np.float64]
@@ -251,6 +252,22 @@ class _Handshakes:
         self.hm[i] = _FAILED if self.hm[i] == _SEND else self.hm[i]
 
 
+class DriveMaster(Protocol):
+    """What a drive group needs of a master (:class:`~pyethercat.master.master.Master` is one)."""
+
+    slaves: list[Slave]
+    mailboxes: MailboxService
+
+    @property
+    def process_data(self) -> ProcessDataConfig | None: ...
+    @property
+    def images(self) -> dict[str, ProcessImage]: ...
+    @property
+    def runner(self) -> CyclicRunner | None: ...
+    def poll_mailboxes(self) -> int: ...
+    def on_emergency(self, callback: Callable[[EmergencyEvent], None]) -> None: ...
+
+
 class DriveGroup:
     """CiA 402 drives of one master, driven together (see the module docstring).
 
@@ -260,7 +277,7 @@ class DriveGroup:
     (one built by hand, e.g. on virtual time).
     """
 
-    def __init__(self, master: Master, positions: Sequence[int] | None = None, *,
+    def __init__(self, master: DriveMaster, positions: Sequence[int] | None = None, *,
                  runner: CyclicRunner | None = None) -> None:
         self.master = master
         #: The runner to step (default: the master's, :meth:`Master.start`).
@@ -765,7 +782,7 @@ class DriveGroup:
 class Drive:
     """One drive of a :class:`DriveGroup` (or of its own group of one)."""
 
-    def __init__(self, group: DriveGroup | Master, index: int = 0) -> None:
+    def __init__(self, group: DriveGroup | DriveMaster, index: int = 0) -> None:
         if not isinstance(group, DriveGroup):
             group = DriveGroup(group, [index])
             index = 0

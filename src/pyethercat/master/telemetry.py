@@ -50,13 +50,15 @@ from pyethercat.wire.datagram import Command, Datagram
 from pyethercat.wire.dc import decode_time_difference
 
 if TYPE_CHECKING:
+    from pyethercat.master.clocks import DistributedClocks
     from pyethercat.master.coe import EmergencyEvent
-    from pyethercat.master.master import Master
+    from pyethercat.master.ring import RingService
+    from pyethercat.master.slave import Slave
 
 __all__ = [
     "CycleTelemetry", "GroupTelemetry", "SlaveTelemetry", "DcSlaveTelemetry", "DcTelemetry",
-    "TelemetryEvent", "TelemetrySnapshot", "Telemetry", "RunnerView", "MAX_RATE", "FoeFile",
-    "telemetry_of",
+    "TelemetryEvent", "TelemetrySnapshot", "Telemetry", "TelemetryMaster", "RunnerView",
+    "MAX_RATE", "FoeFile", "telemetry_of",
 ]
 
 #: Snapshots per second at most (the dashboard refreshes at 20 Hz).
@@ -280,10 +282,25 @@ class _Reading:
     ring_state: str = ""
 
 
+class TelemetryMaster(Protocol):
+    """What the telemetry reads of a master (:class:`~pyethercat.master.master.Master` is one).
+
+    Also ``runner`` when it has one (the cyclic runner, :class:`RunnerView`).
+    """
+
+    slaves: list[Slave]
+    ring: RingService
+    dc: DistributedClocks
+
+    def transact(self, datagrams: Sequence[Datagram]) -> list[Datagram]: ...
+    def poll_mailboxes(self) -> int: ...
+    def on_emergency(self, callback: Callable[[EmergencyEvent], None]) -> None: ...
+
+
 class Telemetry:
     """Reads a master for observers at a bounded rate (see the module text)."""
 
-    def __init__(self, master: Master, *, max_rate: float = MAX_RATE,
+    def __init__(self, master: TelemetryMaster, *, max_rate: float = MAX_RATE,
                  register_rate: float = REGISTER_RATE,
                  clock: Callable[[], float] = time.monotonic) -> None:
         self.master = master
@@ -580,11 +597,11 @@ def _groups(runner: RunnerView | None) -> list[GroupTelemetry]:
             for g in runner.groups]
 
 
-_BY_MASTER: weakref.WeakKeyDictionary[Master, Telemetry] = weakref.WeakKeyDictionary()
+_BY_MASTER: weakref.WeakKeyDictionary[TelemetryMaster, Telemetry] = weakref.WeakKeyDictionary()
 _REGISTRY_LOCK = threading.Lock()
 
 
-def telemetry_of(master: Master) -> Telemetry:
+def telemetry_of(master: TelemetryMaster) -> Telemetry:
     """The one :class:`Telemetry` of ``master`` (made on first use)."""
     with _REGISTRY_LOCK:
         t = _BY_MASTER.get(master)

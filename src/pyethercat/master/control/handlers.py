@@ -18,34 +18,37 @@ import os
 import struct
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TypeVar
+from typing import Any, Protocol, TypeVar
 
 from pyethercat.errors import ConfigError, EtherCATError, SdoAbort
 from pyethercat.errors import TimeoutError as EcTimeoutError
 from pyethercat.master import diag
-from pyethercat.master.bootstrap import bootstrap_update, foe_client
-from pyethercat.master.coe import CoeClient
+from pyethercat.master.bootstrap import BootMaster, bootstrap_update, foe_client
+from pyethercat.master.cia402 import DriveMaster
+from pyethercat.master.coe import CoeClient, StartupCommand
+from pyethercat.master.config import ProcessDataConfig
 from pyethercat.master.control import messages as msg
 from pyethercat.master.control.protocol import PROTOCOL_VERSION, Request
 from pyethercat.master.control.snapshot import snapshot
 from pyethercat.master.cyclic import CyclicRunner
+from pyethercat.master.hotswap import HotSwap
 from pyethercat.master.listing import alias_positions
+from pyethercat.master.process import ProcessData
 from pyethercat.master.scan import Progress
 from pyethercat.master.sii_write import SiiWriteReport
 from pyethercat.master.slave import Slave
 from pyethercat.master.soe import SoeClient
-from pyethercat.master.telemetry import telemetry_of
+from pyethercat.master.states import AlStatusReading
+from pyethercat.master.telemetry import TelemetryMaster, telemetry_of
+from pyethercat.version import __version__
 from pyethercat.wire.al import AlState
 from pyethercat.wire.datagram import MAX_PAYLOAD, OVERHEAD, Command, Datagram
 from pyethercat.wire.mailbox.datatypes import DataType
 from pyethercat.wire.registers import RX_ERROR_COUNTER, STATION_ALIAS, FmmuType
 
-if TYPE_CHECKING:
-    from pyethercat.master.master import Master
-
-__all__ = ["MasterContext", "handler", "dispatch"]
+__all__ = ["MasterContext", "ServedMaster", "handler", "dispatch"]
 
 Q = TypeVar("Q", bound=Request)
 _HANDLERS: dict[type[Request], Callable[[MasterContext, Any], Any]] = {}
@@ -53,6 +56,42 @@ _HANDLERS: dict[type[Request], Callable[[MasterContext, Any], Any]] = {}
 _SDO_LIST_TIMEOUTS = 3
 #: Rate windows of ``master`` (seconds), as IgH's 10 s / 1 min / 5 min.
 RATE_WINDOWS = (10.0, 60.0, 300.0)
+
+
+class ServedMaster(TelemetryMaster, DriveMaster, BootMaster, Protocol):
+    """What the control socket's handlers use of a master
+    (:class:`~pyethercat.master.master.Master` is one; the handlers pass it on to the
+    telemetry, drive groups and the bootstrap update, hence the bases).
+
+    A protocol rather than the class, so that the control layer does not import
+    ``master.master``, which starts the control server.
+    """
+
+    pd: ProcessData
+    hotswap: HotSwap
+    topology_consistent: bool
+
+    @property
+    def startup_commands(self) -> list[StartupCommand]: ...
+    def scan(self, *, progress: Progress | None = ..., reset: bool = ...) -> list[Slave]: ...
+    def count_slaves(self) -> int: ...
+    def set_state(self, state: AlState | int | str, slaves: Sequence[Slave | int] | None = ...,
+                  timeout: float = ..., *, configure: bool = ..., wait: bool = ...) -> None: ...
+    def read_states(self, slaves: Sequence[Slave | int] | None = ...
+                    ) -> list[AlStatusReading]: ...
+    def acknowledge_errors(self, slaves: Sequence[Slave | int] | None = ...) -> list[Slave]: ...
+    def read(self, slave: Slave | int, address: int, size: int) -> bytes: ...
+    def read_u16(self, slave: Slave | int, address: int) -> int: ...
+    def write(self, slave: Slave | int, address: int, data: bytes) -> None: ...
+    def read_many(self, address: int, size: int, slaves: Sequence[Slave | int] | None = ...
+                  ) -> list[diag.MultiReadResult]: ...
+    def clear_error_counters(self, slaves: Sequence[Slave | int] | None = ...) -> None: ...
+    def sii_read(self, slave: Slave | int) -> bytes: ...
+    def sii_write(self, slave: Slave | int, image: bytes, *, only_changed: bool = ...,
+                  force: bool = ..., backup: Path | None = ...) -> SiiWriteReport: ...
+    def set_alias(self, slave: Slave | int, alias: int, *, backup: Path | None = ...,
+                  force: bool = ...) -> SiiWriteReport: ...
+    def configure(self) -> ProcessDataConfig: ...
 
 
 class MasterContext:
@@ -63,7 +102,7 @@ class MasterContext:
     scan is used as it is.
     """
 
-    def __init__(self, master: Master, link: str, *, direct: bool = False,
+    def __init__(self, master: ServedMaster, link: str, *, direct: bool = False,
                  progress: Progress | None = None) -> None:
         self.master = master
         self.link = link
@@ -202,8 +241,6 @@ def dispatch(ctx: MasterContext, req: Request) -> Any:
 
 @handler(msg.Hello)
 def _hello(ctx: MasterContext, req: msg.Hello) -> msg.HelloReply:
-    from pyethercat import __version__
-
     return msg.HelloReply(__version__, PROTOCOL_VERSION, os.getpid(), ctx.link,
                           len(ctx.master.slaves), ctx.runner is not None, ctx.started)
 

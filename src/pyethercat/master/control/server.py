@@ -15,7 +15,6 @@ import socket
 import struct
 import threading
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from pyethercat.errors import ConfigError
 from pyethercat.master.control import handlers
@@ -27,9 +26,6 @@ from pyethercat.master.control.protocol import (
     encode_error,
     encode_reply,
 )
-
-if TYPE_CHECKING:
-    from pyethercat.master.master import Master
 
 __all__ = ["ControlServer", "MasterRunningError", "serve", "HANDLER_MODULES"]
 
@@ -176,7 +172,7 @@ class ControlServer:
             conn.close()
 
 
-def serve(master: Master, link: str, *, path: Path | None = None) -> ControlServer:
+def serve(master: handlers.ServedMaster, link: str, *, path: Path | None = None) -> ControlServer:
     """Start serving ``master`` (on link ``link``, e.g. ``raw:eth0``) on its control socket."""
     ctx = handlers.MasterContext(master, link)
     return ControlServer(ctx, path if path is not None else endpoint_path(link)).start()
