@@ -29,9 +29,9 @@ of one kind). The last output line is one JSON object of the figures.
 
 from __future__ import annotations
 
+import argparse
 import json
 import statistics
-import sys
 import time
 from typing import Any
 
@@ -172,8 +172,11 @@ class Rig:
 
 
 def main() -> int:
-    cycles = int(sys.argv[1]) if len(sys.argv) > 1 else 300
-    rounds = int(sys.argv[2]) if len(sys.argv) > 2 else 5
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("cycles", nargs="?", type=int, default=300, help="cycles per round")
+    ap.add_argument("rounds", nargs="?", type=int, default=5, help="rounds per case")
+    args = ap.parse_args()
+    cycles, rounds = args.cycles, args.rounds
     sizes = (1, 10, 100)
     cases = [(n, idle) for idle in (True, False) for n in sizes]
     rigs = {c: Rig(*c) for c in cases}
