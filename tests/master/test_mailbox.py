@@ -134,12 +134,12 @@ def test_duplicate_counter_dropped_and_handlers_first() -> None:
     box = s.mbx
     assert box is not None
     raw = encode_mailbox(MailboxType.VOE, b"abcdefgh", counter=3, size=box.tx_size)
-    box._deliver(raw)
-    box._deliver(raw)  # same counter: a repetition
+    box.inbox.deliver(raw)
+    box.inbox.deliver(raw)  # same counter: a repetition
     assert box.stats.duplicates == 1
     taken: list[ReceivedMessage] = []
     box.add_handler(lambda _b, msg: taken.append(msg) or True)
-    box._deliver(encode_mailbox(MailboxType.VOE, b"12345678", counter=4, size=box.tx_size))
+    box.inbox.deliver(encode_mailbox(MailboxType.VOE, b"12345678", counter=4, size=box.tx_size))
     assert [t.payload for t in taken] == [b"12345678"]
     assert [p.payload for p in box.pending()] == [b"abcdefgh"]
 
@@ -151,7 +151,7 @@ def test_lying_length_is_an_error() -> None:
     bad = bytearray(box.tx_size)
     struct.pack_into("<HHBB", bad, 0, box.tx_size, 0, 0, 0x13)
     with pytest.raises(MailboxError, match="exceeds"):
-        box._deliver(bytes(bad))
+        box.inbox.deliver(bytes(bad))
 
 
 def test_message_too_large_for_sm0() -> None:
@@ -334,4 +334,4 @@ def test_segmented_both_ways_with_small_and_large_mailboxes(size: int) -> None:
     s.sdo_write(0x2001, 0, data)
     assert s.sdo_read(0x2001) == data
     assert s.mbx is not None and s.mbx.stats.early_replies == s.mbx.stats.received
-    assert (s.mbx._template is None) == (size == 800)
+    assert (s.mbx.frame.template is None) == (size == 800)

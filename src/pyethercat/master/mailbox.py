@@ -61,39 +61,42 @@ Transactions to different slaves run concurrently: each mailbox has its own
 lock (protocol clients hold ``Mailbox.lock`` for a whole transfer, such as a
 segmented SDO upload), and no global lock is held while waiting; the
 scheduler packs the datagrams of concurrent transactions into shared frames.
+
+The mailbox keeps the counters, the take-over rule, polling and the repeat
+request; two parts do the rest: :class:`~pyethercat.master.mailbox_inbox.MailboxInbox`
+(``Mailbox.inbox``: the check, the handlers and the queue of what SM1 brought)
+and :class:`~pyethercat.master.mailbox_frame.MailboxFrame` (``Mailbox.frame``:
+the prepared ``[SM0 write, SM1 read]`` frame, the hot path of every step).
 """
 
 from __future__ import annotations
 
 import logging
 import queue
-import struct
 import threading
-from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
 from pyethercat.errors import (
     EtherCATError,
-    FrameError,
-    FrameTooLargeError,
     MailboxError,
     MailboxErrorReply,
     WorkingCounterError,
 )
 from pyethercat.errors import TimeoutError as EcTimeoutError
-from pyethercat.master.scheduler import CyclicTemplate, Request, Scheduler
+from pyethercat.master.mailbox_frame import MAILBOX_HEADER, MailboxFrame
+from pyethercat.master.mailbox_inbox import (
+    Accept,
+    MailboxInbox,
+    MailboxStats,
+    ReceivedMessage,
+    named_error,
+)
+from pyethercat.master.scheduler import Scheduler
 from pyethercat.wire import registers as reg
 from pyethercat.wire.datagram import Command, Datagram
-from pyethercat.wire.mailbox.header import (
-    MAILBOX_HEADER_SIZE,
-    MailboxHeader,
-    MailboxType,
-    decode_mailbox_error,
-    is_repeated_counter,
-    next_counter,
-)
+from pyethercat.wire.mailbox.header import MAILBOX_HEADER_SIZE, MailboxType, next_counter
 
 __all__ = [
     "DEFAULT_MAILBOX_TIMEOUT",
@@ -109,7 +112,6 @@ __all__ = [
 ]
 
 _log = logging.getLogger("pyethercat.mailbox")
-_HEADER = struct.Struct("<HHBB")
 
 #: Seconds a mailbox transaction may take by default (SOEM uses 0.7 s, IgH 1 s).
 DEFAULT_MAILBOX_TIMEOUT = 1.0
@@ -157,56 +159,12 @@ class ClientContext:
     report: Callable[[Any], None]
 
 
-@dataclass(frozen=True, slots=True)
-class ReceivedMessage:
-    """A message read from SM1: its header and payload (exactly ``header.length`` bytes).
-
-    ``after`` holds the first bytes of SM1 behind the payload: a client may
-    look there when a slave's length word came out short (see ``CoeClient``).
-    """
-
-    header: MailboxHeader
-    payload: bytes
-    after: bytes = b""
-
-    @property
-    def type(self) -> MailboxType | int:
-        return self.header.type
-
-
 #: Called with every message read from a slave; returns True when it took the message.
 UnsolicitedHandler = Callable[["Mailbox", ReceivedMessage], bool]
-#: Decides whether a message answers the transaction in progress.
-Accept = Callable[[ReceivedMessage], bool]
 #: SM1 status byte from the cyclic image, read by a cycle that began after the call,
 #: waiting up to the given seconds (0: the last one read, no waiting). None: no cyclic
 #: exchange carries it now (or not in time, or its working counter was off): poll.
 StatusSource = Callable[[float], int | None]
-
-
-@dataclass
-class MailboxStats:
-    """Counters of one mailbox (monotonic)."""
-
-    sent: int = 0
-    received: int = 0
-    #: SM0 writes refused because the slave had not read the previous message yet.
-    write_refused: int = 0
-    status_polls: int = 0
-    #: Status bytes taken from the cyclic process image instead of a poll frame.
-    cyclic_status: int = 0
-    fetches: int = 0
-    #: Speculative SM1 reads that found the answer already there.
-    early_replies: int = 0
-    repeat_requests: int = 0
-    #: Requests sent again with the next counter after getting no answer.
-    resent: int = 0
-    #: Replies dropped because they answered an earlier request (late or stale).
-    stale: int = 0
-    #: Messages dropped because they repeated the previous counter.
-    duplicates: int = 0
-    error_replies: int = 0
-    unsolicited: int = 0
 
 
 class MailboxPoller:
@@ -302,14 +260,7 @@ class Mailbox:
         self._sleep = scheduler.sleep if sleep is None else sleep
         #: Held by a protocol client for a whole transaction (re-entrant).
         self.lock = threading.RLock()
-        # Serialises fetches and inbox access between threads.
-        self._io = threading.RLock()
         self._counter = 0
-        self._last_in = 0
-        self._inbox: deque[ReceivedMessage | MailboxErrorReply] = deque(maxlen=64)
-        self._handlers: list[UnsolicitedHandler] = []
-        # A fetch may have emptied SM1 without its reply reaching us.
-        self._lost = False
         # Whether SM1 was emptied of what an earlier session left there.
         self._drained = False
         # Whether an answer came since the master took the mailbox over: the
@@ -318,17 +269,13 @@ class Mailbox:
         #: SM1's status byte from the cyclic process image (None: poll with frames).
         self.status_source: StatusSource | None = None
         self.stats = MailboxStats()
-        # Address fields of SM0 and SM1 and the SM1 read, made once (hot path).
-        self._rx_address = (station & 0xFFFF) | ((rx_offset & 0xFFFF) << 16)
-        self._read = Datagram.device(Command.FPRD, station, tx_offset, tx_size)
-        # Snapshot of the handlers (replaced, never changed in place, so no copy per message).
-        self._handler_list: tuple[UnsolicitedHandler, ...] = ()
-        # The prepared [SM0 write, SM1 read] frame and the lock of its bytes.
-        self._template: CyclicTemplate | None = None
-        self._no_template = False
-        self._tx = threading.Lock()
-        # Payload bytes of the message last written into the template (the rest is zero).
-        self._tail = 0
+        #: What SM1 brought: checks, handlers, the queue (``master.mailbox_inbox``).
+        self.inbox: MailboxInbox[Mailbox] = MailboxInbox(self, label, tx_sm, self.stats)
+        #: The prepared [SM0 write, SM1 read] frame (``master.mailbox_frame``).
+        self.frame = MailboxFrame(scheduler, self.inbox, station, rx_offset=rx_offset,
+                                  rx_size=rx_size, tx_offset=tx_offset, tx_size=tx_size)
+        # The SM1 read, one object for every read (the scheduler copies it into each frame).
+        self._read = self.frame.read
 
     # -- addresses -------------------------------------------------------------------
 
@@ -354,21 +301,19 @@ class Mailbox:
 
     def add_handler(self, handler: UnsolicitedHandler) -> None:
         """Offer every message read from the slave to ``handler`` first (emergencies)."""
-        self._handlers.append(handler)
-        self._handler_list = tuple(self._handlers)
+        self.inbox.add_handler(handler)
 
     def remove_handler(self, handler: UnsolicitedHandler) -> None:
-        if handler in self._handlers:
-            self._handlers.remove(handler)
-        self._handler_list = tuple(self._handlers)
+        self.inbox.remove_handler(handler)
 
     def reset(self) -> None:
         """Forget counters and queued messages (after the slave went back to INIT)."""
-        with self._io:
+        inbox = self.inbox
+        with inbox.lock:
             self._counter = 0
-            self._last_in = 0
-            self._inbox.clear()
-            self._lost = False
+            inbox.last_in = 0
+            inbox.clear()
+            inbox.lost = False
             self._drained = False
             self.synced = False
 
@@ -382,10 +327,10 @@ class Mailbox:
         for _ in range(limit):
             if not self.fetch():
                 break
-        with self._io:
-            dropped = sum(1 for m in self._inbox)
-            self._inbox.clear()
-            self._lost = False
+        inbox = self.inbox
+        with inbox.lock:
+            dropped = inbox.clear()
+            inbox.lost = False
             self._drained = True
             self.synced = False
         if dropped:
@@ -428,15 +373,17 @@ class Mailbox:
         kind = (int(mtype) & 0x0F) | (cnt << 4)
         limit = self.clock() + (self.timeout if timeout is None else timeout)
         waited = 0.0
-        template = self._prepared() if fetch else None
+        prepared = self.frame
+        template = prepared.prepared() if fetch else None
         write = None
         if template is None:
-            frame = (_HEADER.pack(len(payload), 0, 0, kind) + payload).ljust(self.rx_size, b"\x00")
-            write = Datagram(Command.FPWR, 0, self._rx_address, frame)
+            frame = (MAILBOX_HEADER.pack(len(payload), 0, 0, kind) + payload
+                     ).ljust(self.rx_size, b"\x00")
+            write = Datagram(Command.FPWR, 0, prepared.rx_address, frame)
         taken = None
         while True:
             if template is not None:
-                wkc, taken = self._write_and_read(template, payload, kind, what, take)
+                wkc, taken = prepared.write_and_read(template, payload, kind, what, take)
             else:
                 assert write is not None
                 dgs = [write, self._read] if fetch else [write]
@@ -444,9 +391,9 @@ class Mailbox:
                 self.scheduler.wait(reqs)
                 sent = reqs[0]
                 if fetch:
-                    self._take_read(reqs[1], early=True)
+                    self.inbox.take_read(reqs[1], early=True)
                 if sent.error is not None:
-                    raise _named(sent.error, f"{self.label}: sending {what}")
+                    raise named_error(sent.error, f"{self.label}: sending {what}")
                 assert sent.reply is not None
                 wkc = sent.reply.wkc
             if wkc == 1:
@@ -476,12 +423,13 @@ class Mailbox:
         span = self.timeout if timeout is None else timeout
         limit = self.clock() + span
         waited = 0.0
+        inbox = self.inbox
         while True:
-            got = self._from_inbox(accept, what, stale)
+            got = inbox.take(accept, what, stale)
             if got is not None:
                 return got
-            if self._lost:
-                self._lost = False
+            if inbox.lost:
+                inbox.lost = False
                 self.repeat_request(limit)
                 continue
             now = self.clock()
@@ -489,9 +437,9 @@ class Mailbox:
                 raise EcTimeoutError(f"{self.label}: no {what} within {span:.3g} s")
             status, cyclic = self._status(limit - now)
             if status is not None and status & reg.SM_STATUS_MAILBOX_FULL:
-                if not self.fetch() and not self._lost:
+                if not self.fetch() and not inbox.lost:
                     # Full a moment ago, empty now: somebody's read got it and lost it.
-                    self._lost = True
+                    inbox.lost = True
                 waited = 0.0
                 continue
             if not cyclic:  # (waiting for the cycle was the pause)
@@ -555,16 +503,16 @@ class Mailbox:
 
     def fetch(self) -> bool:
         """Read SM1 once; True when a message came (it is dispatched or queued)."""
-        req = self.scheduler.submit([self._read_datagram()])[0]
+        req = self.scheduler.submit([self._read])[0]
         self.scheduler.wait([req])
         self.stats.fetches += 1
-        return self._take_read(req)
+        return self.inbox.take_read(req)
 
     def deliver(self, raw: bytes) -> None:
         """Dispatch an SM1 image read by someone else (the EoE service's own reads):
         duplicate check, error replies, handlers, inbox, as a fetch does."""
         self.stats.fetches += 1
-        self._deliver(raw)
+        self.inbox.deliver(raw)
 
     def poll(self) -> bool:
         """Fetch whatever the slave posted, without waiting; True when something came.
@@ -588,18 +536,11 @@ class Mailbox:
 
     def drop(self, accept: Accept) -> int:
         """Throw away queued messages ``accept`` takes (late answers); returns how many."""
-        with self._io:
-            stale = [m for m in self._inbox if isinstance(m, ReceivedMessage) and accept(m)]
-            for m in stale:
-                self._inbox.remove(m)
-            return len(stale)
+        return self.inbox.drop(accept)
 
     def pending(self) -> list[ReceivedMessage]:
         """Take every queued message (those no transaction asked for)."""
-        with self._io:
-            out = [m for m in self._inbox if isinstance(m, ReceivedMessage)]
-            self._inbox.clear()
-            return out
+        return self.inbox.pending()
 
     # -- repeat ---------------------------------------------------------------------------
 
@@ -634,78 +575,6 @@ class Mailbox:
 
     # -- internals --------------------------------------------------------------------------
 
-    def _prepared(self) -> CyclicTemplate | None:
-        """The frame [FPWR SM0, FPRD SM1], encoded once (None: the two do not fit a frame)."""
-        template = self._template
-        if template is None and not self._no_template:
-            try:
-                template = self.scheduler.prepare_cyclic(
-                    [Datagram(Command.FPWR, 0, self._rx_address, bytes(self.rx_size)),
-                     self._read])
-            except FrameTooLargeError:
-                self._no_template = True
-                return None
-            self._template = template
-        return template
-
-    def _write_and_read(self, template: CyclicTemplate, payload: bytes, kind: int,
-                        what: str, take: Accept | None = None,
-                        ) -> tuple[int, ReceivedMessage | None]:
-        """Send the SM0 write and the speculative SM1 read as one prepared frame.
-
-        The hot path of every transaction step: header and payload go into
-        the template in place (the bytes behind a shorter message than the
-        last are zeroed: the whole SM length is written), only the frame index
-        is patched, the reply is read at known offsets (no datagram objects,
-        no frame decode). A lost
-        frame is sent again (the repeated write carries the same counter, so
-        a slave that got the first one drops it); when an attempt may have
-        emptied SM1 on its lost way back, a repeat request follows. Returns
-        the write's working counter, and the message read when ``take``
-        accepts it as the answer (only when the write was taken).
-        """
-        sched = self.scheduler
-        at = template.data_offsets[0]
-        attempts = 0
-        n = len(payload)
-        body = at + MAILBOX_HEADER_SIZE
-        while True:
-            attempts += 1
-            with self._tx:
-                buf = template.frame
-                _HEADER.pack_into(buf, at, n, 0, 0, kind)
-                buf[body:body + n] = payload
-                tail = self._tail
-                if tail > n:
-                    buf[body + n:body + tail] = bytes(tail - n)
-                self._tail = n
-                ticket = sched.send_prepared(template)
-            raw = ticket.wait_raw()
-            if raw is not None:
-                break
-            if ticket.error is not None:
-                raise _named(ticket.error, f"{self.label}: sending {what}")
-            if attempts > sched.retries:
-                self._lost = True
-                raise EcTimeoutError(
-                    f"{self.label}: sending {what}: no reply to the mailbox frame (FPWR "
-                    f"0x{self.rx_offset:04X} + FPRD 0x{self.tx_offset:04X}) after {attempts} "
-                    f"attempts on {sched.link.name}")
-        wkc = template.wkc(raw, 0)
-        taken = None
-        if template.wkc(raw, 1) == 1:
-            self.stats.early_replies += 1
-            start = template.data_offsets[1]
-            taken = self._deliver(raw[start:start + self.tx_size], take if wkc == 1 else None)
-        elif attempts > 1:
-            # An earlier attempt may have read (and emptied) SM1; its frame was lost.
-            self._lost = True
-        return wkc, taken
-
-    def _read_datagram(self) -> Datagram:
-        # One object for every SM1 read: the scheduler copies it into each frame.
-        return self._read
-
     def _read_register(self, address: int, size: int, what: str) -> bytes:
         reply = self.scheduler.transact_one(
             Datagram.device(Command.FPRD, self.station, address, size))
@@ -732,86 +601,6 @@ class Mailbox:
         self.stats.status_polls += 1
         return self.poller.status(self), False
 
-    def _take_read(self, req: Request, early: bool = False) -> bool:
-        """Handle a finished SM1 read: deliver the message or note a possible loss."""
-        if req.error is not None:
-            if isinstance(req.error, EcTimeoutError):
-                # One of the attempts may have emptied SM1 on its way.
-                self._lost = True
-                return False
-            raise _named(req.error, f"{self.label}: reading the mailbox")
-        reply = req.reply
-        assert reply is not None
-        if reply.wkc != 1:
-            if req.attempts > 1:
-                # An earlier attempt may have read (and emptied) SM1; its frame was lost.
-                self._lost = True
-            return False
-        if early:
-            self.stats.early_replies += 1
-        self._deliver(bytes(reply.data))
-        return True
-
-    def _deliver(self, raw: bytes, take: Accept | None = None) -> ReceivedMessage | None:
-        """Check and dispatch a message read from SM1; returns it instead of queueing it
-        when ``take`` accepts it and the inbox is empty (older messages go first)."""
-        try:
-            header = MailboxHeader.decode(raw)
-        except MailboxError as exc:
-            raise MailboxError(f"{self.label}: {exc}") from None
-        if header.length > len(raw) - MAILBOX_HEADER_SIZE:
-            raise MailboxError(f"{self.label}: mailbox length {header.length} exceeds the "
-                               f"{len(raw) - MAILBOX_HEADER_SIZE} bytes of SM{self.tx_sm}")
-        with self._io:
-            if is_repeated_counter(self._last_in, header.counter):
-                self.stats.duplicates += 1
-                _log.debug("%s: mailbox counter %d repeated, dropped", self.label,
-                           header.counter)
-                return None
-            self._last_in = header.counter
-            self.stats.received += 1
-            end = MAILBOX_HEADER_SIZE + header.length
-            msg = ReceivedMessage(header, raw[MAILBOX_HEADER_SIZE:end], raw[end:end + 8])
-            if header.type == MailboxType.ERR:
-                self.stats.error_replies += 1
-                try:
-                    err = decode_mailbox_error(msg.payload)
-                except MailboxError as exc:
-                    err = MailboxErrorReply(0, f"malformed error reply ({exc})")
-                self._inbox.append(err)
-                return None
-            for handler in self._handler_list:
-                if handler(self, msg):
-                    self.stats.unsolicited += 1
-                    return None
-            if take is not None and not self._inbox and take(msg):
-                return msg
-            self._inbox.append(msg)
-            return None
-
-    def _from_inbox(self, accept: Accept | None, what: str,
-                    stale: Accept | None = None) -> ReceivedMessage | None:
-        if not self._inbox:
-            return None
-        with self._io:
-            for item in list(self._inbox):
-                if isinstance(item, MailboxErrorReply):
-                    self._inbox.remove(item)
-                    err = MailboxErrorReply(item.code, item.name)
-                    err.args = (f"{self.label}: {err} (answering {what})",)
-                    raise err
-                if accept is None or accept(item):
-                    self._inbox.remove(item)
-                    return item
-                if stale is not None and stale(item):
-                    # A late answer to an earlier request (a slow slave, another
-                    # master's request): not ours, and no error either.
-                    self._inbox.remove(item)
-                    self.stats.stale += 1
-                    _log.debug("%s: stale mailbox message (counter %d) dropped while "
-                               "waiting for the %s", self.label, item.header.counter, what)
-        return None
-
     def __repr__(self) -> str:
         return (f"<Mailbox {self.label} SM{self.rx_sm} 0x{self.rx_offset:04X}+{self.rx_size} "
                 f"SM{self.tx_sm} 0x{self.tx_offset:04X}+{self.tx_size}>")
@@ -819,15 +608,3 @@ class Mailbox:
 
 def _any(msg: ReceivedMessage) -> bool:
     return True
-
-
-def _named(error: EtherCATError, where: str) -> EtherCATError:
-    """An error like ``error`` with ``where`` in front of its message.
-
-    A new object: the scheduler may hand one error to every request of a frame.
-    """
-    if isinstance(error, EcTimeoutError):
-        return EcTimeoutError(f"{where}: {error}")
-    if isinstance(error, FrameError):
-        return FrameError(f"{where}: {error}")
-    return error
