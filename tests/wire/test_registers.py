@@ -5,9 +5,9 @@ from __future__ import annotations
 import pytest
 
 from pyethercat.wire import registers as R
-from pyethercat.wire.registers import Access
+from pyethercat.wire.registers import RegisterAccess
 
-RW, RO = Access.RW, Access.R
+RW, RO = RegisterAccess.RW, RegisterAccess.R
 
 # (address, size, access) as facts sheet section 3 gives them.
 FACTS = [
@@ -37,7 +37,7 @@ FACTS = [
 
 
 @pytest.mark.parametrize(("address", "size", "access"), FACTS, ids=[f"0x{a:04X}" for a, _, _ in FACTS])
-def test_register_as_in_the_facts_sheet(address: int, size: int, access: Access) -> None:
+def test_register_as_in_the_facts_sheet(address: int, size: int, access: RegisterAccess) -> None:
     reg = R.register_at(address)
     assert reg is not None
     assert (reg.size, reg.access) == (size, access), reg.name

@@ -27,7 +27,7 @@ from pyethercat.master.control import messages as msg
 from pyethercat.master.control.client import find_master, probe
 from pyethercat.master.control.endpoint import endpoint_path, link_spec
 from pyethercat.master.control.handlers import MasterContext, dispatch
-from pyethercat.master.control.protocol import ProtocolError, Request, from_json, to_json
+from pyethercat.master.control.protocol import ControlRequest, ProtocolError, from_json, to_json
 from pyethercat.master.control.server import serve
 from pyethercat.master.control.snapshot import rebuild
 from pyethercat.master.master import Master
@@ -86,7 +86,7 @@ class _Context(MasterContext):
 class Session:
     """Requests to the segment's master; ``remote`` tells whether it is a running one."""
 
-    def __init__(self, spec: str, call: Callable[[Request], Any], remote: bool,
+    def __init__(self, spec: str, call: Callable[[ControlRequest], Any], remote: bool,
                  pid: int | None = None, context: MasterContext | None = None) -> None:
         self.spec = spec
         self.remote = remote
@@ -99,7 +99,7 @@ class Session:
         self._slaves: list[Slave] | None = None
         self.consistent = True
 
-    def call(self, req: Request) -> Any:
+    def call(self, req: ControlRequest) -> Any:
         """Send ``req``; returns its typed reply."""
         return self._call(req)
 
@@ -140,7 +140,7 @@ class Session:
         return single(self.aliases(), position, alias, verb)
 
 
-def _round_trip(req: Request, reply: Any) -> Any:
+def _round_trip(req: ControlRequest, reply: Any) -> Any:
     # The in-process path goes through the same encoding as the socket, so a direct
     # command and a command to a running master see identical replies.
     return from_json(req.reply, to_json(reply))
@@ -170,7 +170,7 @@ def open_session(obj: dict[str, Any] | None, *, direct_only: bool = False) -> It
     with connect(obj) as conn:
         ctx = _Context(conn.master, spec, scan_progress)
 
-        def call(req: Request) -> Any:
+        def call(req: ControlRequest) -> Any:
             return _round_trip(req, dispatch(ctx, req))
 
         yield Session(spec, call, False, context=ctx)

@@ -29,14 +29,14 @@ from dataclasses import dataclass
 from pyethercat.errors import EtherCATError, LinkClosedError, LinkError
 from pyethercat.link.base import Link
 
-__all__ = ["PortStats", "RedundantLink"]
+__all__ = ["RedundantPortStats", "RedundantLink"]
 
 #: Blocking waits are cut into slices this long when a port has no descriptor.
 _POLL_SLICE = 0.0002
 
 
 @dataclass
-class PortStats:
+class RedundantPortStats:
     """Frames through one port of a redundant link."""
 
     sent: int = 0
@@ -57,7 +57,7 @@ class RedundantLink(Link):
         self.ports: tuple[Link, Link] = (primary, secondary)
         # Direction known only if both ports know it.
         self.sees_own_frames = primary.sees_own_frames or secondary.sees_own_frames
-        self.stats = (PortStats(), PortStats())
+        self.stats = (RedundantPortStats(), RedundantPortStats())
         self._next = 0  # port polled first (fairness when both have frames)
         #: Why a port has gone for good (None: it works).
         self.gone: list[str | None] = [None, None]

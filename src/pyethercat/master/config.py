@@ -69,7 +69,7 @@ __all__ = [
     "CrossLink",
     "CyclicDatagram",
     "PdoDirection",
-    "FmmuConfig",
+    "FmmuRegisters",
     "GroupConfig",
     "GroupSpec",
     "Layout",
@@ -236,8 +236,8 @@ class SyncManagerConfig:
 
 
 @dataclass
-class FmmuConfig:
-    """Register values of one FMMU (0x0600 + 16 n)."""
+class FmmuRegisters:
+    """Register values of one FMMU (0x0600 + 16 n), as the master writes them."""
 
     index: int
     logical_start: int
@@ -307,7 +307,7 @@ class SlaveConfig:
     name: str
     group: str
     sync_managers: list[SyncManagerConfig]
-    fmmus: list[FmmuConfig]
+    fmmus: list[FmmuRegisters]
     variables: list[PdoVariable]
     output_bits: int
     input_bits: int
@@ -635,12 +635,12 @@ def _place(blocks: list[tuple[SlaveDescription, _Block]], layout: Layout, start_
     return cursor
 
 
-def _fmmu(index: int, base: int, block: _Block) -> FmmuConfig:
+def _fmmu(index: int, base: int, block: _Block) -> FmmuRegisters:
     start_bit = block.bit_offset % 8
     last_bit = block.bit_offset + block.mapped_bits - 1
     length = last_bit // 8 - block.bit_offset // 8 + 1
     ftype = reg.FmmuType.WRITE if block.direction is PdoDirection.OUTPUTS else reg.FmmuType.READ
-    return FmmuConfig(index, base + block.bit_offset // 8, length, start_bit, last_bit % 8,
+    return FmmuRegisters(index, base + block.bit_offset // 8, length, start_bit, last_bit % 8,
                       block.sms[0].start, 0, ftype)
 
 
@@ -660,7 +660,7 @@ def _split(total: int, boundaries: Iterable[int], limit: int) -> list[tuple[int,
     return pieces
 
 
-def _expected_wkc(command: Command, lo: int, hi: int, fmmus: list[tuple[int, FmmuConfig]]) -> tuple[int, tuple[int, ...]]:
+def _expected_wkc(command: Command, lo: int, hi: int, fmmus: list[tuple[int, FmmuRegisters]]) -> tuple[int, tuple[int, ...]]:
     reads: set[int] = set()
     writes: set[int] = set()
     for position, f in fmmus:
@@ -676,7 +676,7 @@ def _expected_wkc(command: Command, lo: int, hi: int, fmmus: list[tuple[int, Fmm
     return wkc, tuple(sorted(who))
 
 
-def expected_wkc(command: Command, lo: int, hi: int, fmmus: list[tuple[int, FmmuConfig]]
+def expected_wkc(command: Command, lo: int, hi: int, fmmus: list[tuple[int, FmmuRegisters]]
                  ) -> tuple[int, tuple[int, ...]]:
     """The working counter a logical datagram over [lo, hi) expects from these FMMUs, and the
     slaves (positions) that add to it."""
@@ -698,7 +698,7 @@ def bus_shares(datagram: CyclicDatagram, slaves: Mapping[int, SlaveConfig]) -> l
 
 
 def _datagrams(base: int, out_bytes: int, in_bytes: int, lrw: bool,
-               blocks: list[tuple[SlaveDescription, _Block]], fmmus: list[tuple[int, FmmuConfig]],
+               blocks: list[tuple[SlaveDescription, _Block]], fmmus: list[tuple[int, FmmuRegisters]],
                limit: int) -> list[CyclicDatagram]:
     total = out_bytes + in_bytes
     boundaries = [b.bit_offset // 8 for _, b in blocks] + [out_bytes]
@@ -796,7 +796,7 @@ def configure(slaves: Sequence[SlaveDescription], groups: Sequence[GroupSpec] | 
         out_bytes = (out_end + 7) // 8
         in_end = _place(in_blocks, layout, 8 * out_bytes)
         in_bytes = (in_end + 7) // 8 - out_bytes
-        all_fmmus: list[tuple[int, FmmuConfig]] = []
+        all_fmmus: list[tuple[int, FmmuRegisters]] = []
         gslaves: list[SlaveConfig] = []
         lrw = True
         status_at = out_bytes + in_bytes
@@ -815,7 +815,7 @@ def configure(slaves: Sequence[SlaveDescription], groups: Sequence[GroupSpec] | 
                 else:
                     status_offset = status_at
                     status_at += 1
-                    fmmus.append(FmmuConfig(n, base + status_offset, 1, 0, 7,
+                    fmmus.append(FmmuRegisters(n, base + status_offset, 1, 0, 7,
                                             mbx_in.address + reg.SM_STATUS, 0,
                                             reg.FmmuType.READ))
                     if not spec.supports_lrw:

@@ -30,7 +30,7 @@ __all__ = [
     "multiple_read",
     "multiple_write",
     "ERROR_COUNTERS_SIZE",
-    "PortCounters",
+    "PortErrorCounters",
     "SlaveCounters",
     "ErrorCounterReport",
     "decode_error_counters",
@@ -90,7 +90,7 @@ ERROR_COUNTERS_SIZE = LOST_LINK_COUNTER + 4 - RX_ERROR_COUNTER
 
 
 @dataclass(frozen=True, slots=True)
-class PortCounters:
+class PortErrorCounters:
     """Error counters of one port."""
 
     invalid_frames: int = 0
@@ -109,7 +109,7 @@ class SlaveCounters:
 
     position: int
     station_address: int
-    ports: tuple[PortCounters, PortCounters, PortCounters, PortCounters]
+    ports: tuple[PortErrorCounters, PortErrorCounters, PortErrorCounters, PortErrorCounters]
     processing_unit_errors: int = 0
     pdi_errors: int = 0
     pdi_error_code: int = 0
@@ -127,8 +127,10 @@ def decode_error_counters(position: int, station: int, raw: bytes,
         raw = raw.ljust(ERROR_COUNTERS_SIZE, b"\0")
     base = RX_ERROR_COUNTER
     ports = tuple(
-        PortCounters(raw[RX_ERROR_COUNTER + 2 * n - base], raw[RX_ERROR_COUNTER + 2 * n + 1 - base],
-                     raw[FORWARDED_RX_ERROR_COUNTER + n - base], raw[LOST_LINK_COUNTER + n - base])
+        PortErrorCounters(raw[RX_ERROR_COUNTER + 2 * n - base],
+                          raw[RX_ERROR_COUNTER + 2 * n + 1 - base],
+                          raw[FORWARDED_RX_ERROR_COUNTER + n - base],
+                          raw[LOST_LINK_COUNTER + n - base])
         for n in range(4))
     (code,) = struct.unpack_from("<H", raw, PDI_ERROR_CODE - base)
     return SlaveCounters(position, station, ports,  # type: ignore[arg-type]

@@ -39,7 +39,7 @@ from pyethercat.errors import ConfigError, LinkError
 from pyethercat.link.tap import DEFAULT_MTU, TapLink
 from pyethercat.master.eoe import EoeClient, EoeService, eoe_clients
 
-__all__ = ["EoeBridge", "EoeRun", "EoeSwitch", "PortStats", "SwitchPort", "running_eoe",
+__all__ = ["EoeBridge", "EoeRun", "EoeSwitch", "SwitchPortStats", "SwitchPort", "running_eoe",
            "start_eoe"]
 
 _log = logging.getLogger("pyethercat.eoe")
@@ -48,7 +48,7 @@ DEFAULT_AGING = 300.0
 
 
 @dataclass
-class PortStats:
+class SwitchPortStats:
     """Frames and bytes through one switch port (in = from the port into the switch)."""
 
     frames_in: int = 0
@@ -65,7 +65,7 @@ class SwitchPort:
 
     name: str
     send: Callable[[bytes], bool]
-    stats: PortStats = field(default_factory=PortStats)
+    stats: SwitchPortStats = field(default_factory=SwitchPortStats)
 
 
 class EoeSwitch:

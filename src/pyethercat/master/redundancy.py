@@ -87,6 +87,7 @@ __all__ = [
     "CopySet",
     "CopiesRequest",
     "CopiesTicket",
+    "MasterPortCounters",
     "PortCopies",
     "Redundancy",
     "copy_wkcs",
@@ -325,8 +326,8 @@ class CopySet:
 
 
 @dataclass(slots=True)
-class PortCounters:
-    """What went through one master port."""
+class MasterPortCounters:
+    """What went through one master port (frames, not the slaves' error counters)."""
 
     sent: int = 0
     received: int = 0
@@ -361,7 +362,7 @@ class Redundancy:
         #: every copy the same source, so which port sent a copy is unknown there.
         self.marks: bool | None = None
         self._mark: bytes | None = None
-        self.counters = [PortCounters() for _ in range(ports)]
+        self.counters = [MasterPortCounters() for _ in range(ports)]
         #: Frames whose copies were merged, completed with fewer copies than
         #: awaited (at their deadline), and chain frames passed on.
         self.merged = 0

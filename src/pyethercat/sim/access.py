@@ -83,7 +83,7 @@ def register_masks(prof: EscProfile) -> tuple[BoolArray, BoolArray]:
         impl[R.DC_SYSTEM_TIME: R.DC_RECEIVE_TIME_PORT0 + 0x100] = False
     impl[R.RAM_START: prof.ram_end] = True
     for reg in R.REGISTERS:
-        if reg.access & R.Access.W:
+        if reg.access & R.RegisterAccess.W:
             writable[reg.address: reg.address + reg.size] = True
     # The latch registers and the system time take writes without storing them.
     writable[R.DC_RECEIVE_TIME_PORT0: R.DC_SYSTEM_TIME + 8] = False

@@ -88,7 +88,7 @@ def parse_firmware_image(data: bytes) -> FirmwareImage:
 class FirmwareSlot:
     """What a slave's bootloader does with FoE in BOOT: take one image, check it, keep it.
 
-    Used as the :class:`~pyethercat.wire.mailbox.foe_transfer.FoeFiles` of the
+    Used as the :class:`~pyethercat.wire.mailbox.foe_transfer.FoeFileStore` of the
     FoE server while the slave is in BOOT. ``pending`` holds the accepted
     image until the slave "restarts" (BOOT -> INIT), when the device applies
     it (:meth:`take`). ``current`` is the image running now (None: the one

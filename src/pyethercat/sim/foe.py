@@ -36,7 +36,7 @@ from pyethercat.wire.mailbox.foe import (
     FoeWriteRequest,
     decode_foe,
 )
-from pyethercat.wire.mailbox.foe_transfer import FoeFiles, FoeServer, abort
+from pyethercat.wire.mailbox.foe_transfer import FoeFileStore, FoeServer, abort
 from pyethercat.wire.mailbox.header import MailboxHeader, MailboxType
 
 __all__ = ["DEFAULT_MAX_FILE", "FoeOptions", "FoeProtocol", "FoeStore"]
@@ -122,7 +122,7 @@ class _ByState:
         self.store = store
         self.firmware = firmware
 
-    def _files(self) -> FoeFiles:
+    def _files(self) -> FoeFileStore:
         if self.state() == AlState.BOOT:
             if self.firmware is None:
                 raise abort(FoeErrorCode.NOT_DEFINED, "no bootloader")

@@ -49,7 +49,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "FaultConfig",
-    "SlaveConfig",
+    "ResolvedSlave",
     "Topology",
     "WireConfig",
     "build_segment",
@@ -59,8 +59,9 @@ __all__ = [
 ]
 
 @dataclass
-class SlaveConfig:
-    """One ``[[slave]]`` table, checked and resolved."""
+class ResolvedSlave:
+    """One ``[[slave]]`` table, checked and resolved (the file's entry as written is
+    :class:`~pyethercat.topology.SlaveEntry`)."""
 
     name: str
     source: str  # "builtin:di8", or the SII/ESI path as written
@@ -115,7 +116,7 @@ FaultConfig = FaultEntry
 
 
 @dataclass
-class Topology(SegmentDoc[SlaveConfig, WireConfig]):
+class Topology(SegmentDoc[ResolvedSlave, WireConfig]):
     """A parsed topology file. :meth:`build` makes the :class:`Segment`."""
 
     def build(self, clock: TimeSource | None = None) -> Segment:
@@ -160,7 +161,7 @@ def parse_topology(
 
 
 def _resolve_slave(entry: SlaveEntry, topo: Topology, base: Path,
-                   parsed: dict[bytes, SiiInfo]) -> SlaveConfig:
+                   parsed: dict[bytes, SiiInfo]) -> ResolvedSlave:
     where = f"{topo.source}: slave {entry.name!r}"
     builtin: BuiltinDevice | None = None
     sii_path: Path | None = None
@@ -206,7 +207,7 @@ def _resolve_slave(entry: SlaveEntry, topo: Topology, base: Path,
         )
     profile = profile_for(PROFILES[profile_name.upper()], info)
     _check_image(image, info, profile, f"{where}: SII image {entry.written_source}")
-    cfg = SlaveConfig(
+    cfg = ResolvedSlave(
         name=entry.name, source=entry.written_source, sii=image, info=info,
         profile=profile, builtin=builtin,
         sii_path=sii_path, alias=entry.alias, drift_ppm=entry.drift_ppm,

@@ -21,7 +21,7 @@ from pyethercat.errors import ConfigError
 from pyethercat.master.control import telemetry_ops  # noqa: F401 - registers the handlers
 from pyethercat.master.control.client import ControlClient
 from pyethercat.master.control.handlers import MasterContext, dispatch
-from pyethercat.master.control.protocol import Request
+from pyethercat.master.control.protocol import ControlRequest
 
 __all__ = ["MasterConnection", "RemoteConnection", "DirectConnection"]
 
@@ -32,7 +32,7 @@ class MasterConnection(Protocol):
     link: str
     remote: bool
 
-    def call(self, req: Request) -> Any: ...
+    def call(self, req: ControlRequest) -> Any: ...
 
     def close(self) -> None: ...
 
@@ -66,7 +66,7 @@ class RemoteConnection:
             self._all.append(client)
         return client
 
-    def call(self, req: Request) -> Any:
+    def call(self, req: ControlRequest) -> Any:
         if self._closed:
             raise ConfigError("the dashboard's connection to the master is closed")
         with self._slots:
@@ -111,7 +111,7 @@ class DirectConnection:
         self.link = context.link
         self.lock = lock if lock is not None else threading.Lock()
 
-    def call(self, req: Request) -> Any:
+    def call(self, req: ControlRequest) -> Any:
         with self.lock:
             return dispatch(self.context, req)
 

@@ -175,7 +175,7 @@ __all__ = [
     "WATCHDOG_TIME_PROCESS_DATA",
     "WRITE_REGISTER_ENABLE",
     "WRITE_REGISTER_PROTECTION",
-    "Access",
+    "RegisterAccess",
     "AlEvent",
     "DcActivation",
     "DcActivationStatus",
@@ -211,7 +211,7 @@ __all__ = [
 ]
 
 
-class Access(enum.Flag):
+class RegisterAccess(enum.Flag):
     """What the EtherCAT side (the master) may do with a register.
 
     Every register is readable; ``W`` marks those a master writes. Registers
@@ -230,7 +230,7 @@ class Register:
     address: int
     size: int
     name: str
-    access: Access = Access.R
+    access: RegisterAccess = RegisterAccess.R
 
 
 # --- addresses -------------------------------------------------------------------
@@ -733,7 +733,7 @@ def watchdog_unit_ns(divider: int) -> int:
 
 # --- descriptive table ------------------------------------------------------------
 
-_R, _W, _RW = Access.R, Access.W, Access.RW
+_R, _W, _RW = RegisterAccess.R, RegisterAccess.W, RegisterAccess.RW
 
 
 def _table() -> list[Register]:

@@ -19,9 +19,9 @@ from pyethercat.errors import ConfigError
 from pyethercat.master.control.endpoint import endpoint_path
 from pyethercat.master.control.messages import Hello, HelloReply
 from pyethercat.master.control.protocol import (
+    ControlRequest,
     Framer,
     ProtocolError,
-    Request,
     decode_reply,
     encode_request,
 )
@@ -50,7 +50,7 @@ class ControlClient:
             raise
         self._sock = sock
 
-    def call(self, req: Request) -> Any:
+    def call(self, req: ControlRequest) -> Any:
         """Send ``req`` and return its typed reply (:class:`RemoteError` on failure)."""
         ident = next(self._ids)
         try:

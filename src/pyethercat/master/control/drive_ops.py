@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from pyethercat.errors import ConfigError, EtherCATError
 from pyethercat.master.cia402 import DriveGroup
 from pyethercat.master.control.handlers import MasterContext, handler
-from pyethercat.master.control.protocol import Reply, Request, request
+from pyethercat.master.control.protocol import ControlRequest, Reply, request
 from pyethercat.wire.cia402 import DriveState, OperationMode, decode_state, parse_mode
 from pyethercat.wire.mailbox.coe import emergency_error_name
 from pyethercat.wire.mailbox.objects import Cia402Object
@@ -55,7 +55,7 @@ class DriveReply(Reply):
 
 @request("drive", DriveReply)
 @dataclass(frozen=True)
-class DriveAction(Request):
+class DriveAction(ControlRequest):
     """One action on the drives at ``positions`` (see :data:`DRIVE_ACTIONS`).
 
     ``positions`` None: every drive of the segment (other slaves are left out).

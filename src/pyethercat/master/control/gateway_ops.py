@@ -27,7 +27,7 @@ from pathlib import Path
 from pyethercat.errors import ConfigError, EtherCATError
 from pyethercat.master.control.client import ControlClient
 from pyethercat.master.control.handlers import MasterContext, handler
-from pyethercat.master.control.protocol import Request, request
+from pyethercat.master.control.protocol import ControlRequest, request
 from pyethercat.master.gateway import DEFAULT_REQUEST_TIMEOUT, Forwarded, forward_request
 from pyethercat.master.slave import Slave
 
@@ -39,7 +39,7 @@ _SLACK = 5.0
 
 @request("gateway_forward", Forwarded)
 @dataclass(frozen=True)
-class GatewayForward(Request):
+class GatewayForward(ControlRequest):
     """One mailbox request for the slave at ``position`` (ETG.8200 gateway).
 
     ``station_address`` is the slave's address as the gateway knows it: a

@@ -30,7 +30,7 @@ from pyethercat.master.cia402 import DriveMaster
 from pyethercat.master.coe import CoeClient, StartupCommand
 from pyethercat.master.config import ProcessDataConfig
 from pyethercat.master.control import messages as msg
-from pyethercat.master.control.protocol import PROTOCOL_VERSION, Request
+from pyethercat.master.control.protocol import PROTOCOL_VERSION, ControlRequest
 from pyethercat.master.control.snapshot import snapshot
 from pyethercat.master.cyclic import CyclicRunner
 from pyethercat.master.hotswap import HotSwap
@@ -50,8 +50,8 @@ from pyethercat.wire.registers import RX_ERROR_COUNTER, STATION_ALIAS, FmmuType
 
 __all__ = ["MasterContext", "ServedMaster", "handler", "dispatch"]
 
-Q = TypeVar("Q", bound=Request)
-_HANDLERS: dict[type[Request], Callable[[MasterContext, Any], Any]] = {}
+Q = TypeVar("Q", bound=ControlRequest)
+_HANDLERS: dict[type[ControlRequest], Callable[[MasterContext, Any], Any]] = {}
 #: Timeouts in a row after which ``sdo_list`` stops asking the slave.
 _SDO_LIST_TIMEOUTS = 3
 #: Rate windows of ``master`` (seconds), as IgH's 10 s / 1 min / 5 min.
@@ -228,7 +228,7 @@ def handler(request_type: type[Q]) -> Callable[[Callable[[MasterContext, Q], Any
     return register
 
 
-def dispatch(ctx: MasterContext, req: Request) -> Any:
+def dispatch(ctx: MasterContext, req: ControlRequest) -> Any:
     """Run ``req`` against the master; returns its reply (errors propagate)."""
     fn = _HANDLERS.get(type(req))
     if fn is None:

@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from pyethercat.master.config import ProcessDataConfig
-from pyethercat.master.control.protocol import Reply, Request, request
+from pyethercat.master.control.protocol import ControlRequest, Reply, request
 from pyethercat.master.slave import EscInfo
 
 __all__ = [
@@ -57,7 +57,7 @@ class HelloReply(Reply):
 
 @request("hello", HelloReply)
 @dataclass(frozen=True)
-class Hello(Request):
+class Hello(ControlRequest):
     """First request of a client: is this the master it wants, and can we talk."""
 
 
@@ -70,7 +70,7 @@ class RosterReply(Reply):
 
 @request("roster", RosterReply)
 @dataclass(frozen=True)
-class Roster(Request):
+class Roster(ControlRequest):
     """Count the slaves and read their aliases (no SII read, no scan)."""
 
 
@@ -106,7 +106,7 @@ class SlaveList(Reply):
 
 @request("slaves", SlaveList)
 @dataclass(frozen=True)
-class ListSlaves(Request):
+class ListSlaves(ControlRequest):
     """The scanned slaves with their current AL state."""
 
 
@@ -129,13 +129,13 @@ class StateList(Reply):
 
 @request("states", StateList)
 @dataclass(frozen=True)
-class ReadStates(Request):
+class ReadStates(ControlRequest):
     positions: list[int] | None = None
 
 
 @request("request_state", StateList)
 @dataclass(frozen=True)
-class RequestState(Request):
+class RequestState(ControlRequest):
     """Take the slaves to ``state`` (the master's path, mailbox and process-data set-up).
 
     With ``wait`` the reply comes when every slave is there (or the
@@ -155,7 +155,7 @@ class Positions(Reply):
 
 @request("ack_errors", Positions)
 @dataclass(frozen=True)
-class AckErrors(Request):
+class AckErrors(ControlRequest):
     """Acknowledge AL error flags; the reply lists the slaves that had one."""
 
     positions: list[int] | None = None
@@ -166,7 +166,7 @@ class AckErrors(Request):
 
 @request("reg_read", Data)
 @dataclass(frozen=True)
-class RegRead(Request):
+class RegRead(ControlRequest):
     position: int
     address: int
     size: int
@@ -174,7 +174,7 @@ class RegRead(Request):
 
 @request("reg_write", Done)
 @dataclass(frozen=True)
-class RegWrite(Request):
+class RegWrite(ControlRequest):
     position: int
     address: int
     data: bytes
@@ -182,7 +182,7 @@ class RegWrite(Request):
 
 @request("sii_read", Data)
 @dataclass(frozen=True)
-class SiiRead(Request):
+class SiiRead(ControlRequest):
     position: int
 
 
@@ -203,7 +203,7 @@ class SiiWriteResult(Reply):
 
 @request("sii_write", SiiWriteResult)
 @dataclass(frozen=True)
-class SiiWrite(Request):
+class SiiWrite(ControlRequest):
     """Write an SII image (``backup``: file for the old content, written by the master)."""
 
     position: int
@@ -215,7 +215,7 @@ class SiiWrite(Request):
 
 @request("alias", SiiWriteResult)
 @dataclass(frozen=True)
-class SetAlias(Request):
+class SetAlias(ControlRequest):
     position: int
     alias: int
     force: bool = False
@@ -227,7 +227,7 @@ class SetAlias(Request):
 
 @request("sdo_upload", Data)
 @dataclass(frozen=True)
-class SdoUpload(Request):
+class SdoUpload(ControlRequest):
     position: int
     index: int
     subindex: int
@@ -236,7 +236,7 @@ class SdoUpload(Request):
 
 @request("sdo_download", Done)
 @dataclass(frozen=True)
-class SdoDownload(Request):
+class SdoDownload(ControlRequest):
     position: int
     index: int
     subindex: int
@@ -253,7 +253,7 @@ class EntryType(Reply):
 
 @request("sdo_type", EntryType)
 @dataclass(frozen=True)
-class SdoEntryType(Request):
+class SdoEntryType(ControlRequest):
     position: int
     index: int
     subindex: int
@@ -285,7 +285,7 @@ class SdoObjects(Reply):
 
 @request("sdo_list", SdoObjects)
 @dataclass(frozen=True)
-class SdoList(Request):
+class SdoList(ControlRequest):
     """The object dictionary of one slave (SDO information service)."""
 
     position: int
@@ -312,7 +312,7 @@ class CounterList(Reply):
 
 @request("error_counters", CounterList)
 @dataclass(frozen=True)
-class ErrorCounters(Request):
+class ErrorCounters(ControlRequest):
     """Read (and with ``clear`` then clear) every slave's error counters."""
 
     clear: bool = False
@@ -354,7 +354,7 @@ class MasterInfo(Reply):
 
 @request("master", MasterInfo)
 @dataclass(frozen=True)
-class MasterInfoRequest(Request):
+class MasterInfoRequest(ControlRequest):
     pass
 
 
@@ -395,7 +395,7 @@ class DomainList(Reply):
 
 @request("domains", DomainList)
 @dataclass(frozen=True)
-class Domains(Request):
+class Domains(ControlRequest):
     """The groups being exchanged; ``data`` includes each group's process image."""
 
     data: bool = False
@@ -424,7 +424,7 @@ class ConfigReply(Reply):
 
 @request("config", ConfigReply)
 @dataclass(frozen=True)
-class GetConfig(Request):
+class GetConfig(ControlRequest):
     """The configuration in use; ``compute``: configure from SII/CoE if there is none."""
 
     compute: bool = False
@@ -437,7 +437,7 @@ class RescanReply(Reply):
 
 @request("rescan", RescanReply)
 @dataclass(frozen=True)
-class Rescan(Request):
+class Rescan(ControlRequest):
     """Scan the segment again (refused while process data are exchanged)."""
 
 
@@ -468,7 +468,7 @@ class EoeHandlers(Reply):
 
 @request("eoe_list", EoeHandlers)
 @dataclass(frozen=True)
-class EoeList(Request):
+class EoeList(ControlRequest):
     pass
 
 
@@ -486,13 +486,13 @@ class EoeIp(Reply):
 
 @request("eoe_get_ip", EoeIp)
 @dataclass(frozen=True)
-class EoeGetIp(Request):
+class EoeGetIp(ControlRequest):
     position: int
 
 
 @request("eoe_set_ip", Done)
 @dataclass(frozen=True)
-class EoeSetIp(Request):
+class EoeSetIp(ControlRequest):
     position: int
     params: EoeIp
 
@@ -502,7 +502,7 @@ class EoeSetIp(Request):
 
 @request("foe_read", Data)
 @dataclass(frozen=True)
-class FoeRead(Request):
+class FoeRead(ControlRequest):
     """Read file ``name`` over FoE (through the bootstrap mailbox when the slave is in BOOT)."""
 
     position: int
@@ -513,7 +513,7 @@ class FoeRead(Request):
 
 @request("foe_write", Done)
 @dataclass(frozen=True)
-class FoeWrite(Request):
+class FoeWrite(ControlRequest):
     """Write ``data`` as file ``name`` over FoE; ``boot``: firmware update through BOOT."""
 
     position: int
@@ -525,7 +525,7 @@ class FoeWrite(Request):
 
 @request("soe_read", Data)
 @dataclass(frozen=True)
-class SoeRead(Request):
+class SoeRead(ControlRequest):
     """Read elements ``elements`` (SoE element flags) of IDN ``idn`` of drive ``drive``."""
 
     position: int
@@ -536,7 +536,7 @@ class SoeRead(Request):
 
 @request("soe_write", Done)
 @dataclass(frozen=True)
-class SoeWrite(Request):
+class SoeWrite(ControlRequest):
     """Write raw ``data`` to elements ``elements`` of IDN ``idn`` of drive ``drive``."""
 
     position: int

@@ -38,7 +38,7 @@ from pyethercat.errors import EtherCATError
 __all__ = [
     "PROTOCOL_VERSION",
     "MAX_MESSAGE",
-    "Request",
+    "ControlRequest",
     "Reply",
     "RemoteError",
     "ProtocolError",
@@ -81,8 +81,8 @@ class RemoteError(EtherCATError):
 
 
 @dataclass(frozen=True)
-class Request:
-    """Base of every request; subclasses are registered with :func:`request`."""
+class ControlRequest:
+    """Base of every control-socket request; subclasses are registered with :func:`request`."""
 
     op: ClassVar[str] = ""
     reply: ClassVar[type[Any]] = type(None)
@@ -93,9 +93,9 @@ class Reply:
     """Base of replies that carry nothing (an acknowledgement)."""
 
 
-_REQUESTS: dict[str, type[Request]] = {}
+_REQUESTS: dict[str, type[ControlRequest]] = {}
 
-R = TypeVar("R", bound=type[Request])
+R = TypeVar("R", bound=type[ControlRequest])
 
 
 def request(op: str, reply: type[Any]) -> Callable[[R], R]:
@@ -112,7 +112,7 @@ def request(op: str, reply: type[Any]) -> Callable[[R], R]:
     return register
 
 
-def request_types() -> dict[str, type[Request]]:
+def request_types() -> dict[str, type[ControlRequest]]:
     """Every registered operation and its request class."""
     return dict(_REQUESTS)
 
@@ -244,7 +244,7 @@ def encode_message(message: dict[str, Any]) -> bytes:
     return _LENGTH.pack(len(body)) + body
 
 
-def encode_request(req: Request, ident: int) -> bytes:
+def encode_request(req: ControlRequest, ident: int) -> bytes:
     """The bytes of a request."""
     if not req.op:
         raise ProtocolError(f"{type(req).__name__} is not a registered control request")
@@ -263,7 +263,7 @@ def encode_error(ident: int, exc: BaseException) -> bytes:
     return encode_message({"id": ident, "error": {"type": name, "message": str(exc)}})
 
 
-def decode_request(message: dict[str, Any]) -> tuple[int, Request]:
+def decode_request(message: dict[str, Any]) -> tuple[int, ControlRequest]:
     """(id, request) of a received request message."""
     ident = message.get("id")
     if not isinstance(ident, int):
@@ -275,11 +275,11 @@ def decode_request(message: dict[str, Any]) -> tuple[int, Request]:
     if cls is None:
         raise ProtocolError(f"unknown control operation {message.get('op')!r} (the running "
                             "master's pyethercat is older than this one)")
-    req: Request = _dataclass_from_json(cls, message.get("args") or {})
+    req: ControlRequest = _dataclass_from_json(cls, message.get("args") or {})
     return ident, req
 
 
-def decode_reply(message: dict[str, Any], req: Request) -> Any:
+def decode_reply(message: dict[str, Any], req: ControlRequest) -> Any:
     """The typed reply to ``req``, or raise :class:`RemoteError`."""
     if "error" in message:
         err = message["error"] or {}

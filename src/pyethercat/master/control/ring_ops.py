@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from pyethercat.master.control.handlers import MasterContext, handler
-from pyethercat.master.control.protocol import Reply, Request, request
+from pyethercat.master.control.protocol import ControlRequest, Reply, request
 
 __all__ = ["Diagnose", "DiagnosisReply", "FaultItem", "GroupItem", "GroupList", "HotConnectGroups"]
 
@@ -35,7 +35,7 @@ class DiagnosisReply(Reply):
 
 @request("diagnose", DiagnosisReply)
 @dataclass(frozen=True)
-class Diagnose(Request):
+class Diagnose(ControlRequest):
     """Read every slave once and locate faults (``events``: also the last N fault events)."""
 
     events: int = 0
@@ -72,7 +72,7 @@ class GroupList(Reply):
 
 @request("hot_connect_groups", GroupList)
 @dataclass(frozen=True)
-class HotConnectGroups(Request):
+class HotConnectGroups(ControlRequest):
     """Each hot connect group and whether it is present now."""
 
 

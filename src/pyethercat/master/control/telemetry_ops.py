@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from pyethercat.errors import ConfigError
 from pyethercat.master.control.handlers import MasterContext, handler
 from pyethercat.master.control.messages import Done
-from pyethercat.master.control.protocol import Reply, Request, request
+from pyethercat.master.control.protocol import ControlRequest, Reply, request
 from pyethercat.master.telemetry import FoeFile, TelemetrySnapshot, telemetry_of
 
 __all__ = ["TelemetryRequest", "FoeFiles", "FoeFileList", "PdoWrite"]
@@ -21,7 +21,7 @@ __all__ = ["TelemetryRequest", "FoeFiles", "FoeFileList", "PdoWrite"]
 
 @request("telemetry", TelemetrySnapshot)
 @dataclass(frozen=True)
-class TelemetryRequest(Request):
+class TelemetryRequest(ControlRequest):
     """A snapshot with the events numbered after ``since``; ``registers``: read the ports too."""
 
     since: int = 0
@@ -35,7 +35,7 @@ class FoeFileList(Reply):
 
 @request("foe_files", FoeFileList)
 @dataclass(frozen=True)
-class FoeFiles(Request):
+class FoeFiles(ControlRequest):
     """The files moved over FoE through this master (of one slave, or all)."""
 
     position: int | None = None
@@ -43,7 +43,7 @@ class FoeFiles(Request):
 
 @request("pdo_write", Done)
 @dataclass(frozen=True)
-class PdoWrite(Request):
+class PdoWrite(ControlRequest):
     """Set output entry ``name`` of slave ``position`` to ``value`` (range checked)."""
 
     position: int

@@ -45,7 +45,7 @@ from pyethercat.wire.mailbox.foe import (
 
 __all__ = [
     "DEFAULT_PACKET_TIMEOUT",
-    "FoeFiles",
+    "FoeFileStore",
     "FoeProgress",
     "FoeReadClient",
     "FoeServer",
@@ -278,7 +278,7 @@ class FoeReadClient(_FoeClient):
 # --- server (slave side) ------------------------------------------------------------------
 
 
-class FoeFiles(Protocol):
+class FoeFileStore(Protocol):
     """Where a slave's FoE server finds and stores files; refuses by raising :class:`FoeAbort`.
 
     ``open_write`` returns the largest size it takes (None: no limit);
@@ -301,7 +301,7 @@ class FoeServer:
     that wrap).
     """
 
-    def __init__(self, files: FoeFiles, *, wrap: int = 1 << 32) -> None:
+    def __init__(self, files: FoeFileStore, *, wrap: int = 1 << 32) -> None:
         self.files = files
         self.wrap = wrap
         self._mode = ""  # "", "write" or "read"
