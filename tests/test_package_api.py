@@ -63,3 +63,19 @@ def test_every_module_declares_all_and_its_names_exist() -> None:
         broken += [f"{info.name}.{n}" for n in names if not hasattr(module, n)]
     assert missing == []
     assert broken == []
+
+
+def test_a_public_class_name_means_one_thing() -> None:
+    # Two classes of one name in two modules (a master's and a simulator's FmmuConfig)
+    # make imports, tracebacks and the docs ambiguous.
+    import ast
+    from collections import defaultdict
+    from pathlib import Path
+
+    root = Path(pyethercat.__file__).parent
+    where: dict[str, list[str]] = defaultdict(list)
+    for path in sorted(root.rglob("*.py")):
+        for node in ast.parse(path.read_text("utf-8")).body:
+            if isinstance(node, ast.ClassDef) and not node.name.startswith("_"):
+                where[node.name].append(str(path.relative_to(root)))
+    assert {name: files for name, files in where.items() if len(files) > 1} == {}
