@@ -106,6 +106,21 @@ def test_a_token_guards_every_request_and_the_websocket(master: Master) -> None:
                       headers={"authorization": "Bearer nope"}).status_code == 403
 
 
+def test_a_write_that_is_no_json_object_is_refused_in_one_line(master: Master) -> None:
+    token = {"authorization": "Bearer s3cret"}
+    before = master.slaves[3].outputs["Channel 1.Output"]
+    with _client(master, token="s3cret", writable=True) as c:
+        for path in ("/api/pdo/write", "/api/sdo/write"):
+            listed = c.post(path, json=[3, "Channel 1.Output", 1], headers=token)
+            assert listed.status_code == 400 and listed.json() == {
+                "error": "the request is not a JSON object"}
+            broken = c.post(path, content="{position: 3",
+                            headers={"content-type": "application/json", **token})
+            assert broken.status_code == 400 and broken.json() == {
+                "error": "the request is not JSON"}
+        assert master.slaves[3].outputs["Channel 1.Output"] == before
+
+
 def test_a_foreign_host_header_is_refused(master: Master) -> None:
     """A page that rebinds its own name to 127.0.0.1 cannot read the dashboard."""
     with _client(master) as c:

@@ -169,6 +169,21 @@ def create_app(hub: Hub, access: Access) -> ASGIApp:
             return JSONResponse({"error": "writes are JSON requests"}, status_code=415)
         return None
 
+    async def write_request(request: Request) -> tuple[dict[str, Any], int] | Response:
+        """A write's JSON object and the slave position it names, or the refusal."""
+        refused = write_refused(request)
+        if refused is not None:
+            return refused
+        try:
+            body = await request.json()
+            if not isinstance(body, dict):
+                raise ConfigError("the request is not a JSON object")
+            return body, _int(body.get("position"), "position")
+        except json.JSONDecodeError:
+            return _error(ConfigError("the request is not JSON"))
+        except (EtherCATError, ValueError) as exc:
+            return _error(exc)
+
     async def sdo_list(request: Request) -> Response:
         try:
             pos = _int(request.query_params.get("position"), "position")
@@ -204,12 +219,11 @@ def create_app(hub: Hub, access: Access) -> ASGIApp:
                              "size": len(data.data)})
 
     async def sdo_write(request: Request) -> Response:
-        refused = write_refused(request)
-        if refused is not None:
-            return refused
+        got = await write_request(request)
+        if isinstance(got, Response):
+            return got
+        body, pos = got
         try:
-            body = await request.json()
-            pos = _int(body.get("position"), "position")
             index = _int(body.get("index"), "index")
             sub = _int(body.get("subindex", 0), "subindex")
             text = str(body.get("value", ""))
@@ -222,19 +236,16 @@ def create_app(hub: Hub, access: Access) -> ASGIApp:
                 dtype = DataType(typed.data_type)
             raw = encode_value(dtype, parse_value(dtype, text))
             await call(msg.SdoDownload(pos, index, sub, raw))
-        except json.JSONDecodeError:
-            return _error(ConfigError("the request is not JSON"))
         except (EtherCATError, ValueError) as exc:
             return _error(exc)
         return JSONResponse({"written": raw.hex(" "), "type": dtype.name})
 
     async def pdo_write(request: Request) -> Response:
-        refused = write_refused(request)
-        if refused is not None:
-            return refused
+        got = await write_request(request)
+        if isinstance(got, Response):
+            return got
+        body, pos = got
         try:
-            body = await request.json()
-            pos = _int(body.get("position"), "position")
             value = body.get("value")
             if isinstance(value, str):
                 value = _int(value, "value") if value.strip() not in ("true", "false") \
@@ -242,8 +253,6 @@ def create_app(hub: Hub, access: Access) -> ASGIApp:
             if not isinstance(value, bool | int | float):
                 raise ConfigError(f"value {value!r} is not a number")
             await call(PdoWrite(pos, str(body.get("name", "")), value))
-        except json.JSONDecodeError:
-            return _error(ConfigError("the request is not JSON"))
         except (EtherCATError, ValueError) as exc:
             return _error(exc)
         return JSONResponse({"ok": True})

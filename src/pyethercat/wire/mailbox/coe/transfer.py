@@ -94,8 +94,39 @@ class _ClientBase:
             self.done = True
             raise msg.to_error()
 
+    def _check_address(self, index: int, subindex: int) -> None:
+        """An initiate response names the object asked for (any subindex with complete access)."""
+        if index != self.index or (subindex != self.subindex and not self.complete_access):
+            raise self._fail(SdoAbortCode.INVALID_COMMAND,
+                             f"response for 0x{index:04X}:{subindex:02X}")
 
-class SdoUploadClient:
+
+class _SdoClient:
+    """What both SDO clients show: whether the transfer ended, the abort to send."""
+
+    _c: _ClientBase
+    _started: bool
+
+    @property
+    def done(self) -> bool:
+        """True once finished (successfully or not)."""
+        return self._c.done
+
+    @property
+    def abort_request(self) -> SdoAbortTransfer | None:
+        """The abort the master should send after a local protocol failure."""
+        return self._c.abort_request
+
+    def _response(self, msg: CoeMessage) -> _ClientBase:
+        """The checks every response passes first (finished, an abort, before start())."""
+        c = self._c
+        c._check_common(msg)
+        if not self._started:
+            raise MailboxError(f"{type(self).__name__}.receive() before start()")
+        return c
+
+
+class SdoUploadClient(_SdoClient):
     """Master side of one SDO upload (read), expedited, normal or segmented.
 
     ``start()`` gives the initiate request; ``receive(response)`` gives the
@@ -111,16 +142,6 @@ class SdoUploadClient:
         self._toggle = False
         self._started = False
 
-    @property
-    def done(self) -> bool:
-        """True once finished (successfully or not)."""
-        return self._c.done
-
-    @property
-    def abort_request(self) -> SdoAbortTransfer | None:
-        """The abort the master should send after a local protocol failure."""
-        return self._c.abort_request
-
     def start(self) -> SdoInitiateUploadRequest:
         """The initiate upload request."""
         self._started = True
@@ -128,16 +149,9 @@ class SdoUploadClient:
 
     def receive(self, msg: CoeMessage) -> SdoUploadSegmentRequest | SdoTransferDone:
         """Process one response from the slave."""
-        c = self._c
-        c._check_common(msg)
-        if not self._started:
-            raise MailboxError("SdoUploadClient.receive() before start()")
+        c = self._response(msg)
         if isinstance(msg, SdoInitiateUploadResponse) and self._total is None and not self._buffer:
-            if msg.index != c.index or (msg.subindex != c.subindex and not c.complete_access):
-                raise c._fail(
-                    SdoAbortCode.INVALID_COMMAND,
-                    f"response for 0x{msg.index:04X}:{msg.subindex:02X}",
-                )
+            c._check_address(msg.index, msg.subindex)
             if msg.expedited:
                 c.done = True
                 return SdoTransferDone(msg.data)
@@ -172,7 +186,7 @@ class SdoUploadClient:
         raise c._fail(SdoAbortCode.INVALID_COMMAND, f"unexpected {type(msg).__name__}")
 
 
-class SdoDownloadClient:
+class SdoDownloadClient(_SdoClient):
     """Master side of one SDO download (write).
 
     Expedited when the data has 1..4 bytes and complete access is off (as
@@ -213,16 +227,6 @@ class SdoDownloadClient:
         self._toggle = False
         self._started = False
 
-    @property
-    def done(self) -> bool:
-        """True once finished (successfully or not)."""
-        return self._c.done
-
-    @property
-    def abort_request(self) -> SdoAbortTransfer | None:
-        """The abort the master should send after a local protocol failure."""
-        return self._c.abort_request
-
     def start(self) -> SdoInitiateDownloadRequest:
         """The initiate download request."""
         self._started = True
@@ -235,16 +239,9 @@ class SdoDownloadClient:
 
     def receive(self, msg: CoeMessage) -> SdoDownloadSegmentRequest | SdoTransferDone:
         """Process one response from the slave."""
-        c = self._c
-        c._check_common(msg)
-        if not self._started:
-            raise MailboxError("SdoDownloadClient.receive() before start()")
+        c = self._response(msg)
         if isinstance(msg, SdoInitiateDownloadResponse) and self._next == 0:
-            if msg.index != c.index or (msg.subindex != c.subindex and not c.complete_access):
-                raise c._fail(
-                    SdoAbortCode.INVALID_COMMAND,
-                    f"response for 0x{msg.index:04X}:{msg.subindex:02X}",
-                )
+            c._check_address(msg.index, msg.subindex)
             if not self._segments:
                 c.done = True
                 return SdoTransferDone()
