@@ -9,6 +9,7 @@ complete access (CiA 301 SDO protocol; the sequences SOEM ``src/ec_coe.c``
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TypeVar
 
 from pyethercat.errors import MailboxError, SdoAbort
 from pyethercat.wire.mailbox.coe.decode import CoeMessage
@@ -63,6 +64,21 @@ def _check_mailbox_size(mailbox_size: int) -> None:
 
 def _split_segments(data: bytes, size: int) -> list[bytes]:
     return [data[i : i + size] for i in range(0, len(data), size)]
+
+
+_Initiate = TypeVar("_Initiate", SdoInitiateDownloadRequest, SdoInitiateUploadResponse)
+
+
+def _initiate_and_segments(kind: type[_Initiate], index: int, subindex: int, data: bytes,
+                           expedited: bool, complete_access: bool, mailbox_size: int,
+                           ) -> tuple[_Initiate, list[bytes]]:
+    """The initiate frame of the side that sends ``data`` and the segments that follow it:
+    expedited (1..4 bytes in the frame), or the first part with the complete size."""
+    if expedited:
+        return kind(index, subindex, data, True, True, None, complete_access), []
+    first = sdo_initiate_max_data(mailbox_size)
+    return (kind(index, subindex, data[:first], False, True, len(data), complete_access),
+            _split_segments(data[first:], sdo_segment_max_data(mailbox_size)))
 
 
 @dataclass(frozen=True, slots=True)
@@ -211,18 +227,10 @@ class SdoDownloadClient(_SdoClient):
             expedited = 1 <= len(data) <= 4 and not complete_access
         if expedited and not 1 <= len(data) <= 4:
             raise MailboxError(f"expedited download carries 1..4 bytes, got {len(data)}")
-        first = sdo_initiate_max_data(mailbox_size)
         self._expedited = expedited
-        if expedited:
-            self._initiate = SdoInitiateDownloadRequest(
-                index, subindex, data, True, True, None, complete_access
-            )
-            self._segments: list[bytes] = []
-        else:
-            self._initiate = SdoInitiateDownloadRequest(
-                index, subindex, data[:first], False, True, len(data), complete_access
-            )
-            self._segments = _split_segments(data[first:], sdo_segment_max_data(mailbox_size))
+        self._initiate, self._segments = _initiate_and_segments(
+            SdoInitiateDownloadRequest, index, subindex, data, expedited, complete_access,
+            mailbox_size)
         self._next = 0
         self._toggle = False
         self._started = False
@@ -281,17 +289,9 @@ class SdoUploadServer:
         self.index = index
         self.subindex = subindex
         self.done = False
-        first = sdo_initiate_max_data(mailbox_size)
-        if 1 <= len(data) <= 4 and not complete_access:
-            self._initiate = SdoInitiateUploadResponse(
-                index, subindex, data, True, True, None, complete_access
-            )
-            self._segments: list[bytes] = []
-        else:
-            self._initiate = SdoInitiateUploadResponse(
-                index, subindex, data[:first], False, True, len(data), complete_access
-            )
-            self._segments = _split_segments(data[first:], sdo_segment_max_data(mailbox_size))
+        self._initiate, self._segments = _initiate_and_segments(
+            SdoInitiateUploadResponse, index, subindex, data,
+            1 <= len(data) <= 4 and not complete_access, complete_access, mailbox_size)
         self._next = 0
         self._toggle = False
 
