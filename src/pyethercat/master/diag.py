@@ -34,6 +34,7 @@ __all__ = [
     "SlaveCounters",
     "ErrorCounterReport",
     "decode_error_counters",
+    "read_error_counters",
 ]
 
 
@@ -136,6 +137,16 @@ def decode_error_counters(position: int, station: int, raw: bytes,
     return SlaveCounters(position, station, ports,  # type: ignore[arg-type]
                          raw[ECAT_PROCESSING_ERROR_COUNTER - base], raw[PDI_ERROR_COUNTER - base],
                          code, answered)
+
+
+def read_error_counters(scheduler: Scheduler, slaves: Sequence[tuple[int, int]]
+                        ) -> ErrorCounterReport:
+    """Error counters of ``slaves`` ((position, station address) each), one multiple read."""
+    results = multiple_read(scheduler, [station for _, station in slaves], RX_ERROR_COUNTER,
+                            ERROR_COUNTERS_SIZE)
+    return ErrorCounterReport(tuple(
+        decode_error_counters(position, station, r.data, r.ok)
+        for (position, station), r in zip(slaves, results, strict=True)))
 
 
 @dataclass(frozen=True, slots=True)

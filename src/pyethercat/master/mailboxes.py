@@ -145,6 +145,15 @@ class MailboxService:
         """Call ``callback(event)`` for every unsolicited event of every slave (emergencies)."""
         self._callbacks.append(callback)
 
+    def on_emergency(self, callback: Callable[[EmergencyEvent], None]) -> None:
+        """Call ``callback(event)`` for every CoE emergency of every slave."""
+
+        def only_emergencies(event: object) -> None:
+            if isinstance(event, EmergencyEvent):
+                callback(event)
+
+        self.on_event(only_emergencies)
+
     def _report(self, event: object) -> None:
         for cb in list(self._callbacks):
             try:

@@ -425,12 +425,8 @@ class Master:
     def error_counters(self, slaves: Sequence[SlaveRef] | None = None
                        ) -> diag.ErrorCounterReport:
         """Error counters 0x0300-0x0313 of every slave, read in one multiple read."""
-        chosen = self._select(slaves)
-        results = diag.multiple_read(self.scheduler, [s.station_address for s in chosen],
-                                     RX_ERROR_COUNTER, diag.ERROR_COUNTERS_SIZE)
-        return diag.ErrorCounterReport(tuple(
-            diag.decode_error_counters(s.position, s.station_address, r.data, r.ok)
-            for s, r in zip(chosen, results, strict=True)))
+        return diag.read_error_counters(self.scheduler, [(s.position, s.station_address)
+                                                         for s in self._select(slaves)])
 
     def hot_connect(self, name: str, alias: int, size: int = 1) -> GroupPresence:
         """Declare a hot connect group: the slave carrying ``alias`` and the ``size - 1``
@@ -460,12 +456,7 @@ class Master:
 
     def on_emergency(self, callback: Callable[[EmergencyEvent], None]) -> None:
         """Call ``callback(event)`` for every emergency of every slave."""
-
-        def only_emergencies(event: object) -> None:
-            if isinstance(event, EmergencyEvent):
-                callback(event)
-
-        self.mailboxes.on_event(only_emergencies)
+        self.mailboxes.on_emergency(callback)
 
     def poll_mailboxes(self) -> int:
         """Fetch whatever the slaves posted unasked (emergencies); returns how many came."""
