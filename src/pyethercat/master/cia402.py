@@ -40,6 +40,7 @@ fault and every emergency of a group's drives is also a typed event
 
 from __future__ import annotations
 
+import functools
 import threading
 from collections import deque
 from collections.abc import Callable, Sequence
@@ -169,6 +170,20 @@ class _Column:
                                     strides=(stride,))
         self._idx = off[:, None] + np.arange(size)
 
+    @classmethod
+    def of(cls, buffer: bytearray | memoryview, slaves: Sequence[Slave], key: Cia402Object,
+           out: bool, dtype: str, need: bool = False) -> _Column | None:
+        """Entry ``key`` of the slaves' outputs (``out``) or inputs as a column; None when a
+        slave does not map it (with ``need``, a :class:`ConfigError` naming the slave)."""
+        io = [(s.outputs if out else s.inputs) for s in slaves]
+        if not all(_has(x, key) for x in io):
+            if need:
+                missing = [s.position for s, x in zip(slaves, io, strict=True) if not _has(x, key)]
+                raise ConfigError(f"slave {missing[0]} does not map 0x{int(key):04X} "
+                                  f"({key.name.lower()}) into its {'outputs' if out else 'inputs'}")
+            return None
+        return cls(buffer, [x.variable((int(key), 0)) for x in io], dtype)
+
     def get(self) -> I64:
         if self._view is not None:
             out: I64 = self._view.astype(np.int64)
@@ -291,19 +306,8 @@ class DriveGroup:
                 raise ConfigError("no slave maps a controlword 0x6040 and statusword 0x6041")
         self.positions = [int(p) for p in positions]
         slaves = [master.slaves[p] for p in self.positions]
-        self.image = self._image_of(self.positions)
-        buf = self.image.buffer
-
-        def column(key: Cia402Object, out: bool, dtype: str, need: bool = False) -> _Column | None:
-            io = [(s.outputs if out else s.inputs) for s in slaves]
-            if not all(_has(x, key) for x in io):
-                if need:
-                    missing = [s.position for s, x in zip(slaves, io, strict=True) if not _has(x, key)]
-                    raise ConfigError(f"slave {missing[0]} does not map 0x{int(key):04X} "
-                                      f"({key.name.lower()}) into its {'outputs' if out else 'inputs'}")
-                return None
-            return _Column(buf, [x.variable((int(key), 0)) for x in io], dtype)
-
+        self.image = _image_of(master, self.positions)
+        column = functools.partial(_Column.of, self.image.buffer, slaves)
         self._cw = column(_O.CONTROLWORD, True, "<u2", need=True)
         self._sw = column(_O.STATUSWORD, False, "<u2", need=True)
         self._mode = column(_O.MODES_OF_OPERATION, True, "i1")
@@ -337,12 +341,6 @@ class DriveGroup:
         self._lock = threading.Lock()
         self._runner: CyclicRunner | None = None
         master.on_emergency(self._on_emergency)
-
-    def _image_of(self, positions: Sequence[int]) -> ProcessImage:
-        for image in self.master.images.values():
-            if all(p in image.positions for p in positions):
-                return image
-        raise ConfigError(f"drives {list(positions)} are not all in one process-data group")
 
     def __len__(self) -> int:
         return len(self.positions)
@@ -857,6 +855,14 @@ def _selection(n: int, drives: Sequence[int] | None) -> B:
             raise ConfigError(f"no drive {d} in a group of {n}")
         sel[d] = True
     return sel
+
+
+def _image_of(master: DriveMaster, positions: Sequence[int]) -> ProcessImage:
+    """The one group image that holds every drive of ``positions``."""
+    for image in master.images.values():
+        if all(p in image.positions for p in positions):
+            return image
+    raise ConfigError(f"drives {list(positions)} are not all in one process-data group")
 
 
 def _has(io: Any, key: Cia402Object) -> bool:
