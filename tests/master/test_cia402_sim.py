@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from pyethercat.clock import VirtualClock
-from pyethercat.errors import DriveError, DriveFaultError
+from pyethercat.errors import ConfigError, DriveError, DriveFaultError
 from pyethercat.link.pair import PairLink
 from pyethercat.master.cia402 import DriveEmergency, DriveFault, DriveGroup
 from pyethercat.master.cyclic import CyclicRunner
@@ -132,6 +132,14 @@ def test_builtin_drive_gets_the_sii_pdos_assigned_and_runs() -> None:
     assert d.state == DriveState.SWITCH_ON_DISABLED and d.statusword & 0x0250 == 0x0250
     d.enable()
     assert d.state == DriveState.OPERATION_ENABLED
+
+
+def test_a_drive_group_names_the_slave_that_does_not_map_the_controlword() -> None:
+    rig = Rig(drives(1) + '[[slave]]\nname = "in"\ndevice = "builtin:di8"\n', mapping=None)
+    assert rig.group.positions == [0]                         # found by its mapped 0x6040/0x6041
+    with pytest.raises(ConfigError, match=r"^slave 1 does not map 0x6040 \(controlword\) "
+                                          r"into its outputs$"):
+        DriveGroup(rig.m, [0, 1], runner=rig.runner)
 
 
 @pytest.mark.parametrize("mode,index,stale,dtype", [
