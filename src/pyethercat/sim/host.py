@@ -10,25 +10,19 @@ model never imports the segment and never touches its members:
   an ESC reset, a loop-control write, DC register writes);
 - what only the segment knows (time, whether outputs arrived).
 
-:class:`SegmentHost` implements it for ``sim.segment.Segment``; a test can
-implement it with a few lines to drive one ESC alone.
+:class:`~pyethercat.sim.segment.SegmentHost` implements it for
+``sim.segment.Segment`` (in that module, so this one never imports the
+segment); a test can implement it with a few lines to drive one ESC alone.
 """
 
 from __future__ import annotations
 
 import enum
-from typing import TYPE_CHECKING, Protocol
-
-import numpy as np
+from typing import Protocol
 
 from pyethercat.wire.al import AlState
 
-if TYPE_CHECKING:
-    from pyethercat.sim.segment import Segment
-
-__all__ = ["Dirty", "EscHost", "SegmentHost"]
-
-_BELOW_SAFEOP = (AlState.INIT, AlState.PREOP, AlState.BOOT)
+__all__ = ["Dirty", "EscHost"]
 
 
 class Dirty(enum.IntFlag):
@@ -108,66 +102,3 @@ class EscHost(Protocol):
     def dc_latch_input(self, index: int, unit: int, rising: bool, t_ns: int | None) -> None:
         """An edge on the slave's latch input ``unit`` at segment time ``t_ns`` (None: now)."""
         ...
-
-
-class SegmentHost:
-    """The segment as its ESCs see it (:class:`EscHost`)."""
-
-    __slots__ = ("_seg",)
-
-    def __init__(self, seg: Segment) -> None:
-        self._seg = seg
-
-    @property
-    def sii_busy_ns(self) -> int:
-        return self._seg.sii_busy_ns
-
-    def now_ns(self) -> int:
-        return self._seg.clock.now_ns()
-
-    def invalidate(self, what: Dirty) -> None:
-        self._seg.state.invalidate(what)
-
-    def ecat_event_raised(self, bits: int) -> None:
-        seg = self._seg
-        seg.event_bits |= bits
-        seg.state.irq_changed()
-
-    def al_state_changed(self, index: int, old: AlState, new: AlState) -> None:
-        if new in _BELOW_SAFEOP:
-            self._seg.arrival.stop(index)
-        self._seg.apps.state_changed(index, old, new)
-
-    def has_outputs(self, index: int) -> bool:
-        return bool(self._seg.arrival.received[index])
-
-    def wait_for_outputs(self, index: int, waiting: bool) -> None:
-        pending = self._seg.arrival.pending_op
-        if waiting:
-            pending.add(index)
-        else:
-            pending.discard(index)
-
-    def output_buffer_completed(self, index: int) -> None:
-        self._seg.complete_write_sms(np.array([index], dtype=np.int64))
-
-    def reset_requested(self, index: int) -> None:
-        self._seg.reset_slave(index)
-
-    def loop_control_written(self, index: int, old: int, new: int) -> None:
-        self._seg.ports.loop_control_written(index, new)
-        self._seg.state.topology_dirty = True
-
-    def dc_written(self, index: int, lo: int, data: bytes) -> None:
-        seg = self._seg
-        seg.dc.written(np.array([index], dtype=np.int64), lo, data, seg.escs[index].profile.dc_system_time)
-
-    def dc_refresh(self, index: int) -> None:
-        self._seg.dc.refresh_system_time(np.array([index], dtype=np.int64))
-
-    def dc_sync_status(self, index: int, lo: int, hi: int, pdi: bool) -> None:
-        seg = self._seg
-        seg.dc.refresh_sync_status(index, lo, hi, seg.clock.now_ns() if pdi else None)
-
-    def dc_latch_input(self, index: int, unit: int, rising: bool, t_ns: int | None) -> None:
-        self._seg.latch_input(index, unit, rising, t_ns)

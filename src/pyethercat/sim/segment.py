@@ -17,7 +17,7 @@ This module is the segment's frame path and the place its parts meet:
   map, logical map, IRQ field) and what of it is stale, per master port;
 - ``sim.ring``: the master's ports A and B (a ring);
 - ``sim.esc``: one ESC per slave, which reaches the segment only through
-  the host protocol ``sim.host.EscHost`` (``sim.host.SegmentHost``).
+  the host protocol ``sim.host.EscHost`` (:class:`SegmentHost`, below).
 
 Datagrams are processed one after the other, each for all slaves on the
 route ("datagram-major"). This is equivalent to the wire order because
@@ -51,7 +51,7 @@ from pyethercat.sim.datagrams import MALFORMED, Head, scan_frame
 from pyethercat.sim.dc import DcClocks
 from pyethercat.sim.esc import Esc
 from pyethercat.sim.faults import NEVER, Faults
-from pyethercat.sim.host import Dirty, SegmentHost
+from pyethercat.sim.host import Dirty
 from pyethercat.sim.memory import EscMemory
 from pyethercat.sim.pdio import ProcessIo
 from pyethercat.sim.ports import MASTER, NEXT_PORT, Ports, Route
@@ -61,6 +61,7 @@ from pyethercat.sim.syncman import SmAreas
 from pyethercat.sim.watchdog import Watchdogs
 from pyethercat.sim.wiring import Wiring
 from pyethercat.wire import registers as R
+from pyethercat.wire.al import AlState
 from pyethercat.wire.datagram import (
     CIRCULATING_BIT,
     HEADER_SIZE,
@@ -79,6 +80,7 @@ __all__ = [
     "NEXT_PORT",
     "Route",
     "Segment",
+    "SegmentHost",
     "SimSlave",
     "SimSlaveSpec",
 ]
@@ -605,3 +607,70 @@ class Segment:
         if len(done):
             self.complete_write_sms(done)
         return wkc
+
+
+#: AL states in which a slave takes no outputs (its output arrival is forgotten).
+_BELOW_SAFEOP = (AlState.INIT, AlState.PREOP, AlState.BOOT)
+
+
+class SegmentHost:
+    """The segment as its ESCs see it (:class:`EscHost`)."""
+
+    __slots__ = ("_seg",)
+
+    def __init__(self, seg: Segment) -> None:
+        self._seg = seg
+
+    @property
+    def sii_busy_ns(self) -> int:
+        return self._seg.sii_busy_ns
+
+    def now_ns(self) -> int:
+        return self._seg.clock.now_ns()
+
+    def invalidate(self, what: Dirty) -> None:
+        self._seg.state.invalidate(what)
+
+    def ecat_event_raised(self, bits: int) -> None:
+        seg = self._seg
+        seg.event_bits |= bits
+        seg.state.irq_changed()
+
+    def al_state_changed(self, index: int, old: AlState, new: AlState) -> None:
+        if new in _BELOW_SAFEOP:
+            self._seg.arrival.stop(index)
+        self._seg.apps.state_changed(index, old, new)
+
+    def has_outputs(self, index: int) -> bool:
+        return bool(self._seg.arrival.received[index])
+
+    def wait_for_outputs(self, index: int, waiting: bool) -> None:
+        pending = self._seg.arrival.pending_op
+        if waiting:
+            pending.add(index)
+        else:
+            pending.discard(index)
+
+    def output_buffer_completed(self, index: int) -> None:
+        self._seg.complete_write_sms(np.array([index], dtype=np.int64))
+
+    def reset_requested(self, index: int) -> None:
+        self._seg.reset_slave(index)
+
+    def loop_control_written(self, index: int, old: int, new: int) -> None:
+        self._seg.ports.loop_control_written(index, new)
+        self._seg.state.topology_dirty = True
+
+    def dc_written(self, index: int, lo: int, data: bytes) -> None:
+        seg = self._seg
+        seg.dc.written(np.array([index], dtype=np.int64), lo, data, seg.escs[index].profile.dc_system_time)
+
+    def dc_refresh(self, index: int) -> None:
+        self._seg.dc.refresh_system_time(np.array([index], dtype=np.int64))
+
+    def dc_sync_status(self, index: int, lo: int, hi: int, pdi: bool) -> None:
+        seg = self._seg
+        seg.dc.refresh_sync_status(index, lo, hi, seg.clock.now_ns() if pdi else None)
+
+    def dc_latch_input(self, index: int, unit: int, rising: bool, t_ns: int | None) -> None:
+        self._seg.latch_input(index, unit, rising, t_ns)
