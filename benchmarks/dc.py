@@ -78,8 +78,8 @@ class Bench:
 
     def spread(self) -> tuple[float, int]:
         """Largest spread of the recorded pulses every pulsing slave fired, and how many."""
-        sys_, true = self.seg.dc.recorded_pulses()
-        pulsing = np.nonzero(self.seg.dc.pulses[: len(self.seg.slaves)] > 0)[0]
+        sys_, true = self.seg.dc.sync.recorded_pulses()
+        pulsing = np.nonzero(self.seg.dc.sync.pulses[: len(self.seg.slaves)] > 0)[0]
         if not len(pulsing):
             return 0.0, 0
         rows_sys, rows_true = sys_[pulsing], true[pulsing]

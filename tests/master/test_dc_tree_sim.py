@@ -44,8 +44,8 @@ def true_delays(seg: Segment, reference: int) -> list[int]:
 
 def sync0_spread(seg: Segment) -> tuple[float, int]:
     """Largest spread (ns) of the recorded SYNC0 pulses that every pulsing slave fired; pulses seen."""
-    sys_, true = seg.dc.recorded_pulses()
-    pulsing = np.nonzero(seg.dc.pulses[: len(seg.slaves)] > 0)[0]
+    sys_, true = seg.dc.sync.recorded_pulses()
+    pulsing = np.nonzero(seg.dc.sync.pulses[: len(seg.slaves)] > 0)[0]
     if not len(pulsing):
         return 0.0, 0
     rows_sys, rows_true = sys_[pulsing], true[pulsing]

@@ -145,9 +145,9 @@ def test_sync_pulses_are_recorded_with_their_true_time() -> None:
     assert fprd(seg, ST + 1, R.DC_ACTIVATION_STATUS, 1).data == bytes([R.DcActivationStatus.SYNC0_PENDING])
     clock.advance(2_100_000)
     seg.tick()
-    sys_, true = seg.dc.recorded_pulses()
-    assert int(seg.dc.pulses[1]) == 5  # start, +250, +500, +750, +1000 us
-    last = seg.dc.last_sync0()[1]
+    sys_, true = seg.dc.sync.recorded_pulses()
+    assert int(seg.dc.sync.pulses[1]) == 5  # start, +250, +500, +750, +1000 us
+    last = seg.dc.sync.last_sync0()[1]
     assert last is not None and last[0] == start + 1_000_000
     # 100 ppm fast: the pulse at local +2 ms came 200 ns early in true time
     t_local_origin = float(seg.dc.t0[1])
@@ -176,7 +176,7 @@ def test_single_shot_sync1_multiple_and_a_start_in_the_past() -> None:
     start_sync(seg, ST + 2, now[2] - 1_000, 100_000)  # already past: never reached
     clock.advance(1_000_000)
     seg.tick()
-    assert apps[0].sync0 == [now[0] + 100_000] and 0 not in seg.dc.sync_next
+    assert apps[0].sync0 == [now[0] + 100_000] and 0 not in seg.dc.sync.sync_next
     s0 = apps[1].sync0
     assert s0 == [now[1] + 100_000 * k for k in range(1, 10)]
     assert apps[1].sync1 == [s0[k] + 220_000 for k in (0, 3, 6)]

@@ -49,7 +49,7 @@ def check_plot_path(path: str) -> None:
 class Sync0Spread:
     """The SYNC0 spread of an in-process simulator over a run, sampled as it goes.
 
-    The segment keeps only each slave's last pulses (``sim.dc.RECORDED_PULSES``),
+    The segment keeps only each slave's last pulses (``sim.dc_sync.RECORDED_PULSES``),
     so :meth:`sample` is called every refresh of the live view and the
     series is the union of what it saw. The loop's thread writes the
     records while a sample reads them: the newest and the oldest pulses of
@@ -65,7 +65,7 @@ class Sync0Spread:
 
     def sample(self) -> None:
         """Take in the pulses the segment holds now."""
-        spreads = self._segment.dc.sync0_spreads()
+        spreads = self._segment.dc.sync.sync0_spreads()
         for st, spread in spreads[self.EDGE: len(spreads) - self.EDGE]:
             self._seen[st] = spread
 

@@ -11,7 +11,8 @@ This module is the segment's frame path and the place its parts meet:
 - ``sim.commands``: the rules of node-addressed and broadcast commands;
 - ``sim.syncman`` and ``sim.fmmu``: the SM areas and the FMMU plans of
   logical addressing, compiled into index arrays;
-- ``sim.dc``: local clocks, latches, system time, SYNC pulses;
+- ``sim.dc``: local clocks, receive-time latches, system time, the time-control loop;
+  ``sim.dc_sync``: SYNC pulses and latch inputs (``dc.sync``);
 - ``sim.faults``, ``sim.watchdog``, ``sim.wiring``;
 - ``sim.compiled``: what the frame path compiles (walk, SM areas, station
   map, logical map, IRQ field) and what of it is stale, per master port;
@@ -138,8 +139,8 @@ class Segment:
         self.apps = DeviceApps()
         self.arrival = OutputArrival(self.escs, self.sm, self.watchdogs, self.apps, self.wiring, self.now_ns)
         self.pdio = ProcessIo(self.memory, self.escs, self.now_ns, self._host.has_outputs)
-        self.dc.sync0_sink = self.apps.sync0
-        self.dc.sync0_models = self.apps.sync0_models
+        self.dc.sync.sync0_sink = self.apps.sync0
+        self.dc.sync.sync0_models = self.apps.sync0_models
         #: Compiled state and its staleness (see sim.compiled), the master's ports.
         self.state = CompiledState(self.ports, self.memory, self.escs, self.sm, self.commands,
                                    self.pdio, self.wiring, self.watchdogs)
@@ -156,7 +157,7 @@ class Segment:
         self._bplan = self.commands.brd_plans
         self._corrupt = self.faults.corrupt
         self._rates = self.faults.rates
-        self._sync = self.dc.sync_next
+        self._sync = self.dc.sync.sync_next
         self._cur_passes: I64 = _EMPTY
         self.frames = 0
         self.frames_lost = 0
@@ -232,7 +233,7 @@ class Segment:
             model.placed(instance, index, self.pdio)
         self.apps.replace(index, spec.app, model, instance)
         if model is not None and model.sync_events:
-            self.dc.listen(index)
+            self.dc.sync.listen(index)
         if spec.app is not None:
             spec.app.attach(esc.pdi)
 
@@ -310,7 +311,7 @@ class Segment:
         self.escs[slave].powered = False
         self.memory.clear(slave)
         self.arrival.stop(slave)
-        self.dc.sync_drop(slave)
+        self.dc.sync.sync_drop(slave)
         self.state.invalidate_all()
 
     def power_on(self, slave: int) -> None:
@@ -342,7 +343,7 @@ class Segment:
 
     def latch_input(self, slave: int, unit: int, rising: bool, t_ns: int | None = None) -> None:
         """An edge on DC latch input ``unit`` (0/1) of ``slave`` at segment time ``t_ns`` (now)."""
-        self.dc.latch_input(slave, unit, rising, self.clock.now_ns() if t_ns is None else t_ns)
+        self.dc.sync.latch_input(slave, unit, rising, self.clock.now_ns() if t_ns is None else t_ns)
 
     def dc_report(self) -> list[dict[str, object]]:
         """Per slave: walk time, oscillator drift, learned correction, |0x092C|, last SYNC0 (``DcClocks.report``)."""
@@ -403,7 +404,7 @@ class Segment:
                 self.arrival.received[s] = False
                 self.escs[s].al.watchdog_expired()
         if self._sync:
-            self.dc.run_sync(now)
+            self.dc.sync.run_sync(now)
             self.apps.flush()
 
     # --- frames -------------------------------------------------------------------------------
@@ -670,7 +671,7 @@ class SegmentHost:
 
     def dc_sync_status(self, index: int, lo: int, hi: int, pdi: bool) -> None:
         seg = self._seg
-        seg.dc.refresh_sync_status(index, lo, hi, seg.clock.now_ns() if pdi else None)
+        seg.dc.sync.refresh_sync_status(index, lo, hi, seg.clock.now_ns() if pdi else None)
 
     def dc_latch_input(self, index: int, unit: int, rising: bool, t_ns: int | None) -> None:
         self._seg.latch_input(index, unit, rising, t_ns)
