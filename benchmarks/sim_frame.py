@@ -147,6 +147,10 @@ def configure(seg: Segment, kinds: Sequence[str]) -> tuple[int, int]:
                                               _fmmu(in_at, length, sm.start, int(R.FmmuType.READ))))
                 in_at += length
                 fmmu += 1
+    # The SM watchdog at 1 s (10,000 ticks of 100 us): one cycle of the 10,000-slave coe30
+    # segment is 33 frames of 3.2 ms on the wire, longer than the default 100 ms, so the
+    # first slaves' outputs would expire before the last frame of the cycle (0x001B).
+    writes.append(Datagram.device(Command.BWR, 0, R.WATCHDOG_TIME_PROCESS_DATA, struct.pack("<H", 10_000)))
     _send_all(seg, writes)
     image = in_at
     for state in (2, 4):
