@@ -56,10 +56,14 @@ _LOOP_LO, _LOOP_HI = R.DC_SPEED_COUNTER_START, R.DC_SPEED_FILTER_DEPTH + 1
 # 1 ms), and the bound of the correction per unit above 0x7F (0x1000 -> +-397 ppm).
 _TAU_PER_COUNT_NS = 256.0
 _TRIM_PER_COUNT = 1e-7
-
-
-def _i64(mem: npt.NDArray[np.uint8], rows: I64, addr: int) -> I64:
-    return mem[rows, addr: addr + 8].copy().view("<i8")[:, 0]
+#: The widest bound of the speed correction (0x0930 = 0x7FFF): no loop state makes a
+#: clock run faster than ``rate * (1 + _TRIM_MAX)``.
+_TRIM_MAX = (0x7FFF - 0x7F) * _TRIM_PER_COUNT
+# Columns of DcClocks._clk (one gather fetches a slave's clock parameters at once).
+_LOCAL0, _RATE, _TRIM, _UNTIL, _LEARNED = range(5)
+# 64-bit words of a memory row: the system time 0x0910 and its offset 0x0920.
+_SYSTIME_W, _OFFSET_W = R.DC_SYSTEM_TIME // 8, R.DC_SYSTEM_TIME_OFFSET // 8
+assert R.DC_SYSTEM_TIME % 8 == 0 and R.DC_SYSTEM_TIME_OFFSET % 8 == 0
 
 
 def _u16(mem: npt.NDArray[np.uint8], rows: I64, addr: int) -> I64:
@@ -86,15 +90,20 @@ class DcClocks:
         self.n = 0
         # clock: local(t) = local0 + rate * ((t - t0) * (1 + learned)
         #                                  + min(t - t0, until) * (trim - learned))
+        # local0, rate, trim, until and learned are columns of one array ``_clk``
+        # (slave x 5; see _views): the clock maths gathers a slave's row once.
         self.t0: I64 = np.zeros(0, np.int64)
-        self.local0: F64 = np.zeros(0, np.float64)
-        self.rate: F64 = np.zeros(0, np.float64)
-        self.trim: F64 = np.zeros(0, np.float64)       # speed correction until ``until``
-        self.until: F64 = np.zeros(0, np.float64)      # ns after t0 the phase part ends
+        self._clk: F64 = np.zeros((0, 5), np.float64)
+        self.local0: F64
+        self.rate: F64
+        self.trim: F64                                 # speed correction until ``until``
+        self.until: F64                                # ns after t0 the phase part ends
+        self.learned: F64                              # learned speed correction
+        self._views()
         self.wide = np.zeros(0, bool)           # 64-bit system time
+        self._narrow = False                    # some slave has a 32-bit system time
         # time-control loop
         self.filtered: F64 = np.zeros(0, np.float64)   # 0x092C before encoding
-        self.learned: F64 = np.zeros(0, np.float64)    # learned speed correction
         self.last_update: F64 = np.zeros(0, np.float64)  # local time of the last update (nan: none)
         self.period: F64 = np.zeros(0, np.float64)       # spacing of the updates (0: unknown)
         #: The cyclic unit (SYNC0/SYNC1) and the latch inputs, on these clocks.
@@ -104,19 +113,43 @@ class DcClocks:
         #: The last time-loop update (write key, difference, filter gain, tau, bound):
         #: the same write again within a frame takes a short path.
         self._repeat: tuple[tuple[bytes, int, bytes], F64, F64, F64, F64] | None = None
+        # memory and its 64-bit view (rows of little-endian words; the stride is a multiple of 8)
+        self._mem8: npt.NDArray[np.uint8] | None = None
+        self._mem64: I64 = np.zeros((0, 1), np.int64)
+
+    def _views(self) -> None:
+        clk = self._clk
+        self.local0, self.rate, self.trim = clk[:, _LOCAL0], clk[:, _RATE], clk[:, _TRIM]
+        self.until, self.learned = clk[:, _UNTIL], clk[:, _LEARNED]
+
+    def words(self) -> I64:
+        """The segment's memory as rows of 64-bit little-endian words (a view)."""
+        mem = self.memory.mem
+        if mem is not self._mem8:
+            self._mem8 = mem
+            self._mem64 = mem.view("<i8")
+        return self._mem64
 
     def add_slave(self, index: int, now: int, drift_ppm: float) -> None:
         n = index + 1
-        for name, fill in (("t0", 0), ("local0", 0.0), ("rate", 1.0), ("trim", 0.0), ("until", 0.0),
-                           ("wide", True), ("filtered", 0.0), ("learned", 0.0),
+        for name, fill in (("t0", 0), ("wide", True), ("filtered", 0.0),
                            ("last_update", np.nan), ("period", 0.0)):
             setattr(self, name, grown(getattr(self, name), n, fill))
+        size = self._clk.shape[0]
+        if n > size:
+            clk = np.zeros((max(n, 2 * size, 4), 5), np.float64)
+            clk[:, _RATE] = 1.0
+            clk[:size] = self._clk
+            self._clk = clk
+            self._views()
         self.n = max(self.n, n)
         self.t0[index] = now
         self.local0[index] = 0.0
         self.rate[index] = 1.0 + drift_ppm * 1e-6
         self.wide[index] = self.escs[index].profile.dc_64bit
+        self._narrow = not bool(self.wide[: self.n].all())
         self.sync.add_slave(index)
+        self.sync.clock_changed()
 
     def reset(self, index: int, now: int) -> None:
         """Power-on of one slave: its local clock starts again from 0, no loop state, no pulses."""
@@ -127,6 +160,7 @@ class DcClocks:
         self.until[index] = 0.0
         self.last_update[index] = np.nan
         self.sync.reset(index)
+        self.sync.clock_changed()
 
     def set_drift(self, index: int, drift_ppm: float, now: int) -> None:
         """Change a slave's oscillator from now on (a temperature step, a worse quartz)."""
@@ -134,6 +168,7 @@ class DcClocks:
         idx = np.array([index], np.int64)
         self._reanchor(idx, now)
         self.rate[index] = 1.0 + drift_ppm * 1e-6
+        self.sync.clock_changed()
 
     def drift_ppm(self) -> F64:
         """Each slave's oscillator drift (ppm) and, after the loop, its effective rate error."""
@@ -144,10 +179,12 @@ class DcClocks:
 
     def _exact(self, slaves: I64, t: I64 | int) -> F64:
         """Local time (ns, not yet in ticks) of ``slaves`` at segment time ``t`` (any shapes)."""
+        c = self._clk[slaves]  # (..., 5): all parameters in one gather
         dt = np.asarray(t, np.int64) - self.t0[slaves]
-        window = np.minimum(np.maximum(dt, 0), self.until[slaves])  # np.clip's wrapper costs more
-        out: F64 = self.local0[slaves] + self.rate[slaves] * (
-            dt * (1.0 + self.learned[slaves]) + window * (self.trim[slaves] - self.learned[slaves]))
+        learned = c[..., _LEARNED]
+        window = np.minimum(np.maximum(dt, 0), c[..., _UNTIL])  # np.clip's wrapper costs more
+        out: F64 = c[..., _LOCAL0] + c[..., _RATE] * (
+            dt * (1.0 + learned) + window * (c[..., _TRIM] - learned))
         return out
 
     def _reanchor(self, slaves: I64, t: I64 | int) -> None:
@@ -161,41 +198,50 @@ class DcClocks:
         exact = self._exact(slaves, t_ns)
         return (np.floor(exact / TICK_NS) * TICK_NS).astype(np.int64)
 
+    def max_rate(self, slaves: I64) -> F64:
+        """An upper bound of the speed of the local clocks of ``slaves`` (local ns per segment ns)
+        whatever the time-control loop does until their drift changes or they are reset."""
+        # (a rate <= 0, a clock standing or running backwards, is bounded by a small speed)
+        out: F64 = np.maximum(self.rate[slaves], 1e-3) * (1.0 + _TRIM_MAX)
+        return out
+
     def pass_time(self, slaves: I64) -> I64:
         """Segment time at which the current frame passes the processing unit of ``slaves``."""
         return self.frame_t0 + np.maximum(self._route().epu_ns[slaves], 0)
 
     def system_time(self, slaves: I64, t_ns: I64 | int) -> I64:
         """System time (local + offset 0x0920) of ``slaves`` at segment time ``t_ns``."""
-        offset = _i64(self.memory.mem, slaves, R.DC_SYSTEM_TIME_OFFSET)
-        st = self.local_time(slaves, t_ns) + offset
-        wide = self.wide[slaves]
-        if not wide.all():
-            st = np.where(wide, st, st & 0xFFFF_FFFF)
+        st: I64 = self.local_time(slaves, t_ns) + self.words()[slaves, _OFFSET_W]
+        if self._narrow:
+            wide = self.wide[slaves]
+            if not wide.all():
+                st = np.where(wide, st, st & 0xFFFF_FFFF)
         return st
 
     def true_time(self, slaves: I64, sys_times: npt.NDArray[np.uint64]) -> F64:
         """Segment time at which the registers of ``slaves`` show the system time ``sys_times``."""
-        offset = _i64(self.memory.mem, slaves, R.DC_SYSTEM_TIME_OFFSET)
-        target = sys_times.view(np.int64) - offset
-        if not self.wide[slaves].all():
+        target = sys_times.view(np.int64) - self.words()[slaves, _OFFSET_W]
+        c = self._clk[slaves]
+        local0 = c[:, _LOCAL0]
+        if self._narrow and not self.wide[slaves].all():
             # 32-bit: the local time nearest the anchor whose low double word matches
-            base = self.local0[slaves].astype(np.int64)
+            base = local0.astype(np.int64)
             d = (target - base) & 0xFFFF_FFFF
             d = np.where(d >= 1 << 31, d - (1 << 32), d)
             target = np.where(self.wide[slaves], target, base + d)
         # the register reaches the value at the tick where the local time gets there
         local = np.ceil(target / TICK_NS) * TICK_NS
-        rate, until, t0 = self.rate[slaves], self.until[slaves], self.t0[slaves]
-        fast = rate * (1.0 + self.trim[slaves])
-        knee = self.local0[slaves] + until * fast
-        return np.where(local <= knee, t0 + (local - self.local0[slaves]) / fast,
-                        t0 + until + (local - knee) / (rate * (1.0 + self.learned[slaves])))
+        rate, until, t0 = c[:, _RATE], c[:, _UNTIL], self.t0[slaves]
+        fast = rate * (1.0 + c[:, _TRIM])
+        knee = local0 + until * fast
+        out: F64 = np.where(local <= knee, t0 + (local - local0) / fast,
+                            t0 + until + (local - knee) / (rate * (1.0 + c[:, _LEARNED])))
+        return out
 
     def refresh_system_time(self, slaves: I64) -> I64:
         """Write the system time at the frame's pass into 0x0910 of ``slaves``; return it."""
         st = self.system_time(slaves, self.pass_time(slaves))
-        _put(self.memory.mem, slaves, R.DC_SYSTEM_TIME, st, "<i8")
+        self.words()[slaves, _SYSTIME_W] = st
         return st
 
     # --- register writes ----------------------------------------------------------------
@@ -331,6 +377,7 @@ class DcClocks:
         self._repeat = None
         if not len(slaves):
             return
+        self.sync.clock_changed()
         self._reanchor(slaves, self.pass_time(slaves))
         self.trim[slaves] = self.learned[slaves] = self.filtered[slaves] = 0.0
         self.period[slaves] = self.until[slaves] = 0.0

@@ -41,6 +41,13 @@ TICK_NS = 10
 #: SYNC0 pulses kept per slave (true time and system time), for spread measurements.
 RECORDED_PULSES = 64
 _U64 = 1 << 64
+# The AL event request byte with the SYNC0/SYNC1 events (both lie in it) and their bits there.
+_EV_BYTE = (int(R.AlEvent.SYNC0).bit_length() - 1) // 8
+_SYNC0_EV, _SYNC1_EV = int(R.AlEvent.SYNC0) >> (8 * _EV_BYTE), int(R.AlEvent.SYNC1) >> (8 * _EV_BYTE)
+assert _SYNC0_EV < 0x100 and 0 < _SYNC1_EV < 0x100
+_OFFSET_LO, _OFFSET_HI = R.DC_SYSTEM_TIME_OFFSET, R.DC_SYSTEM_TIME_OFFSET + 8
+#: Share of the shortest possible time to the next pulse that run_sync may skip unchecked.
+_QUIET_SHARE = 0.95
 
 
 def grown(arr: npt.NDArray[np.generic], size: int, fill: object) -> npt.NDArray[np.generic]:
@@ -73,6 +80,10 @@ class SyncClock(Protocol):
         """Segment time at which the registers of ``slaves`` show the system time ``sys_times``."""
         ...
 
+    def max_rate(self, slaves: I64) -> F64:
+        """Upper bound of the local clock speed of ``slaves`` until :meth:`SyncUnits.clock_changed`."""
+        ...
+
 
 class SyncUnits:
     """SYNC0/SYNC1 pulses, their status and record, and the latch inputs of all slaves.
@@ -91,6 +102,7 @@ class SyncUnits:
         self.cycle1: I64 = np.zeros(0, np.int64)
         self.sync0_on = np.zeros(0, bool)
         self.sync1_on = np.zeros(0, bool)
+        self._ev = np.zeros(0, np.uint8)        # their AL event bits (in byte _EV_BYTE)
         self.pulses = np.zeros(0, np.int64)     # SYNC0 pulses fired so far
         # SYNC status (0x098E/0x098F): the last pulse (system time, 0: none since the
         # unit was configured), ``pulses`` when it was configured, and the pulses the
@@ -109,7 +121,14 @@ class SyncUnits:
         #: Per slave: its application (per pulse) or its device model wants to hear pulses.
         self.app_listens = np.zeros(0, bool)
         self.model_listens = np.zeros(0, bool)
+        self._model_only = np.zeros(0, bool)    # model_listens and not app_listens
         self._any_listener = False
+        self._any_app = False
+        #: run_sync need not look before this segment time (and not after its last look):
+        #: (from, until, slaves, their offsets 0x0920 as bytes); None: look.
+        self._quiet: tuple[int, int, I64, bytes] | None = None
+        self._gen = 0  # counts clock_changed (a run_sync that saw one leaves _quiet None)
+        self._speed: tuple[int, I64 | None, F64] = (-1, None, np.zeros(0))  # (gen, keys, max_rate)
         #: Receives each SYNC0 pulse (slave, system time) of a slave whose application
         #: listens; None: the slave's application is called directly.
         self.sync0_sink: Callable[[int, int], None] | None = None
@@ -125,7 +144,7 @@ class SyncUnits:
                            ("sync0_on", False), ("sync1_on", False), ("pulses", 0),
                            ("last0", 0), ("cfg_pulses", 0), ("ack0", 0), ("ack1", 0),
                            ("rec_sys", 0), ("rec_true", np.nan), ("app_listens", False),
-                           ("model_listens", False)):
+                           ("model_listens", False), ("_model_only", False), ("_ev", 0)):
             setattr(self, name, grown(getattr(self, name), n, fill))
         self.n = max(self.n, n)
         app = self.escs[index].app
@@ -133,12 +152,24 @@ class SyncUnits:
             type(app).on_sync0 is not _base_hook("on_sync0")
             or type(app).on_sync1 is not _base_hook("on_sync1"))
         self.model_listens[index] = False
-        self._any_listener = bool(self.app_listens.any() or self.model_listens.any())
+        self._listeners_changed()
+        self.clock_changed()
 
     def listen(self, index: int) -> None:
         """``index`` wants its pulses (its device model takes SYNC0 events)."""
         self.model_listens[index] = True
-        self._any_listener = True
+        self._listeners_changed()
+
+    def _listeners_changed(self) -> None:
+        self._any_app = bool(self.app_listens.any())
+        self._any_listener = self._any_app or bool(self.model_listens.any())
+        np.logical_and(self.model_listens, ~self.app_listens, out=self._model_only)
+
+    def clock_changed(self) -> None:
+        """A clock of some slave jumped, changed its oscillator, or pulses were (re)planned:
+        :meth:`run_sync` looks again at its next call."""
+        self._quiet = None
+        self._gen += 1
 
     def reset(self, index: int) -> None:
         """Power-on of one slave: no pulses planned, the status reads 0."""
@@ -173,6 +204,7 @@ class SyncUnits:
         self.cycle0[index] = esc.u32(R.DC_SYNC0_CYCLE)
         self.cycle1[index] = esc.u32(R.DC_SYNC1_CYCLE)
         self.sync0_on[index], self.sync1_on[index] = on0, on1
+        self._ev[index] = (_SYNC0_EV if on0 else 0) | (_SYNC1_EV if on1 else 0)
         self.last0[index] = 0
         self.cfg_pulses[index] = self.ack0[index] = self.pulses[index]
         self.ack1[index] = 0
@@ -182,76 +214,131 @@ class SyncUnits:
         esc.row[R.DC_ACTIVATION_STATUS] = int(pending)
         self.sync_next[index] = 1
         self._active = None
+        self.clock_changed()
 
     def sync_drop(self, index: int) -> None:
         """No SYNC pulses planned for ``index`` any more."""
         if self.sync_next.pop(index, None) is not None:
             self._active = None
+            self.clock_changed()
 
     def run_sync(self, now: int) -> None:
         """Fire the SYNC0/SYNC1 pulses due by segment time ``now``.
 
         One array operation over every slave with planned pulses; Python runs
-        per slave only for applications that listen to pulses.
+        per slave only for applications that listen to pulses. Each look also
+        works out a segment time before which no pulse can be due (the clocks
+        run no faster than ``max_rate``); until then, and while no clock
+        changed (:meth:`clock_changed`) and no offset 0x0920 was written,
+        calls return at once.
         """
+        quiet = self._quiet
+        if quiet is not None and quiet[0] <= now < quiet[1] and (
+                self.memory.mem[quiet[2], _OFFSET_LO:_OFFSET_HI].tobytes() == quiet[3]):
+            # No pulse can be due yet: the clocks run no faster than max_rate, and
+            # nothing changed them or the plans since the last look (an offset 0x0920
+            # written by any path shows in the memory compared here).
+            return
+        self._quiet = None
+        gen = self._gen
         keys = self._active
         if keys is None:
             keys = self._active = np.fromiter(self.sync_next, np.int64, len(self.sync_next))
         if not len(keys):
             return
-        sys_now = self.clock.system_time(keys, now).view(np.uint64)
+        clock = self.clock
+        sys_now = clock.system_time(keys, now).view(np.uint64)
         due = self.next0[keys]
         hit = sys_now >= due
-        if not hit.any():
-            return
-        slaves = keys[hit]
-        first = due[hit]
+        fired = np.count_nonzero(hit)
+        if fired:
+            self._fire(keys, sys_now, due, hit, fired == len(keys))
+            if gen != self._gen or self._active is not keys:
+                return
+            due = self.next0[keys]
+            if (due < sys_now).any():  # (a next pulse past 2^64 wrapped round)
+                return
+        # The earliest segment time at which a next pulse could be due: each system
+        # time must still advance by next0 - its value now, less up to a tick lost
+        # to rounding (two, to be safe), at no more than max_rate.
+        ahead = (due - sys_now).astype(np.float64) - 2 * TICK_NS
+        speed = self._speed
+        if speed[0] != gen or speed[1] is not keys:
+            speed = self._speed = (gen, keys, clock.max_rate(keys))
+        lead = float((ahead / speed[2]).min()) * _QUIET_SHARE
+        if lead >= 1.0:
+            t = int(now)
+            self._quiet = (t, t + int(min(lead, 2.0**62)), keys,
+                           self.memory.mem[keys, _OFFSET_LO:_OFFSET_HI].tobytes())
+
+    def _fire(self, keys: I64, sys_now: npt.NDArray[np.uint64], due: npt.NDArray[np.uint64],
+              hit: npt.NDArray[np.bool_], every: bool) -> None:
+        """The pulses of the ``hit`` slaves among ``keys`` are due (``every``: all of them)."""
+        if every:
+            slaves, first, at_now = keys, due, sys_now
+        else:
+            slaves, first, at_now = keys[hit], due[hit], sys_now[hit]
         cycle = self.cycle0[slaves]
-        behind = (sys_now[hit] - first).astype(np.int64)
-        count = np.where(cycle > 0, behind // np.maximum(cycle, 1) + 1, 1).astype(np.int64)
-        last = first + ((count - 1) * cycle).astype(np.uint64)
+        gap = at_now - first
+        step = cycle.astype(np.uint64)
+        before = self.pulses[slaves]
         # record each pulse with the time it really fired (one pass per pulse
         # index, not per slave: usually a single one per tick)
-        before = self.pulses[slaves].copy()
-        step = cycle.astype(np.uint64)
-        for j in range(min(int(count.max()), RECORDED_PULSES)):
+        if (gap < step).all():
+            # one pulse each, all cyclic (the usual tick)
+            count: I64 = np.ones(len(slaves), np.int64)
+            last = first
+            cyclic = None
+            slot = before % RECORDED_PULSES
+            self.rec_sys[slaves, slot] = first
+            self.rec_true[slaves, slot] = self.clock.true_time(slaves, first)
+            many = 0
+        else:
+            cyclic = cycle > 0
+            behind = gap.astype(np.int64)
+            count = np.where(cyclic, behind // np.maximum(cycle, 1) + 1, 1)
+            last = first + ((count - 1) * cycle).astype(np.uint64)
+            many = min(int(count.max()), RECORDED_PULSES)
+        for j in range(many):
             m = count > j
             sel = slaves[m]
             at = first[m] + np.uint64(j) * step[m]
             slot = (before[m] + j) % RECORDED_PULSES
             self.rec_sys[sel, slot] = at
             self.rec_true[sel, slot] = self.clock.true_time(sel, at)
-        self.pulses[slaves] += count
+        self.pulses[slaves] = before + count
         self.last0[slaves] = last
-        self.next0[slaves] = np.where(cycle > 0, last + cycle.astype(np.uint64), np.uint64(_U64 - 1))
+        self.next0[slaves] = last + step if cyclic is None else np.where(
+            cyclic, last + step, np.uint64(_U64 - 1))
         mem = self.memory.mem
-        on0, on1 = self.sync0_on[slaves], self.sync1_on[slaves]
+        on0 = self.sync0_on[slaves]
         # (the status registers are worked out when they are read: refresh_sync_status)
         mem[slaves[on0], R.DC_SYNC0_STATUS] = R.DC_SYNC_STATUS_PULSE
         mem[slaves, R.DC_ACTIVATION_STATUS] = 0
-        ev = np.where(on0, int(R.AlEvent.SYNC0), 0) | np.where(on1, int(R.AlEvent.SYNC1), 0)
-        for byte in range(2):
-            part = ((ev >> (8 * byte)) & 0xFF).astype(np.uint8)
-            if part.any():
-                mem[slaves, R.AL_EVENT_REQUEST + byte] |= part
-        single = slaves[cycle == 0]
-        for s in single.tolist():
-            self.sync_drop(s)
+        mem[slaves, R.AL_EVENT_REQUEST + _EV_BYTE] |= self._ev[slaves]
+        if cyclic is not None and not cyclic.all():
+            for s in slaves[~cyclic].tolist():
+                self.sync_drop(s)
         if self._any_listener:
-            self._notify(slaves, first, count, before)
+            self._notify(slaves, first, count, before, on0)
 
-    def _notify(self, slaves: I64, first: npt.NDArray[np.uint64], count: I64, before: I64) -> None:
+    def _notify(self, slaves: I64, first: npt.NDArray[np.uint64], count: I64, before: I64,
+                on0: npt.NDArray[np.bool_]) -> None:
         """Listeners hear the pulses: device models alone all at once, applications each
-        pulse (at most 16 per slave and tick)."""
-        app_listens = self.app_listens[slaves]
-        per_pulse = app_listens | self.model_listens[slaves]
+        pulse (at most 16 per slave and tick). ``on0``: the slaves' SYNC0 is on."""
         models = self.sync0_models
         if models is not None:
-            alone = per_pulse & ~app_listens
-            on = alone & self.sync0_on[slaves]
-            if on.any():
+            on = self._model_only[slaves] & on0
+            n_on = np.count_nonzero(on)
+            if n_on == len(slaves):
+                models(slaves, first)
+            elif n_on:
                 models(slaves[on], first[on])
-            per_pulse = app_listens
+            if not self._any_app:
+                return
+            per_pulse = self.app_listens[slaves]
+        else:
+            per_pulse = self.app_listens[slaves] | self.model_listens[slaves]
         for k in np.flatnonzero(per_pulse).tolist():
             s = int(slaves[k])
             app = self.escs[s].app
