@@ -248,6 +248,28 @@ def test_gateway_command_serves_and_reports(topo: str) -> None:
         proc.wait(timeout=10)
 
 
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_gateway_ends_in_order_on_a_signal_also_with_sigint_ignored(topo: str, sig: int) -> None:
+    """A gateway started as a script's background job (SIGINT ignored) or stopped with
+    SIGTERM still ends in order and reports what it served."""
+    port = _free_udp_port()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "pyethercat", "--sim", topo, "gateway", "--bind",
+         f"127.0.0.1:{port}", "--seconds", "120"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
+    try:
+        assert proc.stdout is not None
+        assert f"mailbox gateway on udp 127.0.0.1:{port}" in proc.stdout.readline()
+        proc.send_signal(sig)
+        out, err = proc.communicate(timeout=60)
+        assert proc.returncode == 0, err
+        assert "served 0 of 0 requests" in out
+    finally:
+        proc.kill()
+        proc.wait(timeout=10)
+
+
 def test_gateway_with_its_own_master_in_op(topo: str) -> None:
     """--state OP: the gateway's master cycles (OP needs the process data exchange)."""
     port = _free_udp_port()

@@ -27,6 +27,7 @@ from typing import Any
 
 import click
 
+from pyethercat.cli._lifecycle import StopSignals
 from pyethercat.cli._session import own_master, serving, spec_of
 from pyethercat.errors import ConfigError
 from pyethercat.master.control import messages as msg
@@ -124,12 +125,15 @@ def _in_state(m: Any, state: AlState, cycle_us: int) -> Iterator[None]:
 
 def _serve(gw: MailboxGateway, count: int, seconds: float | None, via: str | None) -> None:
     host, port = gw.address
-    click.echo(f"mailbox gateway on udp {host}:{port}: address 0 = master, station address "
-               f"or 1000 + position = slave; {count} slaves"
-               + (f"; {via}" if via is not None else ""))
     limit = None if seconds is None else time.monotonic() + seconds
-    with gw:
+    # SIGINT and SIGTERM end the serving in order (the statistics below), also when
+    # the gateway was started with SIGINT ignored (a background job of a script); the
+    # handlers are in place before the line that says the gateway is ready.
+    with gw, StopSignals():
         try:
+            click.echo(f"mailbox gateway on udp {host}:{port}: address 0 = master, station "
+                       f"address or 1000 + position = slave; {count} slaves"
+                       + (f"; {via}" if via is not None else ""))
             while limit is None or time.monotonic() < limit:
                 time.sleep(0.1 if limit is None else min(0.1, max(0.0,
                            limit - time.monotonic())))
