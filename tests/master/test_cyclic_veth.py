@@ -89,5 +89,8 @@ def test_op_loop_back_and_recovery_over_veth(veth_pair: tuple[str, str]) -> None
             assert wait_for(lambda: s[4].inputs["Input 2"] is True and s[4].inputs["Input 1"] is False)
             s[3].outputs["Output 5"] = 1
             assert wait_for(lambda: s[2].inputs["Input 5"] is True)
+        # every cyclic frame that came back went through this simulator (how many there
+        # were depends on how fast the steps above went, not on the feature)
         stats = sim.control("stats")
-        assert stats["frames"] > 100
+        assert r.stats.cycles > 0
+        assert stats["frames"] >= r.stats.cycles - r.stats.lost_frames, (stats, r.stats)
