@@ -30,6 +30,7 @@ __all__ = ["PairLink", "Responder"]
 
 #: Called with a frame sent to its end; returns nothing, one reply frame, or several.
 Responder = Callable[[bytes], "bytes | bytearray | Iterable[bytes | bytearray] | None"]
+_BYTES = (bytes, bytearray)
 
 
 class PairLink(Link):
@@ -41,7 +42,11 @@ class PairLink(Link):
     def __init__(self, name: str, max_queue: int = 4096) -> None:
         super().__init__(name)
         self._queue: deque[bytes] = deque()
-        self._cond = threading.Condition()
+        # (entered through its lock: ``Condition.__enter__`` is two calls more per use)
+        self._lock = threading.RLock()
+        self._cond = threading.Condition(self._lock)
+        #: Threads blocked in ``recv`` (nobody to wake: skip the notify).
+        self._waiting = 0
         self._peer: PairLink | None = None
         self._peer_closed = False
         self._responder: Responder | None = None
@@ -73,17 +78,19 @@ class PairLink(Link):
         self._responder = responder
 
     def _deliver(self, frame: bytes) -> None:
-        with self._cond:
+        with self._lock:
             if self._closed:
                 return  # like a cable to a switched-off device
             if len(self._queue) >= self.max_queue:
                 self.dropped += 1
                 return
             self._queue.append(frame)
-            self._cond.notify()
+            if self._waiting:
+                self._cond.notify()
 
     def send(self, frame: bytes) -> None:
-        self._check_open()
+        if self._closed:
+            self._check_open()
         peer = self._peer
         if peer is None:
             raise LinkClosedError(f"link {self.name} has no peer")
@@ -101,15 +108,16 @@ class PairLink(Link):
         replies = responder(data)
         if replies is None:
             return
-        if isinstance(replies, bytes | bytearray):
+        if isinstance(replies, _BYTES):
             self._deliver(bytes(replies))
         else:
             for reply in replies:
                 self._deliver(bytes(reply))
 
     def recv(self, timeout: float | None = None) -> bytes | None:
-        with self._cond:
-            self._check_open()
+        with self._lock:
+            if self._closed:
+                self._check_open()
             if self._queue:
                 return self._queue.popleft()
             deadline = None if timeout is None else time.monotonic() + timeout
@@ -118,13 +126,17 @@ class PairLink(Link):
                     raise LinkClosedError(f"link {self.name} is closed")
                 if self._peer_closed:
                     raise LinkClosedError(f"peer of link {self.name} has closed")
-                if deadline is None:
-                    self._cond.wait()
-                else:
-                    left = deadline - time.monotonic()
-                    if left <= 0:
-                        return None
-                    self._cond.wait(left)
+                self._waiting += 1
+                try:
+                    if deadline is None:
+                        self._cond.wait()
+                    else:
+                        left = deadline - time.monotonic()
+                        if left <= 0:
+                            return None
+                        self._cond.wait(left)
+                finally:
+                    self._waiting -= 1
             return self._queue.popleft()
 
     def pending(self) -> int:
