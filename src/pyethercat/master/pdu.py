@@ -520,7 +520,11 @@ class PduCore:
         if self._closed is not None:
             self.check_open()
         ticket = CyclicFrame(waiter, len(template.datagrams), template)
-        idx = self._alloc_index()
+        idx = self._next_index
+        if idx in self._in_flight:
+            idx = self._alloc_index()
+        else:  # (what _alloc_index does when the next index is free, inline: the hot path)
+            self._next_index = (idx + 1) % _INDEX_COUNT
         frame = template.frame
         for at in template.index_offsets:
             frame[at] = idx
@@ -716,7 +720,13 @@ class PduCore:
             if got is None:
                 return False
             raw = got
-        return self._deliver(raw, now)
+        # (``_deliver``'s quick check inline: the cyclic hot path)
+        if len(raw) > _FIRST_INDEX_AT + 4 and raw[12] == _ETHERTYPE_HI and raw[13] == _ETHERTYPE_LO:
+            entry = self._in_flight.get(raw[_FIRST_INDEX_AT])
+            if entry is not None and entry.template is not None and \
+                    self._complete_prepared(entry, raw, now):
+                return True
+        return self._deliver_decoded(raw, now)
 
     def _deliver(self, raw: bytes, now: float) -> bool:
         """Match a reply (a ring's copies merged) to its frame in flight."""
@@ -725,6 +735,10 @@ class PduCore:
             if entry is not None and entry.template is not None and \
                     self._complete_prepared(entry, raw, now):
                 return True
+        return self._deliver_decoded(raw, now)
+
+    def _deliver_decoded(self, raw: bytes, now: float) -> bool:
+        """``_deliver`` past the quick check of a prepared frame's reply: decode, match."""
         try:
             frame = decode_frame(raw)
         except NotEtherCATError:
