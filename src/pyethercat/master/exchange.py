@@ -86,6 +86,7 @@ class CycleExchange:
             life = self._lifetime(timeout, len(plans))
         tickets: list[CyclicFrame | None] = []
         self.tickets = tickets
+        sent: list[CyclicFrame] = []
         stats = self.stats
         dc = self.dc
         for p in plans:
@@ -98,13 +99,16 @@ class CycleExchange:
                 if value is not None:
                     frame[p.dc_fill:p.dc_fill + len(value)] = value
             try:
-                tickets.append(sched.send_prepared(p.template, timeout=life))
+                sending = sched.send_prepared(p.template, timeout=life)
             except LinkError as exc:
                 # The interface is down or gone: the frame is lost, the loop goes on.
                 stats.send_errors += 1
                 self.watch.send_error = exc
                 tickets.append(None)
-        self.last_tickets = [t for t in tickets if t is not None]
+            else:
+                tickets.append(sending)
+                sent.append(sending)
+        self.last_tickets = sent
         self.last_plans = plans
         until = None if timeout is None else sched.now() + timeout
         lost = False
@@ -118,10 +122,12 @@ class CycleExchange:
             raw = None
             if ticket is not None:
                 raw = ticket.raw
-                if raw is None:
+                if raw is None and not ticket.lost:
+                    # (``ticket.wait_raw``: its waiter is ``sched``, which sent it)
                     try:
-                        raw = ticket.wait_raw(None if until is None
-                                              else max(0.0, until - sched.now()))
+                        sched.wait_ticket(ticket, None if until is None
+                                          else max(0.0, until - sched.now()))
+                        raw = ticket.raw
                     except LinkError as exc:
                         self.watch.recv_error = exc
             if p.dc_read >= 0:

@@ -118,7 +118,8 @@ class Scheduler:
         vclock = self.clock
         if isinstance(vclock, VirtualClock):
             self._vclock: VirtualClock | None = vclock
-            self.now: Callable[[], float] = lambda: vclock.now_ns() * 1e-9
+            # (its ``ns`` attribute, not ``now_ns()``: one call less on the hot path)
+            self.now: Callable[[], float] = lambda: vclock.ns * 1e-9
         else:
             self._vclock = None
             # WallClock counts time.monotonic's nanoseconds: read it directly (hot path).
@@ -358,7 +359,7 @@ class Scheduler:
     def _transmit_locked(self, idx: int, raw: bytes) -> None:
         """Put a frame the core registered on the link; a refusal fails it."""
         vclock = self._vclock
-        before = vclock.now_ns() if vclock is not None else 0
+        before = vclock.ns if vclock is not None else 0
         try:
             if self._ring is None:
                 self.link.send(raw)
@@ -368,7 +369,7 @@ class Scheduler:
             self.core.send_failed(idx, exc)
             self._notify()
             raise
-        if vclock is not None and vclock.now_ns() == before:
+        if vclock is not None and vclock.ns == before:
             # The frame takes its wire time (unless the responder moved the clock).
             vclock.advance((max(len(raw), MIN_FRAME_SIZE) + _WIRE_EXTRA) * _BYTE_NS)
 
@@ -454,21 +455,27 @@ class Scheduler:
     def wait_ticket(self, ticket: CyclicFrame, timeout: float | None) -> None:
         """``wait_until(ticket.done)`` without the calls: the cyclic thread's wait."""
         now_fn = self.now
-        start = now_fn()
+        virtual = self._vclock is not None
+        # (no clock read for a wait without limit in virtual time: nothing would use it)
+        start = now_fn() if timeout is not None or not virtual else 0.0
         limit = None if timeout is None else start + timeout
-        spin_end = 0.0 if self.virtual else start + self.reply_spin
+        spin_end = 0.0 if virtual else start + self.reply_spin
         core = self.core
+        queue = core._queue  # (``core.queued`` without the call: the cyclic hot path)
         with self._lock:
             while ticket.raw is None and not ticket.lost and ticket.replies is None:
                 now = now_fn()
-                if core.closed:
+                if core._closed is not None:  # (``core.closed``)
                     return
                 if limit is not None and now >= limit:
                     if not self._receiving:
                         self._drain_locked(now)  # what is there came in time
                     return
-                if core.queued:
+                if queue:
                     self._send_queued_locked(now)
+                if virtual and not self._receiving:
+                    self._receive_virtual_locked(now)  # (what _receive_once_locked does)
+                    continue
                 if now < spin_end and not self._receiving:
                     # Poll (a receive that does not block); see ``reply_spin``.
                     self._receive_once_locked(now, now)
@@ -554,10 +561,19 @@ class Scheduler:
     def _receive_virtual_locked(self, now: float) -> None:
         """Virtual time: take what the responder queued, else jump to the next deadline."""
         core = self.core
-        got = self._recv_locked(0)
-        if got is not None:
-            core.on_frame(got[0], now, got[1])
-            self._forward_locked()
+        ring = self._ring
+        # (``_recv_locked`` and ``_forward_locked`` inline: the cyclic hot path)
+        port = 0
+        if ring is None:
+            raw = self.link.recv(0)
+        else:
+            got = ring.recv_from(0)
+            raw = None if got is None else got[0]
+            port = 0 if got is None else got[1]
+        if raw is not None:
+            core.on_frame(raw, now, port)
+            if ring is not None:
+                self._forward_locked()
         else:
             # The responder already answered everything it will ever answer.
             vclock = self._vclock
@@ -567,6 +583,7 @@ class Scheduler:
                 # (the float deadline may round a hair above the clock's nanoseconds)
                 now = max(self.now(), first)
             core.expire(now)
-        if core.queued:
+        if core._queue:  # (``core.queued``)
             self._send_queued_locked(now)
-        self._notify()
+        if self._sleepers:  # (``_notify``)
+            self._cond.notify_all()
