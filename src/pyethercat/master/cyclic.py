@@ -513,7 +513,8 @@ class CyclicRunner:
         (without timing statistics, link tracking and supervision). Not while
         the loop runs.
         """
-        if self.running:
+        t = self._thread
+        if t is not None and t.is_alive():  # (``self.running``)
             raise ConfigError("the cyclic loop is running: exchange_once() would race it")
         ok, lost, _back, _rtt, _names = self.xchg.exchange(self._all_due, None)
         return ok and not lost

@@ -455,7 +455,8 @@ class Scheduler:
     def wait_ticket(self, ticket: CyclicFrame, timeout: float | None) -> None:
         """``wait_until(ticket.done)`` without the calls: the cyclic thread's wait."""
         now_fn = self.now
-        virtual = self._vclock is not None
+        vclock = self._vclock
+        virtual = vclock is not None
         # (no clock read for a wait without limit in virtual time: nothing would use it)
         start = now_fn() if timeout is not None or not virtual else 0.0
         limit = None if timeout is None else start + timeout
@@ -464,7 +465,8 @@ class Scheduler:
         queue = core._queue  # (``core.queued`` without the call: the cyclic hot path)
         with self._lock:
             while ticket.raw is None and not ticket.lost and ticket.replies is None:
-                now = now_fn()
+                # (``self.now()``; in virtual time without the call)
+                now = vclock.ns * 1e-9 if vclock is not None else now_fn()
                 if core._closed is not None:  # (``core.closed``)
                     return
                 if limit is not None and now >= limit:
