@@ -261,7 +261,7 @@ class _Moves:
     precedence)."""
 
     __slots__ = ("whole_src", "whole_dst", "whole_view", "lo", "hi", "shift", "mask", "layers",
-                 "dst", "keep")
+                 "dst", "keep", "fused")
 
     _EMPTY_U8: U8 = np.zeros(0, np.uint8)
 
@@ -278,6 +278,9 @@ class _Moves:
         self.layers: list[tuple[int, int, I64]] = []
         self.dst: I64 = _EMPTY
         self.keep: U8 = self._EMPTY_U8
+        #: Whole and bit entries as one masked move (source, destination, mask, keep), when
+        #: every destination has one entry from one source byte: fewer numpy calls per frame.
+        self.fused: tuple[I64, I64, U8, U8] | None = None
         dst, mask, shift = side.dst[idx], side.mask[idx], side.shift[idx]
         if bool((mask == 0xFF).all()) and not shift.any() and bool((dst[1:] != dst[:-1]).all()):
             self._whole(side.lo[idx], dst)  # the usual byte-aligned image: nothing to merge
@@ -308,6 +311,11 @@ class _Moves:
         self.lo, self.shift, self.mask = side.lo[sel], side.shift[sel].astype(np.uint16), eff[order].astype(np.uint8)
         # (No second source byte when every entry takes its bits from one byte.)
         self.hi = side.hi[sel] if self.shift.any() else None
+        if self.hi is None and not self.layers and self.whole_src is not None and self.whole_dst is not None:
+            ws, wd = _indices(self.whole_src), _indices(self.whole_dst)
+            self.fused = (np.concatenate([ws, self.lo]), np.concatenate([wd, self.dst]),
+                          np.concatenate([np.full(len(ws), 0xFF, np.uint8), self.mask]),
+                          np.concatenate([np.zeros(len(ws), np.uint8), self.keep]))
 
     def _whole(self, src: I64, dst: I64) -> None:
         self.whole_src, self.whole_dst = _run(src), _run(dst)
@@ -329,6 +337,13 @@ class _Moves:
         return acc
 
 
+def _indices(idx: I64 | slice) -> I64:
+    """An index run (a slice) as an index array."""
+    if isinstance(idx, slice):
+        return np.arange(idx.start, idx.stop, dtype=np.int64)
+    return idx
+
+
 class _Stage:
     """Slaves of the route whose reads and writes may be applied at once: a gather of what
     they read, a scatter of what they write, the placing of the reads."""
@@ -345,18 +360,31 @@ class _Stage:
         r, w = self.reads, self.writes
         rvals = tvals = None
         if r is not None:
-            if r.whole_src is not None:
+            if r.fused is not None:
+                tvals = flat[r.fused[0]] & r.fused[2]
+            elif r.whole_src is not None:
                 rvals = flat[r.whole_src]
                 if r.whole_view:  # (a slice is a view: the writes below must not change it)
                     rvals = rvals.copy()
-            if r.lo is not None:
+                if r.lo is not None:
+                    tvals = r.merged(flat)
+            elif r.lo is not None:
                 tvals = r.merged(flat)
         if w is not None:
-            if w.whole_src is not None:
-                flat[w.whole_dst] = data[w.whole_src]
-            if w.lo is not None:
-                flat[w.dst] = (flat[w.dst] & w.keep) | w.merged(data)
+            if w.fused is not None:
+                f_src, f_dst, f_mask, f_keep = w.fused
+                flat[f_dst] = (flat[f_dst] & f_keep) | (data[f_src] & f_mask)
+            else:
+                if w.whole_src is not None:
+                    flat[w.whole_dst] = data[w.whole_src]
+                if w.lo is not None:
+                    flat[w.dst] = (flat[w.dst] & w.keep) | w.merged(data)
         if r is not None:
+            if r.fused is not None:
+                assert tvals is not None
+                f_dst, f_keep = r.fused[1], r.fused[3]
+                data[f_dst] = (data[f_dst] & f_keep) | tvals
+                return
             if rvals is not None:
                 data[r.whole_dst] = rvals
             if tvals is not None:
