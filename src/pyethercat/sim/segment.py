@@ -606,7 +606,9 @@ class Segment:
         if events:
             state.irq_changed()
         if len(done):
-            self.complete_write_sms(done)
+            # (complete_write_sms without its SM check: compiled above, and a plan's run
+            # changes no SM configuration)
+            self.arrival.completed(done)
         return wkc
 
 
