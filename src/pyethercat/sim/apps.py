@@ -49,6 +49,9 @@ class DeviceApps:
         #: Per slave: the application wants :meth:`DeviceApp.on_outputs` calls.
         self.wants_outputs = np.zeros(0, bool)
         self._output_models: list[int] = []
+        #: Whether any model or application is called on completed outputs (else a frame's
+        #: completed outputs cost no lookup here).
+        self._listening = False
         self._sync_models: list[int] = []
         self._groups: ArrayKeyCache[_Groups] = ArrayKeyCache()
         self._pulses: dict[int, tuple[list[I64], int]] = {}
@@ -59,6 +62,7 @@ class DeviceApps:
         self.instance = np.append(self.instance, instance)
         self.wants_outputs = np.append(self.wants_outputs, bool(app is not None and app.wants_output_events))
         self._groups.clear()
+        self._listening = bool(self._output_models) or bool(self.wants_outputs.any())
 
     def replace(self, slave: int, app: DeviceApp | None, model: DeviceModel | None,
                 instance: int) -> None:
@@ -68,6 +72,7 @@ class DeviceApps:
         self.instance[slave] = instance
         self.wants_outputs[slave] = bool(app is not None and app.wants_output_events)
         self._groups.clear()
+        self._listening = bool(self._output_models) or bool(self.wants_outputs.any())
 
     def _model_index(self, model: DeviceModel | None) -> int:
         if model is None:
@@ -93,6 +98,8 @@ class DeviceApps:
 
     def outputs_completed(self, slaves: I64) -> None:
         """New complete output buffers of ``slaves`` (one frame's worth)."""
+        if not self._listening:
+            return
         models, legacy = self._group(slaves)
         for model, instances in models:
             model.on_outputs(instances)
