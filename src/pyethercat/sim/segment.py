@@ -505,8 +505,12 @@ class Segment:
             # The IRQ field passes each slave in the header, before the slave
             # executes the datagram: it shows the events as they were before it.
             irq |= state.irq
-            if cmd in _CLASS:
-                add, address = self._datagram(cmd, address, np.frombuffer(buf, np.uint8, n, doff), n)
+            kind = _CLASS.get(cmd)
+            if kind is not None:
+                if kind == 1:  # (logical: _datagram's first case, without its call)
+                    add = self._logical(cmd, address, np.frombuffer(buf, np.uint8, n, doff), n)
+                else:
+                    add, address = self._datagram(cmd, address, np.frombuffer(buf, np.uint8, n, doff), n)
                 if state.irq_stale:
                     state.compile_irq()
             else:
