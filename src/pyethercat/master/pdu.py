@@ -767,7 +767,7 @@ class PduCore:
         if entry.template is not None:
             # A prepared frame whose reply failed the quick check: compare in full.
             entry.datagrams = decode_frame(entry.sent).datagrams
-        problem = self._mismatch(entry, frame.datagrams)
+        problem = _reply_mismatch(entry, frame.datagrams)
         if problem is not None:
             if problem[0]:
                 # Another frame's reply that happens to carry this index: not ours.
@@ -817,7 +817,7 @@ class PduCore:
                 got = decode_datagrams(memoryview(raw)[template.end:end])
             except FrameError:
                 return False
-            if self._mismatch(entry, got) is not None:
+            if _reply_mismatch(entry, got) is not None:
                 return False
             for r, d in zip(entry.requests, got, strict=True):
                 if not r.done():
@@ -832,25 +832,6 @@ class PduCore:
         ticket.raw = raw
         ticket.received_at = now
         return True
-
-    @staticmethod
-    def _mismatch(entry: _InFlight, got: list[Datagram]) -> tuple[bool, str] | None:
-        """None if ``got`` answers ``entry``; else (looks foreign, reason)."""
-        if got and entry.datagrams and int(got[0].command) != int(entry.datagrams[0].command):
-            # Another frame's reply that happens to carry this index.
-            return (True, f"datagram 0 is {command_name(int(got[0].command))}, sent "
-                          f"{command_name(int(entry.datagrams[0].command))}")
-        if len(got) != len(entry.datagrams):
-            return (False, f"{len(got)} datagrams, sent {len(entry.datagrams)}")
-        for n, (s, g) in enumerate(zip(entry.datagrams, got, strict=True)):
-            if g.index != s.index:
-                return (False, f"datagram {n} has index {g.index}, sent {s.index}")
-            why = _reply_matches(s, g)
-            if why is not None:
-                # A wrong first datagram means the index was a coincidence.
-                return (n == 0 and int(g.command) != int(s.command),
-                        f"datagram {n} ({describe_datagram(s)}): {why}")
-        return None
 
     def _fail_entry(self, entry: _InFlight, err: EtherCATError, now: float) -> None:
         for r in entry.requests:
@@ -878,3 +859,22 @@ class PduCore:
                 f.cyclic.lost = True
                 f.cyclic.error = err
         self._in_flight.clear()
+
+
+def _reply_mismatch(entry: _InFlight, got: list[Datagram]) -> tuple[bool, str] | None:
+    """None if ``got`` answers ``entry``; else (looks foreign, reason)."""
+    if got and entry.datagrams and int(got[0].command) != int(entry.datagrams[0].command):
+        # Another frame's reply that happens to carry this index.
+        return (True, f"datagram 0 is {command_name(int(got[0].command))}, sent "
+                      f"{command_name(int(entry.datagrams[0].command))}")
+    if len(got) != len(entry.datagrams):
+        return (False, f"{len(got)} datagrams, sent {len(entry.datagrams)}")
+    for n, (s, g) in enumerate(zip(entry.datagrams, got, strict=True)):
+        if g.index != s.index:
+            return (False, f"datagram {n} has index {g.index}, sent {s.index}")
+        why = _reply_matches(s, g)
+        if why is not None:
+            # A wrong first datagram means the index was a coincidence.
+            return (n == 0 and int(g.command) != int(s.command),
+                    f"datagram {n} ({describe_datagram(s)}): {why}")
+    return None

@@ -610,9 +610,7 @@ class Segment:
         if events:
             state.irq_changed()
         if len(done):
-            # (complete_write_sms without its SM check: compiled above, and a plan's run
-            # changes no SM configuration)
-            self.arrival.completed(done)
+            self.arrival.completed(done)  # (SMs compiled above; plans change none)
         return wkc
 
 
