@@ -720,13 +720,7 @@ class PduCore:
             if got is None:
                 return False
             raw = got
-        # (``_deliver``'s quick check inline: the cyclic hot path)
-        if len(raw) > _FIRST_INDEX_AT + 4 and raw[12] == _ETHERTYPE_HI and raw[13] == _ETHERTYPE_LO:
-            entry = self._in_flight.get(raw[_FIRST_INDEX_AT])
-            if entry is not None and entry.template is not None and \
-                    self._complete_prepared(entry, raw, now):
-                return True
-        return self._deliver_decoded(raw, now)
+        return self._deliver(raw, now)
 
     def _deliver(self, raw: bytes, now: float) -> bool:
         """Match a reply (a ring's copies merged) to its frame in flight."""
@@ -735,10 +729,6 @@ class PduCore:
             if entry is not None and entry.template is not None and \
                     self._complete_prepared(entry, raw, now):
                 return True
-        return self._deliver_decoded(raw, now)
-
-    def _deliver_decoded(self, raw: bytes, now: float) -> bool:
-        """``_deliver`` past the quick check of a prepared frame's reply: decode, match."""
         try:
             frame = decode_frame(raw)
         except NotEtherCATError:

@@ -462,18 +462,17 @@ class Scheduler:
         limit = None if timeout is None else start + timeout
         spin_end = 0.0 if virtual else start + self.reply_spin
         core = self.core
-        queue = core._queue  # (``core.queued`` without the call: the cyclic hot path)
         with self._lock:
             while ticket.raw is None and not ticket.lost and ticket.replies is None:
                 # (``self.now()``; in virtual time without the call)
                 now = vclock.ns * 1e-9 if vclock is not None else now_fn()
-                if core._closed is not None:  # (``core.closed``)
+                if core.closed:
                     return
                 if limit is not None and now >= limit:
                     if not self._receiving:
                         self._drain_locked(now)  # what is there came in time
                     return
-                if queue:
+                if core.queued:
                     self._send_queued_locked(now)
                 if virtual and not self._receiving:
                     self._receive_virtual_locked(now)  # (what _receive_once_locked does)
@@ -585,7 +584,7 @@ class Scheduler:
                 # (the float deadline may round a hair above the clock's nanoseconds)
                 now = max(self.now(), first)
             core.expire(now)
-        if core._queue:  # (``core.queued``)
+        if core.queued:
             self._send_queued_locked(now)
         if self._sleepers:  # (``_notify``)
             self._cond.notify_all()
