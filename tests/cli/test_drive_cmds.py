@@ -97,7 +97,10 @@ def test_drive_actions_through_the_running_master(topo: str, running: Master) ->
     assert abs(position - 20000) <= 100                      # target reached: position window
     code, out, err = run("--sim", topo, "drive", "home", "37", "-p", "0")
     assert code == 0, err
-    assert " HM " in out and "position 0" in out             # current position is home, offset 0
+    assert " HM " in out
+    # The current position became home (offset 0); the motor, "target reached" within its
+    # position window, may still settle by a count after that (seen once under load: -1).
+    assert abs(int(out.split("position ")[1].split()[0])) <= 2
     code, out, err = run("--sim", topo, "drive", "mode", "csp", "-p", "0")
     assert code == 0, err
     assert " CSP " in out

@@ -61,9 +61,14 @@ class OutputArrival:
 
     def completed(self, slaves: I64) -> None:
         """The buffered write SMs of ``slaves`` (unique) got their last byte in this frame."""
-        wd_slaves = self.sm.publish(slaves)
+        self.published(slaves, self.sm.publish(slaves), self.now_ns())
+
+    def published(self, slaves: I64, wd_slaves: I64, now: int) -> None:
+        """What follows the publish of the buffers of ``slaves`` (done by the caller):
+        the watchdogs of ``wd_slaves`` retriggered at ``now``, OP requests waiting for
+        outputs, the applications, the wires."""
         if len(wd_slaves):
-            self.watchdogs.retrigger(wd_slaves, self.now_ns())
+            self.watchdogs.retrigger(wd_slaves, now)
         self.received[slaves] = True
         if self.pending_op:
             for s in sorted(self.pending_op & set(slaves.tolist())):

@@ -48,6 +48,7 @@ a stage is again one gather, scatter and placement).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.ma  # noqa: F401  (np.unique imports it lazily: ~12 ms in the first LRW plan compile)
@@ -55,6 +56,9 @@ import numpy.typing as npt
 
 from pyethercat.wire import registers as R
 from pyethercat.wire.datagram import MAX_DATA
+
+if TYPE_CHECKING:
+    from pyethercat.sim.fused import FusedLogical
 
 __all__ = [
     "SLAVE_STRIDE",
@@ -354,9 +358,56 @@ class _Stage:
         self.reads = _Moves(reads, r_idx) if len(r_idx) else None
         self.writes = _Moves(writes, w_idx) if len(w_idx) else None
 
+    def gather(self, flat: U8) -> tuple[U8 | None, U8 | None]:
+        """What the slaves read (before their writes): :meth:`place` puts it in a frame."""
+        r = self.reads
+        rvals = tvals = None
+        if r is not None:
+            if r.fused is not None:
+                tvals = flat[r.fused[0]] & r.fused[2]
+            elif r.whole_src is not None:
+                rvals = flat[r.whole_src]
+                if r.whole_view:
+                    rvals = rvals.copy()
+                if r.lo is not None:
+                    tvals = r.merged(flat)
+            elif r.lo is not None:
+                tvals = r.merged(flat)
+        return rvals, tvals
+
+    def place(self, data: U8, got: tuple[U8 | None, U8 | None]) -> None:
+        """Put what :meth:`gather` read into the datagram's bytes ``data``."""
+        r = self.reads
+        if r is None:
+            return
+        rvals, tvals = got
+        if r.fused is not None:
+            assert tvals is not None
+            data[r.fused[1]] = (data[r.fused[1]] & r.fused[3]) | tvals
+            return
+        if rvals is not None:
+            data[r.whole_dst] = rvals
+        if tvals is not None:
+            data[r.dst] = (data[r.dst] & r.keep) | tvals
+
+    def write(self, flat: U8, data: U8) -> None:
+        """Write the datagram's bytes as they arrived (``data``) into the memory."""
+        w = self.writes
+        if w is None:
+            return
+        if w.fused is not None:
+            f_src, f_dst, f_mask, f_keep = w.fused
+            flat[f_dst] = (flat[f_dst] & f_keep) | (data[f_src] & f_mask)
+        else:
+            if w.whole_src is not None:
+                flat[w.whole_dst] = data[w.whole_src]
+            if w.lo is not None:
+                flat[w.dst] = (flat[w.dst] & w.keep) | w.merged(data)
+
     def apply(self, flat: U8, data: U8) -> None:
         # Gather first (a slave reads its memory as it was), scatter the data as
         # it arrived (``data`` is unchanged until the reads are placed), then place.
+        # (gather/write/place in one body: the cyclic frame's path, one call)
         r, w = self.reads, self.writes
         rvals = tvals = None
         if r is not None:
@@ -395,7 +446,7 @@ class _Plan:
     """Cached index arrays of one logical datagram shape."""
 
     __slots__ = ("wkc", "stages", "done", "or_idx", "or_val", "and_idx", "and_val", "and_hit",
-                 "size")
+                 "size", "fused")
 
     def __init__(self, wkc: int) -> None:
         self.wkc = wkc
@@ -411,6 +462,8 @@ class _Plan:
         self.and_hit: U8 | None = None
         #: Index entries the plan holds (for the cache bound).
         self.size = 0
+        #: Its register updates as one program (``sim.fused``), built on first use.
+        self.fused: FusedLogical | None = None
 
     @property
     def ordered(self) -> bool:
@@ -509,15 +562,7 @@ class LogicalMap:
         computed once per datagram shape and cached: the cyclic cost is a
         gather, a scatter, a placement and the SM status updates.
         """
-        key = (lo, len(data), reads, writes)
-        plan = self._plans.get(key)
-        if plan is None:
-            plan = self._plan(lo, len(data), reads, writes)
-            if len(self._plans) >= _PLAN_CACHE or self._plan_entries > _CACHE_ENTRIES:
-                self._plans.clear()
-                self._plan_entries = 0
-            self._plans[key] = plan
-            self._plan_entries += plan.size
+        plan = self.plan(lo, len(data), reads, writes)
         if not plan.wkc:
             return 0, plan.done, False
         for stage in plan.stages:
@@ -525,6 +570,19 @@ class LogicalMap:
         if plan.or_idx is None:
             return plan.wkc, plan.done, False
         return plan.wkc, plan.done, self._sm_read_events(flat, plan)
+
+    def plan(self, lo: int, n: int, reads: bool, writes: bool) -> _Plan:
+        """The (cached) plan of a logical datagram of ``n`` bytes at ``lo``."""
+        key = (lo, n, reads, writes)
+        plan = self._plans.get(key)
+        if plan is None:
+            plan = self._plan(lo, n, reads, writes)
+            if len(self._plans) >= _PLAN_CACHE or self._plan_entries > _CACHE_ENTRIES:
+                self._plans.clear()
+                self._plan_entries = 0
+            self._plans[key] = plan
+            self._plan_entries += plan.size
+        return plan
 
     @staticmethod
     def _sm_read_events(flat: U8, plan: _Plan) -> bool:

@@ -52,13 +52,14 @@ from pyethercat.sim.datagrams import MALFORMED, Head, scan_frame
 from pyethercat.sim.dc import DcClocks
 from pyethercat.sim.esc import Esc
 from pyethercat.sim.faults import NEVER, Faults
+from pyethercat.sim.fused import fuse
 from pyethercat.sim.host import Dirty
 from pyethercat.sim.memory import EscMemory
 from pyethercat.sim.pdio import ProcessIo
 from pyethercat.sim.ports import MASTER, NEXT_PORT, Ports, Route
 from pyethercat.sim.ring import MasterPorts
 from pyethercat.sim.slave import SimSlave, SimSlaveSpec
-from pyethercat.sim.syncman import SmAreas
+from pyethercat.sim.syncman import STATUS_AFTER_WRITE, SmAreas
 from pyethercat.sim.watchdog import Watchdogs
 from pyethercat.sim.wiring import Wiring
 from pyethercat.wire import registers as R
@@ -518,6 +519,19 @@ class Segment:
             _HEADER_TAIL.pack_into(buf, off + 2, address, lw, irq)
             wkc_off = doff + n
             _WKC.pack_into(buf, wkc_off, (_WKC.unpack_from(buf, wkc_off)[0] + add) & 0xFFFF)
+        self.frame_done(now, len(buf))
+        if route.reopen:
+            self._reopen_ports(route, any_c)
+        if destroy or not route.returned:
+            self.frames_lost += 1
+            return None
+        buf[6] |= LOCALLY_ADMINISTERED_BIT
+        return bytes(buf)
+
+    def frame_done(self, now: int, size: int) -> None:
+        """The time a frame of ``size`` bytes that entered at ``now`` took: a virtual clock
+        moves by its wire time; on real time a slow frame pauses the watchdogs."""
+        vclock = self._vclock
         if vclock is None:
             # On real time, a frame that kept the simulator busy long (AL control
             # for a thousand slaves, one ESC after the other in Python) must not
@@ -526,18 +540,12 @@ class Segment:
             if spent > _SLOW_FRAME_NS:
                 self.watchdogs.pause(spent)
         elif self.advance_clock:
+            state = self.state
             walk = state.route
             if walk is None or state.topology_dirty:
                 walk = state.walk()
-            size = len(buf)  # (no max(): a builtin call costs more than the whole sum)
+            # (no max(): a builtin call costs more than the whole sum)
             vclock.ns += ((size if size > 60 else 60) + FCS_SIZE) * self.mac_wire_ns + walk.delay_ns
-        if route.reopen:
-            self._reopen_ports(route, any_c)
-        if destroy or not route.returned:
-            self.frames_lost += 1
-            return None
-        buf[6] |= LOCALLY_ADMINISTERED_BIT
-        return bytes(buf)
 
     def _parse(self, buf: bytearray, route: Route) -> tuple[list[Head], bool] | bytes | None:
         """Check and parse a frame: (datagram headers, any circulating bit) to process it,
@@ -604,13 +612,28 @@ class Segment:
         assert lmap is not None
         if lmap.empty or n == 0:
             return 0
-        reads = cmd != _LWR
-        writes = cmd != _LRD
-        wkc, done, events = lmap.run(self.memory.flat, address & 0xFFFFFFFF, data, reads, writes)
-        if events:
+        plan = lmap.plan(address & 0xFFFFFFFF, n, cmd != _LWR, cmd != _LRD)
+        wkc = plan.wkc
+        if not wkc:
+            return 0
+        stages = plan.stages
+        memory = self.memory
+        flat = memory.flat
+        if len(stages) == 1:
+            stages[0].apply(flat, data)
+        else:
+            for stage in stages:
+                stage.apply(flat, data)
+        # The read events and the publish of completed buffers: one program per plan
+        # (sim.fused), built with it from the same registers. (SMs compiled above.)
+        fused = plan.fused
+        if fused is None:
+            fused = plan.fused = fuse(plan, self.sm, STATUS_AFTER_WRITE)
+        if fused.registers(flat, memory.shadow_flat):
             state.irq_changed()
+        done = fused.done
         if len(done):
-            self.arrival.completed(done)  # (SMs compiled above; plans change none)
+            self.arrival.published(done, fused.wd_slaves, self.dc.frame_t0)
         return wkc
 
 

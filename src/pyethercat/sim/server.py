@@ -71,6 +71,8 @@ from pyethercat.errors import ConfigError, EtherCATError, LinkClosedError, LinkD
 from pyethercat.link.base import MAX_FRAME, Link
 from pyethercat.realtime import apply_realtime
 from pyethercat.sim.eoe import eoe_server
+from pyethercat.sim.reply_first import serve_reply_first
+from pyethercat.sim.segment import Segment
 from pyethercat.wire.frame import is_ethercat
 from pyethercat.wire.registers import AL_STATUS
 
@@ -149,6 +151,10 @@ class SimServer:
         # One receive buffer for every frame (links receive into it: poll_into).
         self._rx = bytearray(MAX_FRAME + 64)
         self._rx_view = memoryview(self._rx)
+        #: Cyclic frames answered before their writes are applied (``sim.reply_first``):
+        #: a segment of this package on one master port.
+        self._reply_first = link_b is None and isinstance(segment, Segment)
+        self._t_reply = 0.0
         self.stats = ServerStats()
         self._log = log or (lambda _msg: None)
         self._stop = threading.Event()
@@ -323,10 +329,15 @@ class SimServer:
         if not is_ethercat(frame):
             self.stats.ignored += 1
             return
-        self.stats.frames += 1
-        t0 = time.perf_counter()
+        stats = self.stats
+        stats.frames += 1
+        t0 = self._t_reply = time.perf_counter()
         out = self.link
         try:
+            # A cyclic frame: its reply goes before its writes are applied.
+            if self._reply_first and serve_reply_first(self.segment, frame, self._send_first):
+                self._count_time(t0)
+                return
             if self.link_b is None:
                 reply = self.segment.process(frame)
             else:
@@ -334,27 +345,47 @@ class SimServer:
                 reply = None if got is None else got[1]
                 if got is not None:
                     out = self._links[got[0]]
+        except LinkClosedError:
+            raise
+        except LinkError as exc:
+            # (the reply of a frame answered first: the frame's effects hold)
+            stats.errors += 1
+            stats.last_error = str(exc)
+            self._count_time(t0)
+            return
         except EtherCATError as exc:
             # A malformed frame dies in the first slave, as on a real wire.
-            self.stats.errors += 1
-            self.stats.last_error = str(exc)
+            stats.errors += 1
+            stats.last_error = str(exc)
             reply = None
-        dt = (time.perf_counter() - t0) * 1e6
-        self.stats.total_process_us += dt
-        if dt > self.stats.max_process_us:
-            self.stats.max_process_us = dt
+        self._t_reply = time.perf_counter()
+        self._count_time(t0)
         if reply is None:
-            self.stats.lost += 1
+            stats.lost += 1
             return
         try:
             out.send(reply)
         except LinkClosedError:
             raise
         except LinkError as exc:
-            self.stats.errors += 1
-            self.stats.last_error = str(exc)
+            stats.errors += 1
+            stats.last_error = str(exc)
             return
+        stats.replies += 1
+
+    def _send_first(self, reply: bytearray) -> None:
+        """Send a reply answered before the frame's writes (``sim.reply_first``)."""
+        self._t_reply = time.perf_counter()
+        self.link.send(reply)  # type: ignore[arg-type]
         self.stats.replies += 1
+
+    def _count_time(self, t0: float) -> None:
+        """Processing time of a frame: from its arrival to its reply handed to the link."""
+        dt = (self._t_reply - t0) * 1e6
+        stats = self.stats
+        stats.total_process_us += dt
+        if dt > stats.max_process_us:
+            stats.max_process_us = dt
 
     def _run_calls(self) -> None:
         while self._calls:

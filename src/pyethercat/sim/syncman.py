@@ -32,7 +32,7 @@ from pyethercat.sim.memory import EscMemory
 from pyethercat.sim.ports import Route
 from pyethercat.wire import registers as R
 
-__all__ = ["SmAreas"]
+__all__ = ["STATUS_AFTER_WRITE", "SmAreas"]
 
 I64 = npt.NDArray[np.int64]
 U8 = npt.NDArray[np.uint8]
@@ -49,7 +49,8 @@ def _status_after_write_table() -> U8:
     return np.array([buffer_written(old) & ~R.SM_STATUS_READ_EVENT & 0xFF for old in range(256)], np.uint8)
 
 
-_STATUS_AFTER_WRITE = _status_after_write_table()
+#: SM status byte after a completed buffered write, by the status before.
+STATUS_AFTER_WRITE = _status_after_write_table()
 
 
 def _byte_and_mask(bit: int) -> tuple[int, int]:
@@ -150,6 +151,15 @@ class SmAreas:
         if self._plans.get(slaves) is None:
             self._plans.put(slaves, self._plan(slaves))
 
+    def publish_plan(self, slaves: I64) -> _Plan:
+        """The index arrays of :meth:`publish` for ``slaves``: (buffer bytes, status bytes,
+        AL event bytes, their bits, slaves whose watchdog the writes trigger)."""
+        plan = self._plans.get(slaves)
+        if plan is None:
+            plan = self._plan(slaves)
+            self._plans.put(slaves, plan)
+        return plan
+
     def publish(self, slaves: I64) -> I64:
         """The write SMs of ``slaves`` got their last byte: publish their buffers.
 
@@ -165,7 +175,7 @@ class SmAreas:
         flat = self.memory.flat
         self.memory.shadow_flat[idx] = flat[idx]
         if len(st):
-            flat[st] = _STATUS_AFTER_WRITE[flat[st]]
+            flat[st] = STATUS_AFTER_WRITE[flat[st]]
         if len(al_idx):
             flat[al_idx] |= al_val
         return wd_slaves

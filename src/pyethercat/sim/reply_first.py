@@ -1,0 +1,99 @@
+"""The cyclic frame answered first, its effects in the slaves applied after.
+
+An ESC forwards a frame while it processes it: the master has its reply
+after the wire's delay, and the writes land in the memory meanwhile. A
+simulator that applies every effect of a cyclic LRW (outputs into the
+memory, buffers published, SM and AL events, watchdogs, the applications)
+before it sends the reply makes the master wait for work whose result the
+reply does not contain.
+
+What the reply contains of a logical datagram is known before its writes:
+the data the slaves read (from their memory as it was: an ESC reads before
+it writes), the working counter (the plan's) and the IRQ field (the events
+as they were before the slaves executed it). :func:`serve_reply_first`
+builds that reply, hands it to the link, then applies the writes and the
+rest, before the next frame is taken. Only frames whose result cannot
+differ qualify: one logical datagram, a plan in one stage (no slave reads
+what another wrote in the same datagram), the walk and the compiled state
+clean, no faults, no ring, no time-driven work due. Every other frame goes
+through :meth:`Segment.process <pyethercat.sim.segment.Segment.process>`.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from pyethercat.sim.fused import fuse
+from pyethercat.sim.syncman import STATUS_AFTER_WRITE
+from pyethercat.wire.datagram import HEADER_SIZE, Command
+from pyethercat.wire.frame import LOCALLY_ADMINISTERED_BIT
+
+if TYPE_CHECKING:
+    from pyethercat.sim.segment import Segment
+
+__all__ = ["serve_reply_first"]
+
+_LOGICAL = {int(Command.LRD): (True, False), int(Command.LWR): (False, True),
+            int(Command.LRW): (True, True)}
+_WKC = struct.Struct("<H")
+_HEADER_TAIL = struct.Struct("<IHH")
+
+
+def serve_reply_first(seg: Segment, frame: bytes | bytearray | memoryview,
+                      send: Callable[[bytearray], None]) -> bool:
+    """Answer ``frame`` through ``send`` before applying its effects, if it qualifies
+    (see the module docstring); False (nothing done) if it does not."""
+    vclock = seg._vclock
+    now = vclock.ns if vclock is not None else seg._clock.now_ns()
+    state = seg.state
+    route = state.route
+    if (state.watchdog_dirty or state.sm_dirty or state.topology_dirty or state.irq_stale
+            or state.fmmu_stale or route is None or now > seg.watchdogs.deadline or seg._sync
+            or seg._corrupt or seg._rates):
+        return False
+    faults = seg.faults
+    if faults.drop_p or faults.crc_cut >= 0 or route.closed_idx or route.reopen or not route.live \
+            or not route.returned:
+        return False
+    hit = seg._parsed.get(frame[12:26] if type(frame) is bytes else bytes(frame[12:26]))
+    if hit is None or hit[0] > len(frame) or len(hit[1]) != 1:
+        return False
+    off, cmd, address, lw, irq, n = hit[1][0]
+    rw = _LOGICAL.get(cmd)
+    lmap = state.lmap
+    if rw is None or lmap is None or lmap.empty or n == 0:
+        return False
+    plan = lmap.plan(address & 0xFFFFFFFF, n, rw[0], rw[1])
+    stages = plan.stages
+    if not plan.wkc or len(stages) != 1:
+        return False
+    seg.frames += 1
+    seg.dc.frame_t0 = now
+    stage = stages[0]
+    memory = seg.memory
+    flat = memory.flat
+    doff = off + HEADER_SIZE
+    buf = bytearray(frame)
+    stage.place(np.frombuffer(buf, np.uint8, n, doff), stage.gather(flat))
+    _HEADER_TAIL.pack_into(buf, off + 2, address, lw, irq | state.irq)
+    wkc_off = doff + n
+    _WKC.pack_into(buf, wkc_off, (_WKC.unpack_from(buf, wkc_off)[0] + plan.wkc) & 0xFFFF)
+    buf[6] |= LOCALLY_ADMINISTERED_BIT
+    try:
+        send(buf)
+    finally:
+        # The frame passed the slaves whatever became of its reply: its writes hold.
+        stage.write(flat, np.frombuffer(frame, np.uint8, n, doff))
+        fused = plan.fused
+        if fused is None:
+            fused = plan.fused = fuse(plan, seg.sm, STATUS_AFTER_WRITE)
+        if fused.registers(flat, memory.shadow_flat):
+            state.irq_changed()
+        if len(fused.done):
+            seg.arrival.published(fused.done, fused.wd_slaves, now)
+        seg.frame_done(now, len(buf))
+    return True
