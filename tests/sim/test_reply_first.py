@@ -97,7 +97,7 @@ def _twins(slaves: list[dict]) -> tuple[Segment, Segment]:
     segs = []
     for _ in range(2):
         seg = Segment(VirtualClock(1_000_000))
-        for i, s in enumerate(slaves):
+        for i in range(len(slaves)):
             seg.add_slave(spec(f"io{i}", out_bits=32, in_bits=32))
         _configure(seg, slaves)
         segs.append(seg)
@@ -126,7 +126,7 @@ def test_reply_first_and_fused_registers_match_the_step_by_step_path(slaves: lis
                 frame = encode_frame([Datagram.logical(getattr(Command, cmd), lo,
                                                        payload if cmd != "LRD" else n)])
                 got: list[bytes] = []
-                if not serve_reply_first(fast, frame, lambda r: got.append(bytes(r))):
+                if not serve_reply_first(fast, frame, lambda r, got=got: got.append(bytes(r))):
                     r = fast.process(frame)
                     if r is not None:
                         got.append(r)

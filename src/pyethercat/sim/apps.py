@@ -96,6 +96,11 @@ class DeviceApps:
             self._groups.put(slaves, groups)
         return groups
 
+    @property
+    def listening(self) -> bool:
+        """Whether any device model or application wants to hear of new outputs."""
+        return self._listening
+
     def outputs_completed(self, slaves: I64) -> None:
         """New complete output buffers of ``slaves`` (one frame's worth)."""
         if not self._listening:

@@ -19,6 +19,7 @@ the slaves whose SAFEOP -> OP request waits.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from functools import partial
 
 import numpy as np
 import numpy.typing as npt
@@ -38,13 +39,16 @@ class OutputArrival:
     """Per-slave output state and the work of completed output buffers (see the module docstring)."""
 
     def __init__(self, escs: Sequence[Esc], sm: SmAreas, watchdogs: Watchdogs, apps: DeviceApps,
-                 wiring: Wiring, now_ns: Callable[[], int]) -> None:
+                 wiring: Wiring, now_ns: Callable[[], int],
+                 after_frame: Callable[[Callable[[], None]], None] | None = None) -> None:
         self.escs = escs
         self.sm = sm
         self.watchdogs = watchdogs
         self.apps = apps
         self.wiring = wiring
         self.now_ns = now_ns
+        #: Where the applications' work goes: after the frame (``Segment.after_frame``).
+        self.after_frame = after_frame
         #: Per slave: a complete output buffer arrived (since it last went below SAFEOP).
         self.received = np.zeros(0, bool)
         #: Slaves with a SAFEOP -> OP request waiting for their first outputs.
@@ -73,6 +77,12 @@ class OutputArrival:
         if self.pending_op:
             for s in sorted(self.pending_op & set(slaves.tolist())):
                 self.escs[s].al.outputs_arrived()
-        self.apps.outputs_completed(slaves)
+        apps = self.apps
+        if apps.listening:
+            # The applications take the new outputs through the PDI once the frame has passed.
+            if self.after_frame is None:
+                apps.outputs_completed(slaves)
+            else:
+                self.after_frame(partial(apps.outputs_completed, slaves))
         if self.wiring.wires:
             self.wiring.apply()

@@ -68,7 +68,8 @@ class MailboxSms:
             again, self.again = self.again, b""
             self.post_again(s.n, again)
         if self.app is not None:
-            self.app.on_mailbox_read()
+            # (the firmware hears of it through the PDI, after the frame)
+            self.regs.host.after_frame(self.app.on_mailbox_read)
 
     def write_complete(self, s: SmView) -> None:
         """The master wrote the last byte of SM0: full, handed to the firmware."""
@@ -81,10 +82,18 @@ class MailboxSms:
             regs.set_al_event(R.al_event_sm(s.n))
         data = row[s.start: s.end].tobytes()
         app = self.app
-        if app is not None:
-            app.on_mailbox(data)
-        if app is None or app.mailbox_auto_read:
+        if app is None:
             self.pdi_consumed(s.n)
+            return
+        n = s.n
+
+        def firmware() -> None:
+            # The firmware reads the request through the PDI once the frame has passed.
+            app.on_mailbox(data)
+            if app.mailbox_auto_read:
+                self.pdi_consumed(n)
+
+        self.regs.host.after_frame(firmware)
 
     def repeat(self, n: int) -> None:
         """Repeat request toggled on SM ``n``: post the mailbox the master read last once more."""

@@ -18,6 +18,7 @@ segment); a test can implement it with a few lines to drive one ESC alone.
 from __future__ import annotations
 
 import enum
+from collections.abc import Callable
 from typing import Protocol
 
 from pyethercat.wire.al import AlState
@@ -101,4 +102,9 @@ class EscHost(Protocol):
 
     def dc_latch_input(self, index: int, unit: int, rising: bool, t_ns: int | None) -> None:
         """An edge on the slave's latch input ``unit`` at segment time ``t_ns`` (None: now)."""
+        ...
+
+    def after_frame(self, work: Callable[[], None]) -> None:
+        """Run ``work``, the firmware's reaction to an access, once the frame has passed
+        (at once outside a frame)."""
         ...

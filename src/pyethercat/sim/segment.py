@@ -38,6 +38,7 @@ and cable delays), so DC times move as on a real segment; set
 from __future__ import annotations
 
 import struct
+from collections.abc import Callable
 
 import numpy as np
 import numpy.typing as npt
@@ -138,7 +139,8 @@ class Segment:
         self.sm = SmAreas(self.memory)
         self.commands = Commands(self)
         self.apps = DeviceApps()
-        self.arrival = OutputArrival(self.escs, self.sm, self.watchdogs, self.apps, self.wiring, self.now_ns)
+        self.arrival = OutputArrival(self.escs, self.sm, self.watchdogs, self.apps, self.wiring, self.now_ns,
+                                     self.after_frame)
         self.pdio = ProcessIo(self.memory, self.escs, self.now_ns, self._host.has_outputs)
         self.dc.sync.sync0_sink = self.apps.sync0
         self.dc.sync.sync0_models = self.apps.sync0_models
@@ -154,6 +156,11 @@ class Segment:
         self.event_bits = 0xFFFF
         #: Parses of single-datagram frames by bytes 12..25: (end, headers, circulating).
         self._parsed: dict[bytes, tuple[int, list[Head], bool]] = {}
+        #: Firmware work of the frame in progress (``after_frame``), run once it has passed;
+        #: with ``hold_after_frame`` the caller runs it (``run_after_frame``).
+        self._after: list[Callable[[], None]] = []
+        self._in_frame = False
+        self.hold_after_frame = False
         # Shared with the parts (never rebound there): the frame path reads them directly.
         self._bplan = self.commands.brd_plans
         self._corrupt = self.faults.corrupt
@@ -414,7 +421,46 @@ class Segment:
         """Process one frame from the master (at port A unless :meth:`process_from` chose B).
 
         The returned frame, or None if it is lost; ``last_exit`` says at which
-        master port it came back (in a ring: B when the ring is closed)."""
+        master port it came back (in a ring: B when the ring is closed). The
+        firmware's reactions to the frame (``after_frame``) run before it
+        returns, unless ``hold_after_frame`` leaves them to the caller's
+        :meth:`run_after_frame` (a server sends the reply first)."""
+        self._in_frame = True
+        try:
+            return self._process(frame)
+        finally:
+            self._in_frame = False
+            if self._after and not self.hold_after_frame:
+                self.run_after_frame()
+
+    def after_frame(self, work: Callable[[], None]) -> None:
+        """Run ``work`` once the frame in progress has passed (at once outside a frame).
+
+        The device applications' reactions to an access (new outputs, a mailbox
+        written or read) go here: firmware answers through the PDI after the
+        frame has passed the ESC, never within its passage."""
+        if self._in_frame:
+            self._after.append(work)
+        else:
+            work()
+
+    def run_after_frame(self) -> None:
+        """Run the work the last frame left (:meth:`after_frame`), in order."""
+        after = self._after
+        if not after:
+            return
+        clock = self._clock if self._vclock is None else None
+        t0 = clock.now_ns() if clock is not None else 0
+        while after:
+            work = after.pop(0)
+            work()
+        if clock is not None:
+            # (the firmware's work is the frame's too: see frame_done)
+            spent = clock.now_ns() - t0
+            if spent > _SLOW_FRAME_NS:
+                self.watchdogs.pause(spent)
+
+    def _process(self, frame: bytes | bytearray) -> bytes | None:
         vclock = self._vclock
         now = vclock.ns if vclock is not None else self._clock.now_ns()
         state = self.state
@@ -702,3 +748,6 @@ class SegmentHost:
 
     def dc_latch_input(self, index: int, unit: int, rising: bool, t_ns: int | None) -> None:
         self._seg.latch_input(index, unit, rising, t_ns)
+
+    def after_frame(self, work: Callable[[], None]) -> None:
+        self._seg.after_frame(work)

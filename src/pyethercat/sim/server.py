@@ -154,6 +154,12 @@ class SimServer:
         #: Cyclic frames answered before their writes are applied (``sim.reply_first``):
         #: a segment of this package on one master port.
         self._reply_first = link_b is None and isinstance(segment, Segment)
+        # The firmware's reactions to a frame (device applications, mailbox handlers)
+        # run after its reply went out (Segment.after_frame), before the next frame.
+        self._after_frame: Callable[[], None] | None = None
+        if isinstance(segment, Segment):
+            segment.hold_after_frame = True
+            self._after_frame = segment.run_after_frame
         self._t_reply = 0.0
         self.stats = ServerStats()
         self._log = log or (lambda _msg: None)
@@ -324,6 +330,13 @@ class SimServer:
         return {fd: cb for server in self._eoe for fd, cb in server.readers()}
 
     def _serve_frames(self, frame: bytes | memoryview | None, port: int = 0) -> None:
+        try:
+            self._serve_frame(frame, port)
+        finally:
+            if self._after_frame is not None:
+                self._after_frame()
+
+    def _serve_frame(self, frame: bytes | memoryview | None, port: int = 0) -> None:
         if frame is None:
             return
         if not is_ethercat(frame):
@@ -547,6 +560,10 @@ class SimServer:
 
     def close(self) -> None:
         """Release the wake-up pipe and the control socket (the link is the caller's)."""
+        if self._after_frame is not None:
+            # The segment outlives the server: its frames' work is theirs again.
+            self.segment.hold_after_frame = False
+            self._after_frame()
         self._close_control()
         for fd in (self._wake_r, self._wake_w):
             with contextlib.suppress(OSError):
