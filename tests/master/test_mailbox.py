@@ -58,13 +58,15 @@ def test_expedited_sdo_frames() -> None:
     before = len(drop.frames)
     s.sdo_read(0x1000, 0)
     # FPWR SM0 + speculative FPRD SM1 in one frame; the firmware answers once that
-    # frame has passed (never within it), so the read finds SM1 empty (WKC 0); then
-    # one status poll and the read of the answer: three frames.
+    # frame has passed (never within it), so the read finds SM1 empty (WKC 0); the
+    # next frame reads SM1 at once (no status poll first) and finds the answer.
+    assert s.mbx is not None
     frames = drop.frames[before:]
-    assert len(frames) == 3
+    assert len(frames) == 2
     assert [d.command for d in decode_frame(frames[0]).datagrams] == [Command.FPWR, Command.FPRD]
-    assert s.mbx is not None and s.mbx.stats.early_replies == 0
-    assert s.mbx.stats.status_polls == 1  # (frame 2; frame 3 reads the answer)
+    (read,) = decode_frame(frames[1]).datagrams
+    assert read.command == Command.FPRD and read.ado == s.mbx.tx_offset
+    assert s.mbx.stats.early_replies == 0 and s.mbx.stats.status_polls == 0
 
 
 def test_mailbox_error_reply_is_typed() -> None:

@@ -424,6 +424,12 @@ class Mailbox:
         limit = self.clock() + span
         waited = 0.0
         inbox = self.inbox
+        # A fast slave's answer is there by the frame after the request's: read SM1 at once
+        # (an empty mailbox reads with WKC 0 and stays as it is), then poll its status. (Not
+        # while the cyclic frames bring the status byte: the next cycle tells.)
+        source = self.status_source
+        cycling = getattr(source, "cycling", None)
+        direct = source is None or (cycling is not None and not cycling())
         while True:
             got = inbox.take(accept, what, stale)
             if got is not None:
@@ -435,6 +441,10 @@ class Mailbox:
             now = self.clock()
             if now >= limit:
                 raise EcTimeoutError(f"{self.label}: no {what} within {span:.3g} s")
+            if direct:
+                direct = False
+                if self.fetch():
+                    continue
             status, cyclic = self._status(limit - now)
             if status is not None and status & reg.SM_STATUS_MAILBOX_FULL:
                 if not self.fetch() and not inbox.lost:

@@ -87,6 +87,10 @@ class CyclicMailboxStatus:
         self._where = (runner, sc.group, sc.mailbox_status_offset)
         return self._where
 
+    def cycling(self) -> bool:
+        """Whether a cyclic exchange runs and brings this slave's status byte."""
+        return self._locate() is not None
+
     def __call__(self, budget: float) -> int | None:
         where = self._locate()
         if where is None:
