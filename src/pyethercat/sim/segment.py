@@ -45,6 +45,7 @@ import numpy.typing as npt
 
 from pyethercat.clock import TimeSource, VirtualClock
 from pyethercat.errors import ConfigError
+from pyethercat.sim.after_frame import AfterFrame
 from pyethercat.sim.apps import DeviceApps
 from pyethercat.sim.arrival import OutputArrival
 from pyethercat.sim.commands import Commands
@@ -135,12 +136,15 @@ class Segment:
         self.faults = Faults(self.memory)
         self.dc = DcClocks(self.memory, self.escs, lambda: self.route)
         self.watchdogs = Watchdogs(self.memory)
+        #: The firmware's work a frame sets in motion, run once it has passed (``sim.after_frame``).
+        self.after_frame = AfterFrame(lambda: self._clock if self._vclock is None else None,
+                                      _SLOW_FRAME_NS, self.watchdogs.pause)
         self.wiring = Wiring(self.memory, self.escs)
         self.sm = SmAreas(self.memory)
         self.commands = Commands(self)
         self.apps = DeviceApps()
         self.arrival = OutputArrival(self.escs, self.sm, self.watchdogs, self.apps, self.wiring, self.now_ns,
-                                     self.after_frame)
+                                     self.after_frame.add)
         self.pdio = ProcessIo(self.memory, self.escs, self.now_ns, self._host.has_outputs)
         self.dc.sync.sync0_sink = self.apps.sync0
         self.dc.sync.sync0_models = self.apps.sync0_models
@@ -156,11 +160,6 @@ class Segment:
         self.event_bits = 0xFFFF
         #: Parses of single-datagram frames by bytes 12..25: (end, headers, circulating).
         self._parsed: dict[bytes, tuple[int, list[Head], bool]] = {}
-        #: Firmware work of the frame in progress (``after_frame``), run once it has passed;
-        #: with ``hold_after_frame`` the caller runs it (``run_after_frame``).
-        self._after: list[Callable[[], None]] = []
-        self._in_frame = False
-        self.hold_after_frame = False
         # Shared with the parts (never rebound there): the frame path reads them directly.
         self._bplan = self.commands.brd_plans
         self._corrupt = self.faults.corrupt
@@ -422,43 +421,16 @@ class Segment:
 
         The returned frame, or None if it is lost; ``last_exit`` says at which
         master port it came back (in a ring: B when the ring is closed). The
-        firmware's reactions to the frame (``after_frame``) run before it
-        returns, unless ``hold_after_frame`` leaves them to the caller's
-        :meth:`run_after_frame` (a server sends the reply first)."""
-        self._in_frame = True
+        firmware's reactions to the frame (:attr:`after_frame`) run before it
+        returns, unless ``after_frame.hold`` leaves them to the caller."""
+        after = self.after_frame
+        after.in_frame = True
         try:
             return self._process(frame)
         finally:
-            self._in_frame = False
-            if self._after and not self.hold_after_frame:
-                self.run_after_frame()
-
-    def after_frame(self, work: Callable[[], None]) -> None:
-        """Run ``work`` once the frame in progress has passed (at once outside a frame).
-
-        The device applications' reactions to an access (new outputs, a mailbox
-        written or read) go here: firmware answers through the PDI after the
-        frame has passed the ESC, never within its passage."""
-        if self._in_frame:
-            self._after.append(work)
-        else:
-            work()
-
-    def run_after_frame(self) -> None:
-        """Run the work the last frame left (:meth:`after_frame`), in order."""
-        after = self._after
-        if not after:
-            return
-        clock = self._clock if self._vclock is None else None
-        t0 = clock.now_ns() if clock is not None else 0
-        while after:
-            work = after.pop(0)
-            work()
-        if clock is not None:
-            # (the firmware's work is the frame's too: see frame_done)
-            spent = clock.now_ns() - t0
-            if spent > _SLOW_FRAME_NS:
-                self.watchdogs.pause(spent)
+            after.in_frame = False
+            if after and not after.hold:
+                after.run()
 
     def _process(self, frame: bytes | bytearray) -> bytes | None:
         vclock = self._vclock
@@ -750,4 +722,4 @@ class SegmentHost:
         self._seg.latch_input(index, unit, rising, t_ns)
 
     def after_frame(self, work: Callable[[], None]) -> None:
-        self._seg.after_frame(work)
+        self._seg.after_frame.add(work)
