@@ -65,7 +65,7 @@ from typing import Any
 
 from pyethercat.errors import ConfigError, EtherCATError, LinkClosedError, LinkDownError, LinkError
 from pyethercat.link.base import MAX_FRAME, Link
-from pyethercat.realtime import apply_realtime
+from pyethercat.realtime import SpinBudget, apply_realtime, quiet_collector
 from pyethercat.sim.eoe import eoe_server
 from pyethercat.sim.reply_first import serve_reply_first
 from pyethercat.sim.segment import Segment
@@ -84,6 +84,8 @@ _CHANGES_WALK = frozenset({"break_link", "restore_link", "power_off", "power_on"
                            "remove", "insert"})
 #: Default time the serve loop polls for the next frame before blocking, seconds.
 DEFAULT_BUSY_POLL_S = 0.0001
+#: Idle ticks (no frame, nothing to serve) after which the loop runs a full collection.
+_IDLE_COLLECT_TICKS = 1000
 
 
 @dataclass
@@ -160,6 +162,10 @@ class SimServer:
             segment.after_frame.hold = True
             self._after_frame = segment.after_frame.run
         self._t_reply = 0.0
+        #: Ticks in a row without a frame or anything else to serve.
+        self._idle_ticks = 0
+        #: The busy-poll's share of each second (see SpinBudget); None: unlimited.
+        self._spin_budget: SpinBudget | None = None
         self.stats = ServerStats()
         self._log = log or (lambda _msg: None)
         self._stop = threading.Event()
@@ -210,6 +216,8 @@ class SimServer:
 
     def run(self) -> None:
         """Serve until stopped or the link closes."""
+        # (here, not in __init__: serve() asks for SCHED_FIFO after building the server)
+        self._spin_budget = SpinBudget.for_this_process()
         links = self._links
         fds = [link.fileno() for link in links]
         sel = [fd for fd in fds if fd is not None]
@@ -236,6 +244,15 @@ class SimServer:
                 others.extend(readers)
                 wait = max(0.0, self._next_tick - time.monotonic())
                 ready, _, _ = select.select([*sel, *others], [], [], wait)
+                if ready:
+                    self._idle_ticks = 0
+                else:
+                    self._idle_ticks += 1
+                    if self._idle_ticks == _IDLE_COLLECT_TICKS:
+                        # A second without a frame: the full collection the serving went
+                        # without (quiet_collector), then its survivors frozen too.
+                        gc.collect()
+                        gc.freeze()
                 for r in ready:
                     if r in readers:
                         readers[r]()
@@ -296,7 +313,24 @@ class SimServer:
         a cycle at 10 kHz, a round-trip benchmark) is answered from the poll.
         Any other descriptor that becomes ready (control, EoE, a call from
         another thread) ends the poll, so the select loop serves it at once.
+        The polling keeps to a share of each second
+        (:class:`~pyethercat.realtime.SpinBudget`: below the kernel's real-time
+        share under SCHED_FIFO, and 20 % on a virtual machine, whose host takes
+        a vCPU that spins long off the CPU for milliseconds): past it the loop
+        blocks instead.
         """
+        monotonic = time.monotonic
+        start = monotonic()
+        budget = self._spin_budget
+        if budget is not None and not budget.allowed(start):
+            return  # (under SCHED_FIFO: see SpinBudget)
+        try:
+            self._poll_frames(frame_fds, others, start)
+        finally:
+            if budget is not None:
+                budget.spent(monotonic() - start)
+
+    def _poll_frames(self, frame_fds: list[int], others: list[int], start: float) -> None:
         poller = select.poll()
         for fd in frame_fds:
             poller.register(fd, select.POLLIN)
@@ -304,7 +338,7 @@ class SimServer:
             poller.register(fd, select.POLLIN)
         window = self.busy_poll_s
         monotonic = time.monotonic
-        end = monotonic() + window
+        end = start + window
         stop = self._stop
         while not stop.is_set():
             events = poller.poll(0)
@@ -657,10 +691,10 @@ def serve(
     except BaseException:
         close_eoe(segment)
         raise
-    # Everything built so far lives as long as the server: keep it out of the
-    # collector's generations so a collection during serving stays short.
-    gc.collect()
-    gc.freeze()
+    # Everything built so far lives as long as the server: out of the collector's
+    # generations, and no full collection while serving (it stalled replies for 15-25 ms;
+    # see quiet_collector), only when the link has been idle a second (run()).
+    quiet_collector()
     if realtime or cpu is not None:
         if realtime and not 1 <= realtime <= 99:
             raise ConfigError(f"real-time priority {realtime}: use 1..99")

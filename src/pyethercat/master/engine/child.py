@@ -31,7 +31,6 @@ engine gives up the leave after its limit and exits all the same.
 from __future__ import annotations
 
 import contextlib
-import gc
 import os
 import select
 import signal
@@ -62,7 +61,13 @@ from pyethercat.master.engine.status import (
 )
 from pyethercat.master.image import ProcessImage
 from pyethercat.master.scheduler import Request, Scheduler
-from pyethercat.realtime import RealtimeReport, apply_realtime, die_with_parent, set_timer_slack
+from pyethercat.realtime import (
+    RealtimeReport,
+    apply_realtime,
+    die_with_parent,
+    quiet_collector,
+    set_timer_slack,
+)
 from pyethercat.wire import registers as reg
 from pyethercat.wire.al import AlState
 from pyethercat.wire.datagram import Command, Datagram
@@ -465,10 +470,9 @@ def run_engine(plan: EnginePlan, area: SharedArea, report: RealtimeReport) -> in
         runner.log(f"parent watch: {refused}")
     # (the parent may have died before the request: the loop's first cycle looks)
     # Everything built so far lives as long as the engine: the collector need not walk
-    # it again (a full collection over the interpreter's and numpy's objects would stall
-    # a cycle for milliseconds).
-    gc.collect()
-    gc.freeze()
+    # it again, and no full collection starts on its own (one over the interpreter's and
+    # numpy's objects stalls a cycle for milliseconds; see quiet_collector).
+    quiet_collector()
     rider.state = EngineState.RUNNING
     rider.publish()
     rider.publish_health(time.perf_counter_ns())

@@ -1,0 +1,95 @@
+"""What keeps a polling loop from being stalled: the spin budget and the quiet collector.
+
+A SCHED_FIFO loop that polls past the kernel's real-time share, or a vCPU
+that spins through its host's time slice, is taken off the CPU for
+milliseconds; a full garbage collection walks every long-lived object. Both
+stalled the simulator for 10-36 ms and broke SOEM's segmented transfers
+(its mailbox time-out is 20 ms).
+"""
+
+from __future__ import annotations
+
+import gc
+
+import pytest
+
+from pyethercat.realtime import VM_SPIN_SHARE, SpinBudget, quiet_collector, rt_share
+from pyethercat.sim.server import SimServer
+
+
+class _Clock:
+    def __init__(self) -> None:
+        self.t = 100.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def test_budget_allows_its_share_of_each_period_then_refuses_until_the_next() -> None:
+    clock = _Clock()
+    budget = SpinBudget(0.25, period=1.0, clock=clock)
+    assert budget.allowed(clock.t)
+    budget.spent(0.2)
+    clock.t += 0.3
+    assert budget.allowed(clock.t)  # 0.2 of 0.25 spent
+    budget.spent(0.06)
+    clock.t += 0.1
+    assert not budget.allowed(clock.t)  # 0.26 spent: block for the rest of the period
+    clock.t += 0.59
+    assert not budget.allowed(clock.t)
+    clock.t += 0.02  # a new period (1.01 s after the first)
+    assert budget.allowed(clock.t)
+    budget.spent(0.24)
+    assert budget.allowed(clock.t)
+
+
+def test_budget_for_this_process_keeps_below_the_kernel_and_the_vm_share(monkeypatch: pytest.MonkeyPatch) -> None:
+    import pyethercat.realtime as rt
+
+    monkeypatch.setattr(rt, "rt_share", lambda: 0.95)
+    monkeypatch.setattr(rt, "running_realtime", lambda: True)
+    monkeypatch.setattr(rt, "on_virtual_machine", lambda: False)
+    budget = SpinBudget.for_this_process()
+    assert budget is not None and budget.share == pytest.approx(0.75)
+    monkeypatch.setattr(rt, "on_virtual_machine", lambda: True)
+    budget = SpinBudget.for_this_process()
+    assert budget is not None and budget.share == VM_SPIN_SHARE
+    monkeypatch.setattr(rt, "running_realtime", lambda: False)
+    monkeypatch.setattr(rt, "on_virtual_machine", lambda: False)
+    assert SpinBudget.for_this_process() is None  # bare metal, normal policy: spin freely
+    monkeypatch.setattr(rt, "running_realtime", lambda: True)
+    monkeypatch.setattr(rt, "rt_share", lambda: None)  # sched_rt_runtime_us = -1
+    assert SpinBudget.for_this_process() is None
+
+
+def test_rt_share_reads_the_kernel_setting() -> None:
+    share = rt_share()
+    assert share is None or 0.0 < share <= 1.0
+
+
+def test_busy_poll_blocks_once_the_budget_is_spent() -> None:
+    """The serve loop's poll returns at once (to block in select) when its budget is used up."""
+    server = SimServer.__new__(SimServer)  # (only the poll's own state)
+    budget = server._spin_budget = SpinBudget(0.1)  # (the loop's clock: time.monotonic)
+    budget.spent(0.1)
+    polled: list[int] = []
+    server._poll_frames = lambda *a: polled.append(1)  # type: ignore[method-assign]
+    server._busy_poll([], [])
+    assert polled == []
+    budget._since -= 1.0  # the next second: polling again, and its time is counted
+    server._busy_poll([], [])
+    assert polled == [1] and 0.0 <= budget._spent < 0.1
+
+
+def test_quiet_collector_freezes_and_stops_automatic_full_collections() -> None:
+    before = gc.get_threshold()
+    try:
+        garbage = [[] for _ in range(10)]
+        quiet_collector()
+        assert gc.get_freeze_count() > 0
+        assert gc.get_threshold()[:2] == before[:2]
+        assert gc.get_threshold()[2] >= 1 << 30
+        del garbage
+    finally:
+        gc.unfreeze()
+        gc.set_threshold(*before)
