@@ -405,41 +405,11 @@ class _Stage:
                 flat[w.dst] = (flat[w.dst] & w.keep) | w.merged(data)
 
     def apply(self, flat: U8, data: U8) -> None:
-        # Gather first (a slave reads its memory as it was), scatter the data as
-        # it arrived (``data`` is unchanged until the reads are placed), then place.
-        # (gather/write/place in one body: the cyclic frame's path, one call)
-        r, w = self.reads, self.writes
-        rvals = tvals = None
-        if r is not None:
-            if r.fused is not None:
-                tvals = flat[r.fused[0]] & r.fused[2]
-            elif r.whole_src is not None:
-                rvals = flat[r.whole_src]
-                if r.whole_view:  # (a slice is a view: the writes below must not change it)
-                    rvals = rvals.copy()
-                if r.lo is not None:
-                    tvals = r.merged(flat)
-            elif r.lo is not None:
-                tvals = r.merged(flat)
-        if w is not None:
-            if w.fused is not None:
-                f_src, f_dst, f_mask, f_keep = w.fused
-                flat[f_dst] = (flat[f_dst] & f_keep) | (data[f_src] & f_mask)
-            else:
-                if w.whole_src is not None:
-                    flat[w.whole_dst] = data[w.whole_src]
-                if w.lo is not None:
-                    flat[w.dst] = (flat[w.dst] & w.keep) | w.merged(data)
-        if r is not None:
-            if r.fused is not None:
-                assert tvals is not None
-                f_dst, f_keep = r.fused[1], r.fused[3]
-                data[f_dst] = (data[f_dst] & f_keep) | tvals
-                return
-            if rvals is not None:
-                data[r.whole_dst] = rvals
-            if tvals is not None:
-                data[r.dst] = (data[r.dst] & r.keep) | tvals
+        """Gather first (a slave reads its memory as it was), scatter the data as it
+        arrived (``data`` is unchanged until the reads are placed), then place."""
+        got = self.gather(flat)
+        self.write(flat, data)
+        self.place(data, got)
 
 
 class _Plan:
