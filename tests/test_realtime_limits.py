@@ -93,3 +93,30 @@ def test_quiet_collector_freezes_and_stops_automatic_full_collections() -> None:
     finally:
         gc.unfreeze()
         gc.set_threshold(*before)
+
+
+def test_busy_poll_share_option_sets_the_budget(monkeypatch: pytest.MonkeyPatch) -> None:
+    import pyethercat.realtime as rt
+
+    server = SimServer.__new__(SimServer)
+    server.busy_poll_share = 0.05
+    budget = server.spin_budget()
+    assert budget is not None and budget.share == 0.05
+    server.busy_poll_share = 1.0
+    assert server.spin_budget() is None  # no limit asked for
+    server.busy_poll_share = None
+    monkeypatch.setattr(rt, "on_virtual_machine", lambda: True)
+    budget = server.spin_budget()
+    assert budget is not None and budget.share <= VM_SPIN_SHARE
+
+
+@pytest.mark.parametrize("value", ["0", "1.5", "x"])
+def test_busy_poll_share_out_of_range_is_a_one_line_error(value: str) -> None:
+    from click.testing import CliRunner
+
+    from pyethercat.cli.main import cli
+
+    got = CliRunner().invoke(cli, ["sim", "examples/demo.toml", "--check", "--busy-poll-share", value])
+    assert got.exit_code != 0
+    assert got.output.startswith("pyethercat: error: ") and got.output.count("\n") == 1
+    assert "--busy-poll-share" in got.output

@@ -30,6 +30,10 @@ __all__ = ["register", "sim_command", "check_control_path"]
 @click.option("--busy-poll", "busy_poll", type=click.FloatRange(0, 1_000_000), default=None,
               metavar="US", help="Poll for the next frame this long after each frame before "
                                  "blocking (default 100 us; 0: block at once).")
+@click.option("--busy-poll-share", "busy_poll_share", type=click.FloatRange(0.01, 1.0), default=None,
+              metavar="F", help="Share of each second the polling may take (0.01-1; default: below "
+                                "the kernel's real-time share under --realtime, 0.2 on a virtual "
+                                "machine, else no limit; 1: no limit).")
 @click.option("--cpu", type=click.IntRange(0), default=None, metavar="N",
               help="Pin the simulator to CPU N.")
 @click.pass_context
@@ -46,6 +50,7 @@ def sim_command(
     quiet: bool,
     realtime: int,
     busy_poll: float | None,
+    busy_poll_share: float | None,
     cpu: int | None,
 ) -> None:
     """Serve the simulated segment of TOPOLOGY.toml on an interface or UDP address.
@@ -106,7 +111,7 @@ def sim_command(
             link_b = serving_link(**spec_b, pcap=None if pcap is None else _port_b_capture(pcap))  # type: ignore[arg-type]
         stats = serve(topology, link, control=control, log=log, realtime=realtime, link_b=link_b,
                       busy_poll_s=DEFAULT_BUSY_POLL_S if busy_poll is None else busy_poll / 1e6,
-                      cpu=cpu)
+                      busy_poll_share=busy_poll_share, cpu=cpu)
     finally:
         link.close()
         if link_b is not None:

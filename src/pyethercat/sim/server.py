@@ -134,6 +134,7 @@ class SimServer:
         log: Callable[[str], None] | None = None,
         link_b: Link | None = None,
         busy_poll_s: float = DEFAULT_BUSY_POLL_S,
+        busy_poll_share: float | None = None,
     ) -> None:
         self.segment = segment
         self.link = link
@@ -166,6 +167,8 @@ class SimServer:
         self._idle_ticks = 0
         #: The busy-poll's share of each second (see SpinBudget); None: unlimited.
         self._spin_budget: SpinBudget | None = None
+        #: The share asked for (None: SpinBudget.for_this_process decides; 1: no limit).
+        self.busy_poll_share = busy_poll_share
         self.stats = ServerStats()
         self._log = log or (lambda _msg: None)
         self._stop = threading.Event()
@@ -217,7 +220,7 @@ class SimServer:
     def run(self) -> None:
         """Serve until stopped or the link closes."""
         # (here, not in __init__: serve() asks for SCHED_FIFO after building the server)
-        self._spin_budget = SpinBudget.for_this_process()
+        self._spin_budget = self.spin_budget()
         links = self._links
         fds = [link.fileno() for link in links]
         sel = [fd for fd in fds if fd is not None]
@@ -272,6 +275,13 @@ class SimServer:
             self._log("link closed by the peer; stopping")
         finally:
             self._close_control()
+
+    def spin_budget(self) -> SpinBudget | None:
+        """The busy-poll's budget for this process as it runs now (None: unlimited)."""
+        share = self.busy_poll_share
+        if share is None:
+            return SpinBudget.for_this_process()
+        return None if share >= 1.0 else SpinBudget(share)
 
     def _tick_if_due(self, now: float) -> None:
         if now >= self._next_tick:
@@ -668,6 +678,7 @@ def serve(
     link_b: Link | None = None,
     busy_poll_s: float = DEFAULT_BUSY_POLL_S,
     cpu: int | None = None,
+    busy_poll_share: float | None = None,
 ) -> ServerStats:
     """Load ``topology``, serve it on ``link`` with a wall clock until SIGINT/SIGTERM.
 
@@ -679,7 +690,8 @@ def serve(
     milliseconds on a loaded machine makes masters with short frame timeouts
     (SOEM: 2 ms per mailbox read) give frames up and retry.
     ``cpu`` pins the process to that CPU; ``busy_poll_s`` is how long the loop
-    polls for the next frame before it blocks (see :class:`SimServer`).
+    polls for the next frame before it blocks and ``busy_poll_share`` the share
+    of each second it may poll (see :class:`SimServer`).
     """
     from pyethercat.clock import WallClock
     from pyethercat.sim.topology import close_eoe, load_topology
@@ -687,7 +699,7 @@ def serve(
     segment = load_topology(os.fspath(topology)).build(clock=WallClock())
     try:
         server = SimServer(segment, link, control=control, log=log, link_b=link_b,
-                           busy_poll_s=busy_poll_s)
+                           busy_poll_s=busy_poll_s, busy_poll_share=busy_poll_share)
     except BaseException:
         close_eoe(segment)
         raise

@@ -136,6 +136,7 @@ def start_sim_process(
     link_b: str | None = None,
     busy_poll_us: float | None = None,
     cpu: int | None = None,
+    busy_poll_share: float | None = None,
 ) -> SimProcess:
     """Run ``pyethercat sim TOPOLOGY`` in a child process and wait until it serves.
 
@@ -146,7 +147,8 @@ def start_sim_process(
     A ring: ``link_b`` (``"iface:NAME"``, ``"udp:HOST:PORT"``) is master port B;
     with ``link="unix"`` and ``ring`` two socketpairs are made and the
     handle's ``link`` is a :class:`~pyethercat.link.redundant.RedundantLink`.
-    ``busy_poll_us`` and ``cpu`` are ``--busy-poll`` and ``--cpu``.
+    ``busy_poll_us``, ``busy_poll_share`` and ``cpu`` are ``--busy-poll``,
+    ``--busy-poll-share`` and ``--cpu``.
     """
     tmpdir = tempfile.TemporaryDirectory(prefix="pyecat-sim-")
     control_path = str(Path(tmpdir.name) / "control.sock")
@@ -157,6 +159,8 @@ def start_sim_process(
         args += ["--realtime", str(int(realtime))]
     if busy_poll_us is not None:
         args += ["--busy-poll", str(float(busy_poll_us))]
+    if busy_poll_share is not None:
+        args += ["--busy-poll-share", str(float(busy_poll_share))]
     if cpu is not None:
         args += ["--cpu", str(int(cpu))]
     pass_fds: tuple[int, ...] = ()
