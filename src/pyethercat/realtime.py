@@ -180,27 +180,26 @@ def running_realtime() -> bool:
 
 
 class SpinBudget:
-    """How long a real-time loop may poll without sleeping, per second.
+    """How long a polling loop may spin without sleeping, per second.
 
-    Linux lets real-time tasks run ``sched_rt_runtime_us`` of every
-    ``sched_rt_period_us`` (950 ms of each second by default); a task past
-    that is taken off the CPU for the rest of the period, tens of
-    milliseconds (measured: a simulator busy-polling for SOEM's mailbox
-    traffic stalled 16-36 ms, SOEM's 20 ms mailbox time-out expired and it
-    sent a segment with the wrong toggle bit). A loop that polls asks
-    :meth:`allowed` before it spins and reports the time it spun with
-    :meth:`spent`; past ``share`` of the current second it blocks instead
-    (a wake-up costs microseconds, the throttle milliseconds).
+    A loop that spins too long is taken off the CPU for milliseconds: Linux
+    lets real-time tasks run ``sched_rt_runtime_us`` of every
+    ``sched_rt_period_us`` (950 ms of each second by default) and throttles
+    them for the rest of the period, and a hypervisor's scheduler takes a
+    vCPU that spins through its time slice off for a slice of its own (see
+    :meth:`for_this_process`). A loop that polls asks :meth:`allowed` before
+    it spins and reports the time it spun with :meth:`spent`; past ``share``
+    of the current period it blocks instead (a wake-up costs microseconds,
+    the stall milliseconds).
     """
 
-    __slots__ = ("share", "period", "_clock", "_since", "_spent")
+    __slots__ = ("share", "period", "_since", "_spent")
 
     def __init__(self, share: float, period: float = 1.0,
                  clock: Callable[[], float] = time.monotonic) -> None:
         self.share = share
         self.period = period
-        self._clock = clock
-        self._since = clock()
+        self._since = clock()  # (the loop passes its own time to allowed())
         self._spent = 0.0
 
     @classmethod

@@ -3,9 +3,10 @@
 ``sim.reply_first`` sends a logical datagram's reply before it applies the
 datagram's writes, and ``sim.fused`` applies the read events and the
 buffer publish of a datagram as one byte transform. The reference is a
-twin segment that runs the step-by-step path of before (``LogicalMap.run``,
-then ``OutputArrival.completed``: the SM read events, the publish, the
-status and AL event updates one after the other). The same frames go to
+twin segment that runs the step-by-step path of before, written out here
+from the plan's own arrays: the data moved, then the SM read events (status
+bit, AL event, ECAT event cleared), then ``OutputArrival.completed`` (the
+publish, the status and AL event updates one after the other). The same frames go to
 both, with process data, reconfigurations and input changes in between, on
 random SM and FMMU layouts (bit-level FMMUs, slaves whose windows overlap,
 watchdog and event bits); the replies, both memories, the watchdogs, the
@@ -31,26 +32,26 @@ from pyethercat.wire.frame import decode_frame, encode_frame
 
 READ, WRITE = int(R.FmmuType.READ), int(R.FmmuType.WRITE)
 ST = 0x1000
-_LRD, _LWR = int(Command.LRD), int(Command.LWR)
 
 
 def _unfused_logical(self: Segment, cmd: int, address: int, data: np.ndarray, n: int) -> int:
     """The logical datagram step by step (the path before ``sim.fused``)."""
-    state = self.state
-    if state.sm_dirty:
-        state.compile_sm()
-    if state.fmmu_stale or state.lmap is None:
-        state.compile_fmmus()
-    lmap = state.lmap
-    assert lmap is not None
-    if lmap.empty or n == 0:
+    plan = self.logical_plan(cmd, address, n)
+    if plan is None or not plan.wkc:
         return 0
-    wkc, done, events = lmap.run(self.memory.flat, address & 0xFFFFFFFF, data, cmd != _LWR, cmd != _LRD)
-    if events:
-        state.irq_changed()
-    if len(done):
-        self.arrival.completed(done)
-    return wkc
+    flat = self.memory.flat
+    for stage in plan.stages:
+        stage.apply(flat, data)
+    if plan.or_idx is not None:  # input buffers read to their last byte
+        flat[plan.or_idx] |= plan.or_val
+        if plan.and_idx is not None:
+            old = flat[plan.and_idx]
+            if (old & plan.and_hit).any():
+                flat[plan.and_idx] = old & plan.and_val
+                self.state.irq_changed()
+    if len(plan.done):
+        self.arrival.completed(plan.done)
+    return plan.wkc
 
 
 _SLAVE = st.fixed_dictionaries({

@@ -76,7 +76,7 @@ import queue
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, TypeVar
+from typing import Any, Protocol, TypeVar
 
 from pyethercat.errors import (
     EtherCATError,
@@ -161,10 +161,19 @@ class ClientContext:
 
 #: Called with every message read from a slave; returns True when it took the message.
 UnsolicitedHandler = Callable[["Mailbox", ReceivedMessage], bool]
-#: SM1 status byte from the cyclic image, read by a cycle that began after the call,
-#: waiting up to the given seconds (0: the last one read, no waiting). None: no cyclic
-#: exchange carries it now (or not in time, or its working counter was off): poll.
-StatusSource = Callable[[float], int | None]
+class StatusSource(Protocol):
+    """Where a mailbox takes its SM1 status byte from instead of a poll frame: the
+    cyclic image (``master.mailboxes.CyclicMailboxStatus``)."""
+
+    def __call__(self, budget: float) -> int | None:
+        """The byte, read by a cycle that began after the call, waiting up to ``budget``
+        seconds (0: the last one read). None: no cyclic exchange carries it now (or not
+        in time, or its working counter was off): poll."""
+        ...
+
+    def cycling(self) -> bool:
+        """Whether a cyclic exchange carries the byte now."""
+        ...
 
 
 class MailboxPoller:
@@ -428,8 +437,7 @@ class Mailbox:
         # (an empty mailbox reads with WKC 0 and stays as it is), then poll its status. (Not
         # while the cyclic frames bring the status byte: the next cycle tells.)
         source = self.status_source
-        cycling = getattr(source, "cycling", None)
-        direct = source is None or (cycling is not None and not cycling())
+        direct = source is None or not source.cycling()
         while True:
             got = inbox.take(accept, what, stale)
             if got is not None:

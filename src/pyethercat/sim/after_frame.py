@@ -14,8 +14,6 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from pyethercat.clock import TimeSource
-
 __all__ = ["AfterFrame"]
 
 Work = Callable[[], None]
@@ -24,20 +22,18 @@ Work = Callable[[], None]
 class AfterFrame:
     """Work queued during a frame (see the module docstring)."""
 
-    __slots__ = ("_work", "in_frame", "hold", "_clock", "_slow_ns", "_pause")
+    __slots__ = ("_work", "in_frame", "hold", "_wall_ns", "_charge")
 
-    def __init__(self, clock: Callable[[], TimeSource | None], slow_ns: int,
-                 pause: Callable[[int], None]) -> None:
+    def __init__(self, wall_ns: Callable[[], int | None], charge: Callable[[int], None]) -> None:
         self._work: list[Work] = []
         #: A frame is being processed: work waits for its end.
         self.in_frame = False
         #: The caller runs the work (:meth:`run`) instead of the frame's end.
         self.hold = False
-        # The real-time clock (None on virtual time), and what to do when the work took
-        # longer than ``slow_ns`` (the segment pauses its watchdogs by it).
-        self._clock = clock
-        self._slow_ns = slow_ns
-        self._pause = pause
+        # The segment's real time (None on virtual time), and its rule for time spent
+        # serving since then (a long spell pauses the watchdogs, as a long frame does).
+        self._wall_ns = wall_ns
+        self._charge = charge
 
     def __bool__(self) -> bool:
         return bool(self._work)
@@ -54,12 +50,8 @@ class AfterFrame:
         queue = self._work
         if not queue:
             return
-        clock = self._clock()
-        t0 = clock.now_ns() if clock is not None else 0
+        t0 = self._wall_ns()
         while queue:
             queue.pop(0)()
-        if clock is not None:
-            # (the firmware's work delays the next frame as the frame's own did)
-            spent = clock.now_ns() - t0
-            if spent > self._slow_ns:
-                self._pause(spent)
+        if t0 is not None:
+            self._charge(t0)  # (the firmware's work delays the next frame as the frame's did)

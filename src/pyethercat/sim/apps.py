@@ -62,7 +62,7 @@ class DeviceApps:
         self.instance = np.append(self.instance, instance)
         self.wants_outputs = np.append(self.wants_outputs, bool(app is not None and app.wants_output_events))
         self._groups.clear()
-        self._listening = bool(self._output_models) or bool(self.wants_outputs.any())
+        self._listen()
 
     def replace(self, slave: int, app: DeviceApp | None, model: DeviceModel | None,
                 instance: int) -> None:
@@ -72,7 +72,7 @@ class DeviceApps:
         self.instance[slave] = instance
         self.wants_outputs[slave] = bool(app is not None and app.wants_output_events)
         self._groups.clear()
-        self._listening = bool(self._output_models) or bool(self.wants_outputs.any())
+        self._listen()
 
     def _model_index(self, model: DeviceModel | None) -> int:
         if model is None:
@@ -95,6 +95,9 @@ class DeviceApps:
             groups = (models, legacy)
             self._groups.put(slaves, groups)
         return groups
+
+    def _listen(self) -> None:
+        self._listening = bool(self._output_models) or bool(self.wants_outputs.any())
 
     @property
     def listening(self) -> bool:

@@ -40,7 +40,7 @@ class OutputArrival:
 
     def __init__(self, escs: Sequence[Esc], sm: SmAreas, watchdogs: Watchdogs, apps: DeviceApps,
                  wiring: Wiring, now_ns: Callable[[], int],
-                 after_frame: Callable[[Callable[[], None]], None] | None = None) -> None:
+                 after_frame: Callable[[Callable[[], None]], None]) -> None:
         self.escs = escs
         self.sm = sm
         self.watchdogs = watchdogs
@@ -80,9 +80,6 @@ class OutputArrival:
         apps = self.apps
         if apps.listening:
             # The applications take the new outputs through the PDI once the frame has passed.
-            if self.after_frame is None:
-                apps.outputs_completed(slaves)
-            else:
-                self.after_frame(partial(apps.outputs_completed, slaves))
+            self.after_frame(partial(apps.outputs_completed, slaves))
         if self.wiring.wires:
             self.wiring.apply()

@@ -40,7 +40,7 @@ from pyethercat.sim.memory import EscMemory
 from pyethercat.sim.ports import Route
 from pyethercat.sim.profiles import EscProfile
 from pyethercat.wire import registers as R
-from pyethercat.wire.datagram import Command
+from pyethercat.wire.datagram import WKC, Command
 
 __all__ = ["READS", "RMW", "WRITES", "BrdPlan", "CommandHost", "Commands", "station_map"]
 
@@ -60,7 +60,6 @@ _ALL: I64 = np.arange(1, dtype=np.int64)
 _WORD_FORMAT: dict[int, Literal["B", "H", "I", "Q"]] = {1: "B", 2: "H", 4: "I", 8: "Q"}
 #: Data word and working counter of a 1/2/4/8-byte datagram, little endian.
 _DATA_WKC: dict[int, struct.Struct] = {n: struct.Struct("<" + f + "H") for n, f in _WORD_FORMAT.items()}
-_WKC = struct.Struct("<H")
 _WIDE: dict[int, str] = {1: "u1", 2: "<u2", 4: "<u4", 8: "<u8"}
 _EV_DL_STATUS = int(R.EcatEvent.DL_STATUS)
 _EV_AL_STATUS = int(R.EcatEvent.AL_STATUS)
@@ -101,7 +100,7 @@ class BrdPlan:
         #: memoryview of native words (all route slaves implement it) and the
         #: little-endian struct of the datagram's data and working counter.
         self.words: memoryview | None = None
-        self.dw: struct.Struct = _WKC
+        self.dw: struct.Struct = WKC
 
 
 class CommandHost(Protocol):

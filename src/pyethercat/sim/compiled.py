@@ -211,9 +211,9 @@ class CompiledState:
                 lmap = self.lmap
                 assert lmap is not None
                 span = lmap.span_key()
-                # Before any process data, the likely first datagram: one LRW over the map.
-                for slaves in lmap.prepare(keys or ([span] if span is not None else [])):
-                    self._sm.prepare_publish(slaves)
+                # Before any process data, the likely first datagram: one LRW over the map
+                # (its plan holds the publish of the buffers it completes: sim.fused).
+                lmap.prepare(keys or ([span] if span is not None else []))
             if self.irq_stale:
                 self.compile_irq()
         if self.entry != entry:

@@ -48,20 +48,18 @@ a stage is again one gather, scatter and placement).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.ma  # noqa: F401  (np.unique imports it lazily: ~12 ms in the first LRW plan compile)
 import numpy.typing as npt
 
+from pyethercat.sim.fused import FusedLogical, Publisher, fuse
 from pyethercat.wire import registers as R
 from pyethercat.wire.datagram import MAX_DATA
 
-if TYPE_CHECKING:
-    from pyethercat.sim.fused import FusedLogical
-
 __all__ = [
     "SLAVE_STRIDE",
+    "DatagramPlan",
     "FmmuConfig",
     "LogicalMap",
     "SmReads",
@@ -412,8 +410,10 @@ class _Stage:
         self.place(data, got)
 
 
-class _Plan:
-    """Cached index arrays of one logical datagram shape."""
+class DatagramPlan:
+    """One logical datagram shape compiled (``LogicalMap.plan``): its working counter,
+    the stages that move its data, the slaves whose write buffers it completes,
+    and its register updates as one program (``fused``)."""
 
     __slots__ = ("wkc", "stages", "done", "or_idx", "or_val", "and_idx", "and_val", "and_hit",
                  "size", "fused")
@@ -432,7 +432,8 @@ class _Plan:
         self.and_hit: U8 | None = None
         #: Index entries the plan holds (for the cache bound).
         self.size = 0
-        #: Its register updates as one program (``sim.fused``), built on first use.
+        #: Its register updates and the publish of the buffers it completes as one
+        #: program (``sim.fused``), compiled with the plan (None: nothing to do, wkc 0).
         self.fused: FusedLogical | None = None
 
     @property
@@ -447,13 +448,15 @@ class LogicalMap:
     ``writable[slave]`` is the slave's ECAT-writable byte mask (written bytes
     outside it are dropped), ``implemented[slave]`` the bytes its chip has;
     ``complete[slave]`` lists the last bytes of the slave's enabled buffered
-    write SMs (a write there completes a buffer).
+    write SMs (a write there completes a buffer); ``publisher`` (the SM areas)
+    says what completing them does, compiled into each plan (``sim.fused``).
     """
 
     def __init__(self, configs: list[FmmuConfig], writable: list[npt.NDArray[np.bool_]],
                  complete: dict[int, set[int]], implemented: list[npt.NDArray[np.bool_]],
-                 sm_reads: SmReads | None = None, stride: int = SLAVE_STRIDE) -> None:
+                 sm_reads: SmReads | None, stride: int, publisher: Publisher) -> None:
         self.configs = configs
+        self._publisher = publisher
         smr = sm_reads if sm_reads is not None else SmReads.empty()
         self._smr = smr
         self._stride = stride
@@ -489,7 +492,7 @@ class LogicalMap:
         self._last_key = np.array([k for k, _ in last], np.int64)
         self._last_id = np.array([v for _, v in last], np.int64)
         self._done_key = np.array(sorted(s * _AS + b for s, bs in complete.items() for b in bs), np.int64)
-        self._plans: dict[tuple[int, int, bool, bool], _Plan] = {}
+        self._plans: dict[tuple[int, int, bool, bool], DatagramPlan] = {}
         self._plan_entries = 0
 
     # --- execution --------------------------------------------------------------------
@@ -510,38 +513,12 @@ class LogicalMap:
         lo = int(self.f_lo.min())
         return lo, min(int((self.f_lo + self.f_len).max()) - lo, _MAX_DATAGRAM), True, True
 
-    def prepare(self, keys: list[tuple[int, int, bool, bool]]) -> list[I64]:
-        """Plan these datagram shapes now (those a previous map had seen); returns the
-        sets of slaves whose write SMs each of them completes."""
-        done: list[I64] = []
+    def prepare(self, keys: list[tuple[int, int, bool, bool]]) -> None:
+        """Plan these datagram shapes now (those a previous map had seen)."""
         for key in keys[:_PLAN_CACHE]:
-            plan = self._plans.get(key)
-            if plan is None:
-                plan = self._plans[key] = self._plan(*key)
-                self._plan_entries += plan.size
-            if len(plan.done):
-                done.append(plan.done)
-        return done
+            self.plan(*key)
 
-    def run(self, flat: U8, lo: int, data: U8, reads: bool, writes: bool) -> tuple[int, I64, bool]:
-        """Apply a logical datagram: (working counter, slaves whose write SM completed,
-        whether an ECAT event request bit was cleared).
-
-        The index arrays, the working counter, the completed slaves and the
-        buffer reads depend only on (address, length, command), so they are
-        computed once per datagram shape and cached: the cyclic cost is a
-        gather, a scatter, a placement and the SM status updates.
-        """
-        plan = self.plan(lo, len(data), reads, writes)
-        if not plan.wkc:
-            return 0, plan.done, False
-        for stage in plan.stages:
-            stage.apply(flat, data)
-        if plan.or_idx is None:
-            return plan.wkc, plan.done, False
-        return plan.wkc, plan.done, self._sm_read_events(flat, plan)
-
-    def plan(self, lo: int, n: int, reads: bool, writes: bool) -> _Plan:
+    def plan(self, lo: int, n: int, reads: bool, writes: bool) -> DatagramPlan:
         """The (cached) plan of a logical datagram of ``n`` bytes at ``lo``."""
         key = (lo, n, reads, writes)
         plan = self._plans.get(key)
@@ -553,22 +530,6 @@ class LogicalMap:
             self._plans[key] = plan
             self._plan_entries += plan.size
         return plan
-
-    @staticmethod
-    def _sm_read_events(flat: U8, plan: _Plan) -> bool:
-        """Buffers read completely: status read event and AL events set, ECAT events cleared."""
-        if plan.or_idx is None:
-            return False
-        assert plan.or_val is not None
-        flat[plan.or_idx] |= plan.or_val
-        if plan.and_idx is None:
-            return False
-        assert plan.and_val is not None and plan.and_hit is not None
-        old = flat[plan.and_idx]
-        if not (old & plan.and_hit).any():
-            return False
-        flat[plan.and_idx] = old & plan.and_val
-        return True
 
     # --- plans ---------------------------------------------------------------------------
 
@@ -668,10 +629,10 @@ class LogicalMap:
         return (_Side.join(parts), np.unique(np.concatenate(counted)) if counted else _EMPTY,
                 np.concatenate(dones) if dones else _EMPTY)
 
-    def _plan(self, lo: int, n: int, reads: bool, writes: bool) -> _Plan:
+    def _plan(self, lo: int, n: int, reads: bool, writes: bool) -> DatagramPlan:
         fmmus = self._overlapping(lo, n)
         if not len(fmmus) or n == 0:
-            return _Plan(0)
+            return DatagramPlan(0)
         f, w0, w1, k = self._pieces(lo, n, fmmus)
         rd = self.f_read[f] if reads else np.zeros(len(f), bool)
         wr = self.f_write[f] if writes else np.zeros(len(f), bool)
@@ -681,7 +642,7 @@ class LogicalMap:
         # Per slave: at least one byte it may write (bytes an ECAT-read SM
         # refuses do not count, as for FPWR).
         wkc += 2 * len(counted) if reads else len(counted)
-        plan = _Plan(wkc)
+        plan = DatagramPlan(wkc)
         if not wkc:
             return plan
         # Last reader on the route wins (within a slave: its last FMMU).
@@ -698,9 +659,10 @@ class LogicalMap:
             plan.done = np.unique(done)
         if len(sm):
             self._plan_sm_reads(plan, np.unique(sm))
+        plan.fused = fuse(plan, self._publisher)
         return plan
 
-    def _plan_sm_reads(self, plan: _Plan, ids: I64) -> None:
+    def _plan_sm_reads(self, plan: DatagramPlan, ids: I64) -> None:
         """The buffered ECAT-read SMs whose last byte this datagram reads, as status updates."""
         smr = self._smr
         al = smr.al_bit[ids] != 0

@@ -44,18 +44,23 @@ class LogicalPlan(Protocol):
 class Publisher(Protocol):
     """What :func:`fuse` asks of the SM areas (``sim.syncman.SmAreas``)."""
 
+    #: SM status byte after a completed buffered write, by the status before.
+    status_after_write: U8
+
     def publish_plan(self, slaves: I64) -> tuple[I64, I64, I64, U8, I64]: ...
 
+
 _IDENTITY = np.arange(256, dtype=np.uint8)
+_EMPTY = np.zeros(0, np.int64)
 
 
 class FusedLogical:
     """One datagram shape's register updates as one byte transform, and what follows them.
 
     ``update``: register bytes (flat memory indices, unique) with ``rows``,
-    where their 256-entry rows start in ``table`` (the rows one after the other); ``and_pos``/``and_hit``: where in ``update`` the
-    ECAT event bytes a read clears sit, and the bits (a cleared bit changes
-    the IRQ field); ``shadow``: buffer bytes published to the PDI side;
+    where their 256-entry rows start in ``table`` (the rows one after the
+    other); ``and_pos``/``and_hit``: where in ``update`` the ECAT event bytes
+    a read clears sit, and the bits (a cleared bit changes the IRQ field); ``shadow``: buffer bytes published to the PDI side;
     ``done``: slaves whose write buffers complete, ``wd_slaves``: those whose
     watchdog it triggers.
     """
@@ -86,34 +91,27 @@ class FusedLogical:
 
 
 def _compose(steps: list[tuple[I64, U8, str]]) -> tuple[I64, I64, U8]:
-    """(unique indices, their table rows, the distinct tables) of byte updates applied in order.
+    """(unique indices, their rows in the table, the distinct 256-entry rows) of byte
+    updates applied in order.
 
-    Each step is (indices, values, op) with op "or", "and" or "map" (values: a
-    256-entry table, the same for every index)."""
-    funcs: dict[int, U8] = {}
+    Each step is (indices, values, op): op "or" and "and" take one value per
+    index, "map" one 256-entry table for all; a step names each index once
+    (its producers combine the bits of one byte)."""
+    if not steps:
+        return _EMPTY, _EMPTY, np.zeros((0, 256), np.uint8)
+    keys = np.unique(np.concatenate([idx for idx, _, _ in steps]))
+    funcs = np.tile(_IDENTITY, (len(keys), 1))  # each byte's function, row by row
     for idx, val, op in steps:
-        for k, i in enumerate(idx.tolist()):
-            f = funcs.get(i, _IDENTITY)
-            if op == "or":
-                f = f | val[k]
-            elif op == "and":
-                f = f & val[k]
-            else:
-                f = val[f]
-            funcs[i] = f.astype(np.uint8)
-    keys = sorted(funcs)
-    distinct: dict[bytes, int] = {}
-    tables: list[U8] = []
-    rows = np.empty(len(keys), np.int64)
-    for n, i in enumerate(keys):
-        t = funcs[i]
-        r = distinct.get(t.tobytes())
-        if r is None:
-            r = distinct[t.tobytes()] = len(tables)
-            tables.append(t)
-        rows[n] = r
-    table = np.stack(tables) if tables else np.zeros((0, 256), np.uint8)
-    return np.array(keys, np.int64), rows, table
+        pos = np.searchsorted(keys, idx)
+        assert len(np.unique(pos)) == len(pos), "a step names a byte twice"
+        if op == "or":
+            funcs[pos] |= val[:, None]
+        elif op == "and":
+            funcs[pos] &= val[:, None]
+        else:
+            funcs[pos] = val[funcs[pos]]
+    table, rows = np.unique(funcs, axis=0, return_inverse=True)
+    return keys, rows.reshape(-1).astype(np.int64), table
 
 
 def _run_or_index(idx: I64) -> I64 | slice:
@@ -123,7 +121,7 @@ def _run_or_index(idx: I64) -> I64 | slice:
     return idx
 
 
-def fuse(plan: LogicalPlan, sm: Publisher, status_after_write: U8) -> FusedLogical:
+def fuse(plan: LogicalPlan, sm: Publisher) -> FusedLogical:
     """The register updates of ``plan`` (read events) and of the publish of the slaves whose
     write buffers it completes (``sm``), as one :class:`FusedLogical`."""
     steps: list[tuple[I64, U8, str]] = []
@@ -134,11 +132,11 @@ def fuse(plan: LogicalPlan, sm: Publisher, status_after_write: U8) -> FusedLogic
             and_idx = plan.and_idx
             steps.append((plan.and_idx, plan.and_val, "and"))
     shadow: I64 | slice | None = None
-    wd_slaves = np.zeros(0, np.int64)
+    wd_slaves = _EMPTY
     if len(plan.done):
         buf_idx, st, al_idx, al_val, wd_slaves = sm.publish_plan(plan.done)
         if len(st):
-            steps.append((st, status_after_write, "map"))
+            steps.append((st, sm.status_after_write, "map"))
         if len(al_idx):
             steps.append((al_idx, al_val, "or"))
         if len(buf_idx):

@@ -21,15 +21,12 @@ through :meth:`Segment.process <pyethercat.sim.segment.Segment.process>`.
 
 from __future__ import annotations
 
-import struct
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from pyethercat.sim.fused import fuse
-from pyethercat.sim.syncman import STATUS_AFTER_WRITE
-from pyethercat.wire.datagram import HEADER_SIZE, Command
+from pyethercat.wire.datagram import HEADER_SIZE, HEADER_TAIL, LOGICAL_COMMANDS, WKC
 from pyethercat.wire.frame import LOCALLY_ADMINISTERED_BIT
 
 if TYPE_CHECKING:
@@ -37,14 +34,10 @@ if TYPE_CHECKING:
 
 __all__ = ["serve_reply_first"]
 
-_LOGICAL = {int(Command.LRD): (True, False), int(Command.LWR): (False, True),
-            int(Command.LRW): (True, True)}
-_WKC = struct.Struct("<H")
-_HEADER_TAIL = struct.Struct("<IHH")
 
 
 def serve_reply_first(seg: Segment, frame: bytes | bytearray | memoryview,
-                      send: Callable[[bytearray], None]) -> bool:
+                      send: Callable[[bytes], None]) -> bool:
     """Answer ``frame`` through ``send`` before applying its effects, if it qualifies
     (see the module docstring); False (nothing done) if it does not."""
     vclock = seg._vclock
@@ -63,14 +56,13 @@ def serve_reply_first(seg: Segment, frame: bytes | bytearray | memoryview,
     if hit is None or hit[0] > len(frame) or len(hit[1]) != 1:
         return False
     off, cmd, address, lw, irq, n = hit[1][0]
-    rw = _LOGICAL.get(cmd)
-    lmap = state.lmap
-    if rw is None or lmap is None or lmap.empty or n == 0:
+    if cmd not in LOGICAL_COMMANDS:
         return False
-    plan = lmap.plan(address & 0xFFFFFFFF, n, rw[0], rw[1])
+    plan = seg.logical_plan(cmd, address, n)  # (compiles nothing: the state is clean)
+    if plan is None or plan.fused is None or len(plan.stages) != 1:
+        return False
+    fused = plan.fused
     stages = plan.stages
-    if not plan.wkc or len(stages) != 1:
-        return False
     seg.frames += 1
     seg.dc.frame_t0 = now
     stage = stages[0]
@@ -79,21 +71,15 @@ def serve_reply_first(seg: Segment, frame: bytes | bytearray | memoryview,
     doff = off + HEADER_SIZE
     buf = bytearray(frame)
     stage.place(np.frombuffer(buf, np.uint8, n, doff), stage.gather(flat))
-    _HEADER_TAIL.pack_into(buf, off + 2, address, lw, irq | state.irq)
+    HEADER_TAIL.pack_into(buf, off + 2, address, lw, irq | state.irq)
     wkc_off = doff + n
-    _WKC.pack_into(buf, wkc_off, (_WKC.unpack_from(buf, wkc_off)[0] + plan.wkc) & 0xFFFF)
+    WKC.pack_into(buf, wkc_off, (WKC.unpack_from(buf, wkc_off)[0] + plan.wkc) & 0xFFFF)
     buf[6] |= LOCALLY_ADMINISTERED_BIT
     try:
-        send(buf)
+        send(bytes(buf))
     finally:
         # The frame passed the slaves whatever became of its reply: its writes hold.
         stage.write(flat, np.frombuffer(frame, np.uint8, n, doff))
-        fused = plan.fused
-        if fused is None:
-            fused = plan.fused = fuse(plan, seg.sm, STATUS_AFTER_WRITE)
-        if fused.registers(flat, memory.shadow_flat):
-            state.irq_changed()
-        if len(fused.done):
-            seg.arrival.published(fused.done, fused.wd_slaves, now)
+        seg.registers_done(fused, flat)
         seg.frame_done(now, len(buf))
     return True

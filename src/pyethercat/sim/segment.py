@@ -37,7 +37,6 @@ and cable delays), so DC times move as on a real segment; set
 
 from __future__ import annotations
 
-import struct
 from collections.abc import Callable
 
 import numpy as np
@@ -54,14 +53,15 @@ from pyethercat.sim.datagrams import MALFORMED, Head, scan_frame
 from pyethercat.sim.dc import DcClocks
 from pyethercat.sim.esc import Esc
 from pyethercat.sim.faults import NEVER, Faults
-from pyethercat.sim.fused import fuse
+from pyethercat.sim.fmmu import DatagramPlan
+from pyethercat.sim.fused import FusedLogical
 from pyethercat.sim.host import Dirty
 from pyethercat.sim.memory import EscMemory
 from pyethercat.sim.pdio import ProcessIo
 from pyethercat.sim.ports import MASTER, NEXT_PORT, Ports, Route
 from pyethercat.sim.ring import MasterPorts
 from pyethercat.sim.slave import SimSlave, SimSlaveSpec
-from pyethercat.sim.syncman import STATUS_AFTER_WRITE, SmAreas
+from pyethercat.sim.syncman import SmAreas
 from pyethercat.sim.watchdog import Watchdogs
 from pyethercat.sim.wiring import Wiring
 from pyethercat.wire import registers as R
@@ -69,6 +69,8 @@ from pyethercat.wire.al import AlState
 from pyethercat.wire.datagram import (
     CIRCULATING_BIT,
     HEADER_SIZE,
+    HEADER_TAIL,
+    WKC,
     Command,
 )
 from pyethercat.wire.frame import (
@@ -93,9 +95,6 @@ I64 = npt.NDArray[np.int64]
 
 #: Ethernet FCS bytes (on the wire, not in the frames we exchange).
 FCS_SIZE = 4
-_WKC = struct.Struct("<H")
-#: Datagram header from byte 2 on: address, length word, IRQ (patched in the reply).
-_HEADER_TAIL = struct.Struct("<IHH")
 _BRD = int(Command.BRD)
 _LWR = int(Command.LWR)
 _LRD = int(Command.LRD)
@@ -137,8 +136,7 @@ class Segment:
         self.dc = DcClocks(self.memory, self.escs, lambda: self.route)
         self.watchdogs = Watchdogs(self.memory)
         #: The firmware's work a frame sets in motion, run once it has passed (``sim.after_frame``).
-        self.after_frame = AfterFrame(lambda: self._clock if self._vclock is None else None,
-                                      _SLOW_FRAME_NS, self.watchdogs.pause)
+        self.after_frame = AfterFrame(self._wall_ns, self._charge)
         self.wiring = Wiring(self.memory, self.escs)
         self.sm = SmAreas(self.memory)
         self.commands = Commands(self)
@@ -518,7 +516,7 @@ class Segment:
                     dw = plan.dw
                     d, w = dw.unpack_from(buf, doff)
                     dw.pack_into(buf, doff, d | v, (w + count) & 0xFFFF)
-                    _HEADER_TAIL.pack_into(buf, off + 2, ((address + count) & 0xFFFF) | (address & 0xFFFF0000),
+                    HEADER_TAIL.pack_into(buf, off + 2, ((address + count) & 0xFFFF) | (address & 0xFFFF0000),
                                            lw, irq | state.irq)
                     continue
             # The IRQ field passes each slave in the header, before the slave
@@ -534,9 +532,9 @@ class Segment:
                     state.compile_irq()
             else:
                 add = 0  # NOP and unknown commands pass untouched
-            _HEADER_TAIL.pack_into(buf, off + 2, address, lw, irq)
+            HEADER_TAIL.pack_into(buf, off + 2, address, lw, irq)
             wkc_off = doff + n
-            _WKC.pack_into(buf, wkc_off, (_WKC.unpack_from(buf, wkc_off)[0] + add) & 0xFFFF)
+            WKC.pack_into(buf, wkc_off, (WKC.unpack_from(buf, wkc_off)[0] + add) & 0xFFFF)
         self.frame_done(now, len(buf))
         if route.reopen:
             self._reopen_ports(route, any_c)
@@ -546,17 +544,24 @@ class Segment:
         buf[6] |= LOCALLY_ADMINISTERED_BIT
         return bytes(buf)
 
+    def _wall_ns(self) -> int | None:
+        """Now on real time; None on a virtual clock (time moves by the frames)."""
+        return None if self._vclock is not None else self._clock.now_ns()
+
+    def _charge(self, since: int) -> None:
+        """Real time spent serving since ``since``. A frame that kept the simulator busy
+        long (AL control for a thousand slaves, one ESC after the other in Python) must
+        not run out the watchdogs of slaves whose next outputs wait behind it."""
+        spent = self._clock.now_ns() - since
+        if spent > _SLOW_FRAME_NS:
+            self.watchdogs.pause(spent)
+
     def frame_done(self, now: int, size: int) -> None:
         """The time a frame of ``size`` bytes that entered at ``now`` took: a virtual clock
         moves by its wire time; on real time a slow frame pauses the watchdogs."""
         vclock = self._vclock
         if vclock is None:
-            # On real time, a frame that kept the simulator busy long (AL control
-            # for a thousand slaves, one ESC after the other in Python) must not
-            # run out the watchdogs of slaves whose next outputs wait behind it.
-            spent = self._clock.now_ns() - now
-            if spent > _SLOW_FRAME_NS:
-                self.watchdogs.pause(spent)
+            self._charge(now)
         elif self.advance_clock:
             state = self.state
             walk = state.route
@@ -620,7 +625,9 @@ class Segment:
             return self.commands.addressed(cmd, passes, state.stations.get(adp), ado, data, n), address
         return 0, address  # NOP and unknown commands pass untouched
 
-    def _logical(self, cmd: int, address: int, data: npt.NDArray[np.uint8], n: int) -> int:
+    def logical_plan(self, cmd: int, address: int, n: int) -> DatagramPlan | None:
+        """The plan of a logical datagram of ``n`` bytes (SMs and FMMUs compiled first
+        when they changed); None when no FMMU maps anything."""
         state = self.state
         if state.sm_dirty:
             state.compile_sm()
@@ -629,30 +636,29 @@ class Segment:
         lmap = state.lmap
         assert lmap is not None
         if lmap.empty or n == 0:
+            return None
+        return lmap.plan(address & 0xFFFFFFFF, n, cmd != _LWR, cmd != _LRD)
+
+    def _logical(self, cmd: int, address: int, data: npt.NDArray[np.uint8], n: int) -> int:
+        plan = self.logical_plan(cmd, address, n)
+        fused = None if plan is None else plan.fused
+        if plan is None or fused is None:  # (no slave takes part: working counter 0)
             return 0
-        plan = lmap.plan(address & 0xFFFFFFFF, n, cmd != _LWR, cmd != _LRD)
-        wkc = plan.wkc
-        if not wkc:
-            return 0
-        stages = plan.stages
         memory = self.memory
         flat = memory.flat
-        if len(stages) == 1:
-            stages[0].apply(flat, data)
-        else:
-            for stage in stages:
-                stage.apply(flat, data)
-        # The read events and the publish of completed buffers: one program per plan
-        # (sim.fused), built with it from the same registers. (SMs compiled above.)
-        fused = plan.fused
-        if fused is None:
-            fused = plan.fused = fuse(plan, self.sm, STATUS_AFTER_WRITE)
-        if fused.registers(flat, memory.shadow_flat):
-            state.irq_changed()
+        for stage in plan.stages:
+            stage.apply(flat, data)
+        self.registers_done(fused, flat)
+        return plan.wkc
+
+    def registers_done(self, fused: FusedLogical, flat: npt.NDArray[np.uint8]) -> None:
+        """A logical datagram's data moved: its register updates and the publish of the
+        buffers it completed (one program, ``sim.fused``), and what follows those."""
+        if fused.registers(flat, self.memory.shadow_flat):
+            self.state.irq_changed()
         done = fused.done
         if len(done):
             self.arrival.published(done, fused.wd_slaves, self.dc.frame_t0)
-        return wkc
 
 
 #: AL states in which a slave takes no outputs (its output arrival is forgotten).

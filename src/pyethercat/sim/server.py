@@ -48,7 +48,6 @@ socketpair and ``handle.link`` is the master's end.
 from __future__ import annotations
 
 import contextlib
-import gc
 import ipaddress
 import json
 import os
@@ -253,9 +252,8 @@ class SimServer:
                     self._idle_ticks += 1
                     if self._idle_ticks == _IDLE_COLLECT_TICKS:
                         # A second without a frame: the full collection the serving went
-                        # without (quiet_collector), then its survivors frozen too.
-                        gc.collect()
-                        gc.freeze()
+                        # without, its survivors frozen too.
+                        quiet_collector()
                 for r in ready:
                     if r in readers:
                         readers[r]()
@@ -333,7 +331,7 @@ class SimServer:
         start = monotonic()
         budget = self._spin_budget
         if budget is not None and not budget.allowed(start):
-            return  # (under SCHED_FIFO: see SpinBudget)
+            return  # (this second's share is spent: block in select)
         try:
             self._poll_frames(frame_fds, others, start)
         finally:
@@ -429,10 +427,10 @@ class SimServer:
             return
         stats.replies += 1
 
-    def _send_first(self, reply: bytearray) -> None:
+    def _send_first(self, reply: bytes) -> None:
         """Send a reply answered before the frame's writes (``sim.reply_first``)."""
         self._t_reply = time.perf_counter()
-        self.link.send(reply)  # type: ignore[arg-type]
+        self.link.send(reply)
         self.stats.replies += 1
 
     def _count_time(self, t0: float) -> None:

@@ -32,7 +32,7 @@ from pyethercat.sim.memory import EscMemory
 from pyethercat.sim.ports import Route
 from pyethercat.wire import registers as R
 
-__all__ = ["STATUS_AFTER_WRITE", "SmAreas"]
+__all__ = ["SmAreas"]
 
 I64 = npt.NDArray[np.int64]
 U8 = npt.NDArray[np.uint8]
@@ -49,8 +49,7 @@ def _status_after_write_table() -> U8:
     return np.array([buffer_written(old) & ~R.SM_STATUS_READ_EVENT & 0xFF for old in range(256)], np.uint8)
 
 
-#: SM status byte after a completed buffered write, by the status before.
-STATUS_AFTER_WRITE = _status_after_write_table()
+_STATUS_AFTER_WRITE = _status_after_write_table()
 
 
 def _byte_and_mask(bit: int) -> tuple[int, int]:
@@ -61,6 +60,10 @@ def _byte_and_mask(bit: int) -> tuple[int, int]:
 
 class SmAreas:
     """Compiled SM state of a segment (see the module docstring)."""
+
+    #: SM status byte after a completed buffered write, by the status before
+    #: (what ``sim.fused`` composes into a datagram's register updates).
+    status_after_write = _STATUS_AFTER_WRITE
 
     def __init__(self, memory: EscMemory) -> None:
         self.memory = memory
@@ -144,12 +147,7 @@ class SmAreas:
             configs.extend(parse_fmmus(raw, count, pos, s))
         writable = [e.writable for e in escs]
         impl = [e.impl for e in escs]
-        return LogicalMap(configs, writable, self.complete, impl, self.reads, self.memory.stride)
-
-    def prepare_publish(self, slaves: I64) -> None:
-        """Compute now the index arrays :meth:`publish` will need for ``slaves``."""
-        if self._plans.get(slaves) is None:
-            self._plans.put(slaves, self._plan(slaves))
+        return LogicalMap(configs, writable, self.complete, impl, self.reads, self.memory.stride, self)
 
     def publish_plan(self, slaves: I64) -> _Plan:
         """The index arrays of :meth:`publish` for ``slaves``: (buffer bytes, status bytes,
@@ -167,15 +165,11 @@ class SmAreas:
         status (buffer index, write event) and raises the AL events. Returns
         the slaves whose watchdog these writes trigger. The index arrays for a
         given set of slaves are computed once and cached."""
-        plan = self._plans.get(slaves)
-        if plan is None:
-            plan = self._plan(slaves)
-            self._plans.put(slaves, plan)
-        idx, st, al_idx, al_val, wd_slaves = plan
+        idx, st, al_idx, al_val, wd_slaves = self.publish_plan(slaves)
         flat = self.memory.flat
         self.memory.shadow_flat[idx] = flat[idx]
         if len(st):
-            flat[st] = STATUS_AFTER_WRITE[flat[st]]
+            flat[st] = _STATUS_AFTER_WRITE[flat[st]]
         if len(al_idx):
             flat[al_idx] |= al_val
         return wd_slaves

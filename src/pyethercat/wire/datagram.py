@@ -18,12 +18,15 @@ __all__ = [
     "CIRCULATING_BIT",
     "HEADER",
     "HEADER_SIZE",
+    "HEADER_TAIL",
     "LEN_MASK",
     "LEN_RESERVED_MASK",
+    "LOGICAL_COMMANDS",
     "MAX_DATA",
     "MAX_PAYLOAD",
     "MORE_BIT",
     "OVERHEAD",
+    "WKC",
     "WKC_SIZE",
     "Command",
     "Datagram",
@@ -37,7 +40,10 @@ __all__ = [
 #: Datagram header: cmd, idx, address (u32), length word, irq.
 HEADER = struct.Struct("<BBIHH")
 HEADER_SIZE = HEADER.size  # 10
-_WKC = struct.Struct("<H")
+#: The header from byte 2 on: address, length word, IRQ (what a slave patches in passing).
+HEADER_TAIL = struct.Struct("<IHH")
+#: The working counter after the data.
+WKC = struct.Struct("<H")
 WKC_SIZE = 2
 OVERHEAD = HEADER_SIZE + WKC_SIZE  # 12 bytes around the data
 LEN_MASK = 0x07FF
@@ -72,7 +78,7 @@ class Command(enum.IntEnum):
     @property
     def is_logical(self) -> bool:
         """Logical addressing (LRD/LWR/LRW): a 32-bit address matched by FMMUs."""
-        return self in _LOGICAL
+        return self in LOGICAL_COMMANDS
 
     @property
     def is_positional(self) -> bool:
@@ -100,7 +106,8 @@ class Command(enum.IntEnum):
         return self in _WRITES
 
 
-_LOGICAL = frozenset({Command.LRD, Command.LWR, Command.LRW})
+#: The logically addressed commands (FMMU access).
+LOGICAL_COMMANDS = frozenset({Command.LRD, Command.LWR, Command.LRW})
 _POSITIONAL = frozenset({Command.APRD, Command.APWR, Command.APRW, Command.ARMW})
 _CONFIGURED = frozenset({Command.FPRD, Command.FPWR, Command.FPRW, Command.FRMW})
 _BROADCAST = frozenset({Command.BRD, Command.BWR, Command.BRW})
@@ -192,7 +199,7 @@ class Datagram:
     @property
     def is_logical(self) -> bool:
         """Whether the command is LRD, LWR or LRW."""
-        return self.command in _LOGICAL
+        return self.command in LOGICAL_COMMANDS
 
     @property
     def size(self) -> int:
@@ -226,7 +233,7 @@ def encode_datagram_into(buf: bytearray, offset: int, dgram: Datagram, more: boo
         # refused, never silently cut (an index of 256 would otherwise go out as 0).
         HEADER.pack_into(buf, offset, int(dgram.command), dgram.index, dgram.address, word,
                          dgram.irq)
-        _WKC.pack_into(buf, start + length, dgram.wkc)
+        WKC.pack_into(buf, start + length, dgram.wkc)
     except struct.error:
         raise FrameError(f"{dgram!r}: a field does not fit its width (command and index "
                          "8 bits, address 32, IRQ and WKC 16)", offset) from None
