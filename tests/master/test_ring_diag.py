@@ -17,7 +17,7 @@ from pyethercat.cli.main import cli
 from pyethercat.clock import VirtualClock
 from pyethercat.link.pair import PairLink
 from pyethercat.master.master import Master
-from pyethercat.master.ring import FaultEvent
+from pyethercat.master.ring import FaultBoard, FaultEvent
 from pyethercat.sim.ring import ring_link
 from pyethercat.sim.topology import parse_topology
 
@@ -95,6 +95,28 @@ def test_events_tell_when_a_fault_comes_and_goes() -> None:
         (False, "between slave 3 port 1 and slave 4 port 0"),
         (True, "between slave 3 port 1 and slave 4 port 0")]
     assert list(m.ring.events) == got
+
+
+def test_the_fault_board_keeps_a_fault_until_its_cleared_line() -> None:
+    # the live view's "fault now" lines: from the event lines alone (an isolated
+    # engine sends text), past any number of other lines, until cleared
+    seg, m = open_ring()
+    board = FaultBoard()
+    m.ring.subscribe(lambda e: board.take(e.text))
+    seg.break_link(3, 1)
+    m.diagnose()
+    for i in range(500):
+        board.take(f"slave {i} vanished")
+    (line,) = board.lines
+    assert line.startswith("link between slave 3 port 1 and slave 4 port 0 (")
+    seg.break_link(5, 1)  # two breaks cut slaves 4 and 5 off: one node fault instead
+    m.diagnose()
+    (line,) = board.lines
+    assert line.startswith("node slaves 4, 5 (")
+    seg.restore_link(3, 1)
+    seg.restore_link(5, 1)
+    m.diagnose()
+    assert board.lines == []
 
 
 def test_a_line_without_ring_names_the_cut() -> None:

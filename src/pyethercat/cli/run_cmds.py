@@ -160,7 +160,11 @@ def live_view(master: Master, runner: CyclicRunner, extra: Callable[[], list[str
     dc = runner.dc_status_line()
     if dc is not None:
         lines.append(dc)
-    lines += [e.text for e in list(runner.events)[-4:]]
+    recent = [e.text for e in list(runner.events)[-4:]]
+    # Located faults stand until cleared, however much the event log scrolls.
+    lines += [f"fault now: {f}" for f in runner.fault_board.lines
+              if not any(f in line for line in recent)]
+    lines += recent
     if lines:
         parts.append(Text("\n".join(lines)))
     return Group(*parts)

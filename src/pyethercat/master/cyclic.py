@@ -74,6 +74,7 @@ from pyethercat.master.dc_loop import DcCycle, SyncEvent
 from pyethercat.master.exchange import CycleExchange, DcRider
 from pyethercat.master.image import ProcessImage
 from pyethercat.master.linkwatch import LinkWatch
+from pyethercat.master.ring import FaultBoard
 from pyethercat.master.scheduler import CyclicFrame, Scheduler
 from pyethercat.master.stopping import LeaveFn, OrderlyStop
 from pyethercat.master.supervision import SlaveHealth, Supervisor
@@ -209,6 +210,8 @@ class CyclicRunner:
         self.stats = CycleStats(self.period_ns)
         self.late_threshold_ns = int(self.period_ns * late_fraction)
         self.events: deque[_Event] = deque(maxlen=200)
+        #: The located faults standing now (the log scrolls; these stay until cleared).
+        self.fault_board = FaultBoard()
         self.supervisor = Supervisor(scheduler, self.slaves, target=target, recover=recover,
                                      check_interval=check_interval, tick_ns=self.period_ns,
                                      now_ns=self.clock.now_ns, log=self.log,
@@ -428,6 +431,7 @@ class CyclicRunner:
 
     def log(self, text: str) -> None:
         self.events.append(_Event(time.time(), text))
+        self.fault_board.take(text)
 
     # -- the loop --------------------------------------------------------------------------
 

@@ -46,7 +46,8 @@ from pyethercat.master.scheduler import Request, Scheduler
 from pyethercat.wire import registers as reg
 from pyethercat.wire.datagram import Command, Datagram
 
-__all__ = ["Diagnosis", "FaultEvent", "PendingDiagnosis", "PortStatus", "RingService"]
+__all__ = ["Diagnosis", "FaultBoard", "FaultEvent", "PendingDiagnosis", "PortStatus",
+           "RingService"]
 
 _DL = 2  # bytes of DL status
 _AL = 6  # AL status, reserved, AL status code
@@ -88,7 +89,41 @@ class FaultEvent:
 
     @property
     def text(self) -> str:
-        return ("cleared: " if self.cleared else "fault: ") + f"{self.fault.kind} {self.fault.text}"
+        return (_CLEARED if self.cleared else _FOUND) + self.fault.kind + " " + self.fault.text
+
+
+_FOUND, _CLEARED = "fault: ", "cleared: "
+
+
+class FaultBoard:
+    """The faults standing now, kept from a loop's event lines (:attr:`FaultEvent.text`).
+
+    A fault stays on the board until its ``cleared:`` line comes, however many
+    other lines scroll past in the meantime; the lines may come from this
+    process's ring watch or from an isolated engine's (they carry text only).
+    """
+
+    def __init__(self) -> None:
+        self._standing: dict[str, str] = {}
+
+    def take(self, line: str) -> None:
+        """Note one event line (lines that are not fault events are ignored)."""
+        if line.startswith(_FOUND):
+            what = line[len(_FOUND):]
+            self._standing[_place(what)] = what
+        elif line.startswith(_CLEARED):
+            self._standing.pop(_place(line[len(_CLEARED):]), None)
+
+    @property
+    def lines(self) -> list[str]:
+        """The standing faults, oldest first (``cut between slave 2 port 1 and ...``)."""
+        return list(self._standing.values())
+
+
+def _place(what: str) -> str:
+    # "kind where (detail)": a fault is the same fault while its kind and place are,
+    # whatever its detail says (the ring service keys faults by place too).
+    return what.split(" (", 1)[0]
 
 
 @dataclass

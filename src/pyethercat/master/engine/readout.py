@@ -21,6 +21,7 @@ from pyethercat.errors import EngineDiedError
 from pyethercat.master.cyclic import CycleStats, SlaveHealth
 from pyethercat.master.engine.shared import HEALTH_STATUS, SharedArea
 from pyethercat.master.engine.status import NONE, STATE_NAMES, load_stats, read_group
+from pyethercat.master.ring import FaultBoard
 from pyethercat.master.supervision import Supervisor
 
 __all__ = ["EngineReadout", "Lifeline"]
@@ -46,6 +47,7 @@ class EngineReadout:
     supervisor: Supervisor
     _groups: list[Any]
     _events: deque[Any]
+    fault_board: FaultBoard
     _stats_view: CycleStats
     _stats_names: tuple[str, ...]
     _event_serial: int
@@ -190,6 +192,7 @@ class EngineReadout:
         self._event_serial, got = area.events_since(self._event_serial)
         for t, text in got:
             self._events.append(_EventLine(t, text))
+            self.fault_board.take(text)
 
     def engine_line(self) -> str:
         """The engine in one line: pid, state, priority, CPU, share of a CPU it uses."""
