@@ -100,8 +100,30 @@ def pick_subnet(text: str) -> ipaddress.IPv4Network:
     raise SystemExit("eoe.py: error: no free /24 in 10.214.0.0/16: give --subnet")
 
 
+def _normal_priority() -> None:
+    # (the child would inherit this process's SCHED_FIFO: a browser on the host runs
+    # at normal priority)
+    os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+
+
+def download(url: str, http_client: str) -> tuple[int, float]:
+    """(bytes, seconds) of one HTTP GET: by ``curl`` in a process of its own (as a
+    browser on the host would), or by ``urllib`` in this process, the master's."""
+    if http_client == "urllib":
+        t0 = time.perf_counter()
+        body = urllib.request.urlopen(url, timeout=600).read()
+        return len(body), time.perf_counter() - t0
+    out = subprocess.run(["curl", "-sS", "--max-time", "600", "-o", "/dev/null",
+                          "-w", "%{size_download} %{time_total}", url],
+                         capture_output=True, text=True, preexec_fn=_normal_priority)
+    if out.returncode != 0:
+        raise SystemExit(f"eoe.py: error: curl {url}: {out.stderr.strip()}")
+    got, seconds = out.stdout.split()
+    return int(got), float(seconds)
+
+
 def _measure(master: Master, cycle: float, targets: list[tuple[str, int, str]], size: int,
-             tap: str, host_ip: str) -> list[dict[str, Any]]:
+             tap: str, host_ip: str, http_client: str) -> list[dict[str, Any]]:
     master.configure()
     runner = master.start(cycle)
     run = start_eoe(master, runner, tap=tap, host_ip=host_ip)
@@ -111,13 +133,13 @@ def _measure(master: Master, cycle: float, targets: list[tuple[str, int, str]], 
             client = run.clients[pos]
             sm1 = client.mailbox.tx_size
             # warm up: ARP, TCP slow start
-            urllib.request.urlopen(f"http://{ip}/blob?size=65536", timeout=60).read()
+            download(f"http://{ip}/blob?size=65536", http_client)
             before = client.stats.rx.bytes
             frags0, cycles0, skipped0, late0 = (client.stats.rx.fragments, runner.stats.cycles,
                                                 runner.stats.skipped, client.stats.late)
-            t0 = time.perf_counter()
-            body = urllib.request.urlopen(f"http://{ip}/blob?size={size}", timeout=600).read()
-            dt = time.perf_counter() - t0
+            got, dt = download(f"http://{ip}/blob?size={size}", http_client)
+            if got != size:
+                raise SystemExit(f"eoe.py: error: {got} of {size} bytes downloaded from {ip}")
             eth = client.stats.rx.bytes - before
             frags = client.stats.rx.fragments - frags0
             ran = runner.stats.cycles - cycles0
@@ -125,9 +147,9 @@ def _measure(master: Master, cycle: float, targets: list[tuple[str, int, str]], 
             limit = sm1 / cycle
             rows.append({"device": name, "cycle_hz": round(1 / cycle), "mailbox": sm1,
                          "seconds": round(dt, 2), "ethernet_Bps": round(eth / dt),
-                         "http_Bps": round(len(body) / dt), "limit_Bps": round(limit),
+                         "http_Bps": round(got / dt), "limit_Bps": round(limit),
                          "ethernet_ratio": round(eth / dt / limit, 3),
-                         "http_ratio": round(len(body) / dt / limit, 3),
+                         "http_ratio": round(got / dt / limit, 3),
                          # fragments per cycle run, and cycles run per deadline: the
                          # first shows the EoE logic, the second the loop keeping up
                          "fragments_per_cycle": round(frags / max(1, ran), 3),
@@ -151,6 +173,10 @@ def main() -> None:
                          "its threads (0: normal scheduling); the simulator runs at 10")
     ap.add_argument("--rates", default="1000,4000",
                     help="cycle rates in Hz, comma-separated")
+    ap.add_argument("--client", choices=("curl", "urllib"), default="curl",
+                    help="who downloads: curl, a process of its own (as a browser on the "
+                         "host), or urllib in this process, whose reads then take the GIL "
+                         "from the cyclic loop's thread")
     ap.add_argument("--subnet", default="auto",
                     help="IPv4 network of the TAP and the slaves (auto: a free /24 of "
                          "10.214.0.0/16)")
@@ -200,9 +226,9 @@ eoe = {{ ip = "{drive_ip}/{subnet.prefixlen}", netns = "pyecat-b{tag}-drive" }}
             m.scan()
             for cycle in (1 / r for r in rates):
                 rows += _measure(m, cycle, [("eoe-web", 0, str(web_ip))], args.size,
-                                 f"pyecat-b{tag}t", host_ip)
+                                 f"pyecat-b{tag}t", host_ip, args.client)
                 rows += _measure(m, cycle, [("seed002-drive", 1, str(drive_ip))], args.small,
-                                 f"pyecat-b{tag}t", host_ip)
+                                 f"pyecat-b{tag}t", host_ip, args.client)
     finally:
         sim.send_signal(signal.SIGINT)
         sim.wait(20)
