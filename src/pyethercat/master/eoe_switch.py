@@ -27,6 +27,7 @@ from __future__ import annotations
 import contextlib
 import ipaddress
 import logging
+import queue
 import select
 import threading
 import time
@@ -43,6 +44,8 @@ __all__ = ["EoeBridge", "EoeRun", "EoeSwitch", "SwitchPortStats", "SwitchPort", 
            "start_eoe"]
 
 _log = logging.getLogger("pyethercat.eoe")
+#: Frames waiting for a TAP's writer at most (more are dropped, counted at the port).
+TAP_QUEUE = 512
 #: Seconds a learned address is kept without traffic from it (as 802.1D's default).
 DEFAULT_AGING = 300.0
 
@@ -146,6 +149,9 @@ class EoeBridge:
         self.names: dict[int, str] = {}
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        #: Per TAP: the queue of frames for the host and the thread that writes them.
+        self._writers: list[tuple[TapLink, queue.SimpleQueue[bytes | None]]] = []
+        self._writer_threads: list[threading.Thread] = []
         try:
             address = ipaddress.IPv4Interface(host_ip) if host_ip is not None else None
         except ValueError:
@@ -186,15 +192,30 @@ class EoeBridge:
         self.switches.append(sw)
         self._inputs.append((link, sw, host, [c for _, c in members]))
 
-    @staticmethod
-    def _to_tap(link: TapLink) -> Callable[[bytes], bool]:
+    def _to_tap(self, link: TapLink) -> Callable[[bytes], bool]:
+        # Frames for the host go through a queue to a writer thread: a TAP write runs the
+        # host's IP stack (TCP included) in the writer's time, 15-25 us a frame, which
+        # the cyclic loop's thread, where the EoE service delivers them, must not pay.
+        out: queue.SimpleQueue[bytes | None] = queue.SimpleQueue()
+        self._writers.append((link, out))
+
         def send(frame: bytes) -> bool:
+            if out.qsize() >= TAP_QUEUE:
+                return False  # the host does not keep up: dropped, as a full switch port
+            out.put(frame)
+            return True
+        return send
+
+    @staticmethod
+    def _write_loop(link: TapLink, out: queue.SimpleQueue[bytes | None]) -> None:
+        while True:
+            frame = out.get()
+            if frame is None:
+                return
             try:
                 link.send(frame)
             except LinkError:
-                return False
-            return True
-        return send
+                return  # the TAP is gone (closing)
 
     @staticmethod
     def _from_slave(sw: EoeSwitch, port: int) -> Callable[[bytes], None]:
@@ -207,6 +228,11 @@ class EoeBridge:
         self._stop.clear()
         self._thread = threading.Thread(target=self._loop, name="ecat-eoe-tap", daemon=True)
         self._thread.start()
+        for link, out in self._writers:
+            t = threading.Thread(target=self._write_loop, args=(link, out),
+                                 name=f"ecat-eoe-{link.name}", daemon=True)
+            t.start()
+            self._writer_threads.append(t)
         return self
 
     def _loop(self) -> None:
@@ -246,6 +272,11 @@ class EoeBridge:
         self._thread = None
         for c in self.clients.values():
             c.on_frame = None
+        for _link, out in self._writers:
+            out.put(None)
+        for w in self._writer_threads:
+            w.join()
+        self._writer_threads = []
         for link in self.taps:
             link.close()
         self.taps = []
