@@ -192,6 +192,21 @@ def _coe_service(msg: ReceivedMessage) -> int | None:
     return msg.payload[1] >> 4  # CoE header bits 15:12 (little-endian u16)
 
 
+#: The last payload decoded and what it decoded to: the answer a transfer accepted
+#: is decoded again to run it, and the same bytes object gives the same message.
+_last_decoded: tuple[bytes, CoeMessage] | None = None
+
+
+def _decode_once(payload: bytes) -> CoeMessage:
+    global _last_decoded
+    got = _last_decoded
+    if got is not None and got[0] is payload:
+        return got[1]
+    decoded = decode_coe(payload)
+    _last_decoded = (payload, decoded)
+    return decoded
+
+
 def _is_sdo(msg: ReceivedMessage) -> bool:
     # An abort may travel in service 2 (what SOES sends) or 3.
     return _coe_service(msg) in (CoeService.SDO_REQUEST, CoeService.SDO_RESPONSE)
@@ -228,7 +243,7 @@ def _sdo_answer(request: CoeMessage, index: int, subindex: int,
         if not _is_sdo(msg):
             return False
         try:
-            coe = decode_coe(msg.payload)
+            coe = _decode_once(msg.payload)
         except MailboxError:
             return True  # malformed: the transfer reports it
         if isinstance(coe, SdoAbortTransfer):
@@ -404,7 +419,7 @@ class CoeClient:
                     self._abort(index, subindex, SdoAbortCode.TIMEOUT)
                     raise
                 try:
-                    coe = decode_coe(reply.payload)
+                    coe = _decode_once(reply.payload)
                 except MailboxError as exc:
                     self._abort(index, subindex, SdoAbortCode.INVALID_COMMAND)
                     raise MailboxError(f"{self.label}: malformed answer to {what}: {exc}"

@@ -395,9 +395,10 @@ class Esc(EscRegisters):
         data = self.row[lo:hi].tobytes()
         if lo < R.AL_CONTROL + 2 and hi > R.AL_CONTROL:
             self.clear_al_event(int(R.AlEvent.AL_CONTROL))
-        for s in self.sms_overlapping(lo, hi):
-            if s.ecat_writes and hi >= s.end and s.mode == _SM_MODE_MAILBOX:
-                self.mailbox.pdi_consumed(s.n)
+        if hi > SM_LOWEST:  # (registers are never an SM's: the firmware's reads of them skip the look)
+            for s in self.sms_overlapping(lo, hi):
+                if s.ecat_writes and hi >= s.end and s.mode == _SM_MODE_MAILBOX:
+                    self.mailbox.pdi_consumed(s.n)
         return data
 
     def pdi_write(self, address: int, data: bytes) -> None:
