@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+from conftest import SIM_FRAME_TIMEOUT
 from webdriving import browser as _browser
 from webdriving import fits, severe_log
 from webdriving import page as _page
@@ -41,6 +42,9 @@ DEMO = REPO / "examples" / "demo.toml"
 # How long a command may take to start and print its address: on a loaded 2-core host the
 # interpreter and its imports alone took 10 s, a scan and start-up several times that.
 STARTUP = 180.0
+# The masters wait a second for a frame, as ``patient_cli`` makes the CLI tests' do: under
+# a loaded CI host the DC set-up once saw no reply to four FRMW in 4 x 50 ms.
+PATIENT = {"PYETHERCAT_FRAME_TIMEOUT": str(SIM_FRAME_TIMEOUT)}
 # The simulator answers under SCHED_FIFO when it may (as the interop tests run it): on a
 # loaded host the DC set-up's 50 ms frame time-out would otherwise measure the queueing.
 REALTIME = ["--realtime", "10"] if os.geteuid() == 0 else []
@@ -128,7 +132,7 @@ def running(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Running]:
     tmp = tmp_path_factory.mktemp("web")
     runtime = tmp / "runtime"
     runtime.mkdir(mode=0o700)
-    env = dict(os.environ, PYETHERCAT_RUNTIME_DIR=str(runtime))
+    env = dict(os.environ, PYETHERCAT_RUNTIME_DIR=str(runtime), **PATIENT)
     port = _free_udp_port()
     ctl = tmp / "sim.sock"
     sim = subprocess.Popen([sys.executable, "-m", "pyethercat", "sim", str(DEMO), "--udp",
@@ -385,7 +389,7 @@ def test_mailbox_and_drives_pages_on_coe_slaves(tmp_path: Path,
     topo.write_text(MAILBOX_TOPOLOGY)
     runtime = tmp_path / "runtime"
     runtime.mkdir(mode=0o700)
-    env = dict(os.environ, PYETHERCAT_RUNTIME_DIR=str(runtime))
+    env = dict(os.environ, PYETHERCAT_RUNTIME_DIR=str(runtime), **PATIENT)
     port = _free_udp_port()
     ctl = tmp_path / "sim.sock"
     link = ["--udp", f"127.0.0.1:{port}"]
