@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import ipaddress
 import time
+from types import SimpleNamespace
 
 import pytest
 from conftest import wait_for
@@ -20,7 +21,7 @@ from pyethercat.errors import ConfigError
 from pyethercat.link.pair import PairLink
 from pyethercat.master.clients import registered_clients
 from pyethercat.master.eoe import EoeClient, EoeError, EoeService, eoe_client, eoe_clients
-from pyethercat.master.eoe_switch import EoeSwitch
+from pyethercat.master.eoe_switch import TAP_QUEUE, EoeBridge, EoeSwitch
 from pyethercat.master.master import Master
 from pyethercat.sim.eoe import eoe_server
 from pyethercat.sim.topology import parse_topology
@@ -193,6 +194,30 @@ def test_switch_learns_floods_and_switches_between_ports() -> None:
     sw.forward(2, bytes([2, 9, 9, 9, 9, 9]) + h + b"\x08\x00" + bytes(40))  # unknown: flood
     assert [len(out[n]) for n in range(3)] == [2, 3, 1]
     assert sw.lookup(h) == 2 and sw.ports[2].stats.frames_in == 1
+
+
+def test_a_full_port_refuses_and_the_sending_slave_counts_the_drop() -> None:
+    # the host's TAP queue holds TAP_QUEUE frames (its writer thread empties it); a
+    # frame it refuses is lost, and the handler of the slave that sent it counts it
+    bridge = EoeBridge.__new__(EoeBridge)
+    bridge._writers = []
+    tap = SimpleNamespace(name="pyecat-t0")
+    to_host = bridge._to_tap(tap)  # type: ignore[arg-type]  (no writer started)
+    sw = EoeSwitch()
+    got: list[bytes] = []
+    sw.add_port("slave 0", lambda f: got.append(f) is None)
+    sw.add_port("host", to_host)
+    client = SimpleNamespace(stats=SimpleNamespace(rx=SimpleNamespace(dropped=0)))
+    from_slave = EoeBridge._from_slave(sw, 0, client)  # type: ignore[arg-type]
+    a, h = bytes([2, 0, 0, 0, 0, 0xA]), bytes([2, 0, 0, 0, 0, 0xC])
+    sw.forward(1, b"\xff" * 6 + h + b"\x08\x06" + bytes(28))  # the host is learnt on port 1
+    frame = h + a + b"\x08\x00" + bytes(40)
+    for _ in range(TAP_QUEUE):
+        from_slave(frame)
+    assert client.stats.rx.dropped == 0 and bridge._writers[0][1].qsize() == TAP_QUEUE
+    from_slave(frame)
+    assert client.stats.rx.dropped == 1 and sw.ports[1].stats.dropped == 1
+    assert sw.forward(0, frame) == 1 and sw.forward(1, a + h + b"\x08\x00" + bytes(40)) == 0
 
 
 def test_service_rides_in_the_cyclic_frame_with_the_mapped_status_byte() -> None:

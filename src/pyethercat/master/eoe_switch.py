@@ -92,10 +92,11 @@ class EoeSwitch:
             return None
         return got[0]
 
-    def forward(self, port: int, frame: bytes, now: float | None = None) -> None:
-        """A frame entered on ``port``: learn its source, send it on."""
+    def forward(self, port: int, frame: bytes, now: float | None = None) -> int:
+        """A frame entered on ``port``: learn its source, send it on; how many ports
+        it was for refused it (their queues full)."""
         if len(frame) < 14:
-            return
+            return 0
         now = time.monotonic() if now is None else now
         src_port = self.ports[port]
         src_port.stats.frames_in += 1
@@ -110,20 +111,17 @@ class EoeSwitch:
             if got is not None and now - got[1] <= self.aging:
                 target = got[0]
         if target is not None:
-            if target != port:
-                self._out(target, frame)
-            return
-        for n in range(len(self.ports)):
-            if n != port:
-                self._out(n, frame)
+            return 0 if target == port or self._out(target, frame) else 1
+        return sum(not self._out(n, frame) for n in range(len(self.ports)) if n != port)
 
-    def _out(self, n: int, frame: bytes) -> None:
+    def _out(self, n: int, frame: bytes) -> bool:
         p = self.ports[n]
         if p.send(frame):
             p.stats.frames_out += 1
             p.stats.bytes_out += len(frame)
-        else:
-            p.stats.dropped += 1
+            return True
+        p.stats.dropped += 1
+        return False
 
 
 class EoeBridge:
@@ -187,7 +185,7 @@ class EoeBridge:
         host = sw.add_port(link.name, self._to_tap(link))
         for pos, client in members:
             port = sw.add_port(f"slave {pos}", client.send)
-            client.on_frame = self._from_slave(sw, port)
+            client.on_frame = self._from_slave(sw, port, client)
             self.names[pos] = link.name
         self.switches.append(sw)
         self._inputs.append((link, sw, host, [c for _, c in members]))
@@ -218,8 +216,13 @@ class EoeBridge:
                 return  # the TAP is gone (closing)
 
     @staticmethod
-    def _from_slave(sw: EoeSwitch, port: int) -> Callable[[bytes], None]:
-        return lambda frame: sw.forward(port, frame)
+    def _from_slave(sw: EoeSwitch, port: int, client: EoeClient) -> Callable[[bytes], None]:
+        def deliver(frame: bytes) -> None:
+            if sw.forward(port, frame):
+                # (the host's or another slave's queue was full: the slave's frame is
+                # lost, and its handler's Dropped column says so)
+                client.stats.rx.dropped += 1
+        return deliver
 
     # -- running ---------------------------------------------------------------------
 
