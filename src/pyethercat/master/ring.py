@@ -79,6 +79,10 @@ class PortStatus:
                 f"passed on {self.forwarded}, copies missing {self.missing}{row}")
 
 
+#: How a fault event's line begins (:attr:`FaultEvent.text`; :class:`FaultBoard` reads it).
+_FOUND, _CLEARED = "fault: ", "cleared: "
+
+
 @dataclass(frozen=True)
 class FaultEvent:
     """A fault found (``cleared`` False) or gone (True); ``time_ns`` on the service's clock."""
@@ -90,9 +94,6 @@ class FaultEvent:
     @property
     def text(self) -> str:
         return (_CLEARED if self.cleared else _FOUND) + self.fault.kind + " " + self.fault.text
-
-
-_FOUND, _CLEARED = "fault: ", "cleared: "
 
 
 class FaultBoard:

@@ -173,9 +173,9 @@ class SmView:
 
 
 _U16 = struct.Struct("<H")
-_NO_ROW = np.zeros(0, np.uint8)
 _U32 = struct.Struct("<I")
 _AL_EVENT = int(R.AL_EVENT_REQUEST)
+_NO_ROW = np.zeros(0, np.uint8)
 
 #: Per SM register block: every byte but the status (byte 5), which the mailbox flips
 #: on each access and which does not decide whether or where an SM applies.
@@ -196,7 +196,8 @@ class EscRegisters:
         self._row_of: npt.NDArray[np.uint8] | None = None
         self._row: npt.NDArray[np.uint8] = _NO_ROW  # (the row may not exist yet)
         self._buf = _NO_ROW.data
-        # The enabled SMs as last decoded, and the register bytes they came from.
+        # The enabled SMs as last decoded, and their registers without the status bytes
+        # (as one int) they were decoded from.
         self._sm_raw = -1
         self._sm_enabled: list[SmView] = []
 
