@@ -119,6 +119,38 @@ def test_the_fault_board_keeps_a_fault_until_its_cleared_line() -> None:
     assert board.lines == []
 
 
+def test_an_isolated_engines_fault_lines_reach_the_users_fault_board() -> None:
+    # the engine's ring watch runs in its process; its lines come through the shared
+    # area's event ring, and the user's runner keeps the standing faults from them
+    from collections import deque
+
+    from pyethercat.master.engine.readout import EngineReadout
+
+    cut = "cut between slave 2 port 1 and slave 3 port 0 (or slave 3 failed) (slaves 3-5 silent)"
+    lines = [(1.0, "slave 3 (0x1004) vanished"), (2.0, "fault: " + cut)]
+    lines += [(3.0 + k, f"recovery of slaves 3-5 not done yet ({k})") for k in range(300)]
+
+    class Area:
+        def __init__(self) -> None:
+            self.lines: list[tuple[float, str]] = []
+
+        def events_since(self, serial: int) -> tuple[int, list[tuple[float, str]]]:
+            return len(self.lines), self.lines[serial:]
+
+    readout = EngineReadout.__new__(EngineReadout)
+    readout.__dict__["_events"] = deque(maxlen=200)
+    readout.fault_board = FaultBoard()
+    readout._event_serial = 0
+    area = Area()
+    readout.area = area  # type: ignore[assignment]
+    area.lines += lines
+    readout.poll_events()
+    assert readout.fault_board.lines == [cut] and not any(cut in e.text for e in readout._events)
+    area.lines.append((400.0, "cleared: " + cut))
+    readout.poll_events()
+    assert readout.fault_board.lines == []
+
+
 def test_a_line_without_ring_names_the_cut() -> None:
     seg = ring_segment(ring=False)
     m = Master(PairLink.responder_link(seg.process), clock=VirtualClock())
