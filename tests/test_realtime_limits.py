@@ -10,6 +10,7 @@ stalled the simulator for 10-36 ms and broke SOEM's segmented transfers
 from __future__ import annotations
 
 import gc
+import time
 
 import pytest
 
@@ -60,6 +61,56 @@ def test_budget_for_this_process_keeps_below_the_kernel_and_the_vm_share(monkeyp
     monkeypatch.setattr(rt, "running_realtime", lambda: True)
     monkeypatch.setattr(rt, "rt_share", lambda: None)  # sched_rt_runtime_us = -1
     assert SpinBudget.for_this_process() is None
+
+
+def test_engine_budget_keeps_below_the_real_time_throttle_only(monkeypatch: pytest.MonkeyPatch) -> None:
+    # the isolated engine: below the kernel's real-time share (a throttled SCHED_FIFO
+    # loop stops for the rest of the second), but not held to the VM share
+    import pyethercat.realtime as rt
+
+    monkeypatch.setattr(rt, "rt_share", lambda: 0.95)
+    monkeypatch.setattr(rt, "running_realtime", lambda: True)
+    monkeypatch.setattr(rt, "on_virtual_machine", lambda: True)
+    budget = SpinBudget.below_rt_throttle()
+    assert budget is not None and budget.share == pytest.approx(0.85)
+    monkeypatch.setattr(rt, "rt_share", lambda: None)
+    assert SpinBudget.below_rt_throttle() is None
+    monkeypatch.setattr(rt, "rt_share", lambda: 0.95)
+    monkeypatch.setattr(rt, "running_realtime", lambda: False)
+    assert SpinBudget.below_rt_throttle() is None
+
+
+@pytest.mark.parametrize("share", [1.0, 0.0])
+def test_the_cyclic_reply_poll_keeps_to_its_budget(share: float) -> None:
+    # with a budget the cyclic wait polls for its reply and counts the time; with the
+    # budget spent it blocks at once, and the exchange goes on all the same
+    from pyethercat.link.pair import PairLink
+    from pyethercat.master.master import Master
+    from pyethercat.sim.topology import parse_topology
+
+    seg = parse_topology('[[slave]]\nname = "d"\ndevice = "builtin:do8"\n').build()
+    m = Master(PairLink.responder_link(seg.process))
+    m.scan()
+    m.scheduler.reply_spin = 0.01
+    budget = m.scheduler.spin_budget = SpinBudget(share)
+    with m.start(cycle=0.001) as r:
+        time.sleep(0.1)
+        assert r.stats.cycles > 20 and r.stats.wkc_errors == 0
+    assert (budget._spent > 0.0) == (share > 0.0)
+
+
+@pytest.mark.parametrize("share", [1.0, 0.0])
+def test_the_engine_clock_spins_before_a_deadline_only_within_its_budget(share: float) -> None:
+    from pyethercat.master.engine.child import EngineClock
+
+    budget = SpinBudget(share)
+    clock = EngineClock([], lambda left: None, spin_ns=2_000_000, budget=budget)
+    for _ in range(3):
+        deadline = time.perf_counter_ns() + 5_000_000
+        clock.sleep_until(deadline)
+        assert time.perf_counter_ns() >= deadline
+    # spinning: about the last 2 ms of each wait, counted; budget spent: slept through
+    assert (budget._spent > 0.003) == (share > 0.0)
 
 
 def test_rt_share_reads_the_kernel_setting() -> None:

@@ -221,6 +221,20 @@ class SpinBudget:
             shares.append(VM_SPIN_SHARE)
         return cls(min(shares)) if shares else None
 
+    @classmethod
+    def below_rt_throttle(cls, margin: float = 0.1) -> SpinBudget | None:
+        """The budget of a real-time loop that must not be throttled, or None.
+
+        Under a real-time policy with a finite ``sched_rt_runtime_us``: ``margin``
+        below that share. A loop that spins through every cycle (the isolated
+        engine at 10 kHz: the spin before each deadline and the poll for the
+        reply fill the cycle) would otherwise run out the real-time share and be
+        stopped for the rest of the period (measured: one 50 ms gap a second)."""
+        limit = rt_share()
+        if limit is None or not running_realtime():
+            return None
+        return cls(max(0.1, limit - margin))
+
     def allowed(self, now: float) -> bool:
         """Whether polling may go on at ``now`` (a new period starts afresh)."""
         if now - self._since >= self.period:

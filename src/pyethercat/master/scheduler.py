@@ -45,6 +45,7 @@ import os
 import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
+from typing import TYPE_CHECKING
 
 from pyethercat.clock import Clock, VirtualClock, WallClock, is_virtual
 from pyethercat.errors import EtherCATError
@@ -66,6 +67,9 @@ from pyethercat.master.redundancy import Redundancy, mark_for_port
 from pyethercat.master.stepping import Stepper
 from pyethercat.wire.datagram import MAX_PAYLOAD, Datagram
 from pyethercat.wire.frame import LOCALLY_ADMINISTERED_BIT, MASTER_MAC, MIN_FRAME_SIZE
+
+if TYPE_CHECKING:
+    from pyethercat.realtime import SpinBudget
 
 __all__ = [
     "DEFAULT_MAX_IN_FLIGHT",
@@ -135,6 +139,9 @@ class Scheduler:
         #: ``wait_raw`` (the cyclic path) polls; with one CPU it never does,
         #: as the spinning would keep the CPU from whoever has to answer.
         self.reply_spin = DEFAULT_REPLY_SPIN if (os.cpu_count() or 1) > 1 else 0.0
+        #: The share of each second that polling may take (None: no limit); past it
+        #: the cyclic thread blocks for its reply (see :class:`~pyethercat.realtime.SpinBudget`).
+        self.spin_budget: SpinBudget | None = None
         self._lock = threading.Lock()
         self._cond = threading.Condition(self._lock)
         self._receiving = False
@@ -461,6 +468,21 @@ class Scheduler:
         start = now_fn() if timeout is not None or not virtual else 0.0
         limit = None if timeout is None else start + timeout
         spin_end = 0.0 if virtual else start + self.reply_spin
+        budget = self.spin_budget
+        if budget is not None and spin_end:
+            if not budget.allowed(start):
+                spin_end = 0.0  # (this second's share of polling is spent: block)
+            else:
+                try:
+                    self._wait_ticket(ticket, now_fn, vclock, limit, spin_end)
+                finally:
+                    budget.spent(min(now_fn(), spin_end) - start)
+                return
+        self._wait_ticket(ticket, now_fn, vclock, limit, spin_end)
+
+    def _wait_ticket(self, ticket: CyclicFrame, now_fn: Callable[[], float],
+                     vclock: VirtualClock | None, limit: float | None, spin_end: float) -> None:
+        virtual = vclock is not None
         core = self.core
         with self._lock:
             while ticket.raw is None and not ticket.lost and ticket.replies is None:

@@ -63,6 +63,7 @@ from pyethercat.master.image import ProcessImage
 from pyethercat.master.scheduler import Request, Scheduler
 from pyethercat.realtime import (
     RealtimeReport,
+    SpinBudget,
     apply_realtime,
     die_with_parent,
     quiet_collector,
@@ -105,14 +106,20 @@ class EngineClock(PerfClock):
     """The loop's clock: between cycles it serves the control channel and the user's
     requests (``serve(time_left_ns)``, when one of ``fds`` is readable), then spins."""
 
-    def __init__(self, fds: list[int], serve: Callable[[int], None], spin_ns: int) -> None:
+    def __init__(self, fds: list[int], serve: Callable[[int], None], spin_ns: int,
+                 budget: SpinBudget | None = None) -> None:
         super().__init__(spin_ns=spin_ns)
         self.fds = fds
         self.serve = serve
+        #: The share of each second the spin (and the scheduler's reply poll) may take.
+        self.budget = budget
 
     def sleep_until(self, deadline_ns: int) -> None:
         now = time.perf_counter_ns
         spin = self.spin_ns
+        budget = self.budget
+        if budget is not None and not budget.allowed(now() * 1e-9):
+            spin = 0  # (this second's share of spinning is spent: sleep to the deadline)
         fds = self.fds
         while True:
             left = deadline_ns - now()
@@ -124,8 +131,11 @@ class EngineClock(PerfClock):
                 continue
             if ready:
                 self.serve(deadline_ns - now())
+        began = now()
         while now() < deadline_ns:
             pass
+        if budget is not None:
+            budget.spent((now() - began) * 1e-9)
 
 
 class EngineRider:
@@ -433,7 +443,12 @@ def run_engine(plan: EnginePlan, area: SharedArea, report: RealtimeReport) -> in
     def serve(left: int) -> None:
         holder[0].serve(left)
 
-    clock = EngineClock([control.fileno(), frames.fileno()], serve, plan.spin_ns)
+    # Spinning before each deadline and polling for each reply must leave the kernel's
+    # real-time share some room: at 10 kHz they fill every cycle, and a throttled
+    # SCHED_FIFO task stops for the rest of the second (one 50 ms gap a second).
+    budget = SpinBudget.below_rt_throttle()
+    clock = EngineClock([control.fileno(), frames.fileno()], serve, plan.spin_ns, budget)
+    sched.spin_budget = budget
 
     def recover(positions: list[int]) -> None:
         holder[0].recover(positions)
