@@ -229,7 +229,7 @@ class SpinBudget:
         below that share. A loop that spins through every cycle (the isolated
         engine at 10 kHz: the spin before each deadline and the poll for the
         reply fill the cycle) would otherwise run out the real-time share and be
-        stopped for the rest of the period (measured: one 50 ms gap a second)."""
+        stopped for the rest of the period (measured: gaps of 50 ms at 10 kHz)."""
         limit = rt_share()
         if limit is None or not running_realtime():
             return None

@@ -445,7 +445,7 @@ def run_engine(plan: EnginePlan, area: SharedArea, report: RealtimeReport) -> in
 
     # Spinning before each deadline and polling for each reply must leave the kernel's
     # real-time share some room: at 10 kHz they fill every cycle, and a throttled
-    # SCHED_FIFO task stops for the rest of the second (one 50 ms gap a second).
+    # SCHED_FIFO task stops for the rest of the second (gaps of 50 ms were measured).
     budget = SpinBudget.below_rt_throttle()
     clock = EngineClock([control.fileno(), frames.fileno()], serve, plan.spin_ns, budget)
     sched.spin_budget = budget
