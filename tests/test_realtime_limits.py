@@ -44,39 +44,39 @@ def test_budget_allows_its_share_of_each_period_then_refuses_until_the_next() ->
     assert budget.allowed(clock.t)
 
 
-def test_budget_for_this_process_keeps_below_the_kernel_and_the_vm_share(monkeypatch: pytest.MonkeyPatch) -> None:
+def _machine(monkeypatch: pytest.MonkeyPatch, *, rt_limit: float | None = 0.95,
+             realtime: bool = True, vm: bool = False) -> None:
+    """What the budget sees of the kernel and the process: the real-time share
+    (None: sched_rt_runtime_us = -1), the policy, and whether a hypervisor runs it."""
     import pyethercat.realtime as rt
 
-    monkeypatch.setattr(rt, "rt_share", lambda: 0.95)
-    monkeypatch.setattr(rt, "running_realtime", lambda: True)
-    monkeypatch.setattr(rt, "on_virtual_machine", lambda: False)
+    monkeypatch.setattr(rt, "rt_share", lambda: rt_limit)
+    monkeypatch.setattr(rt, "running_realtime", lambda: realtime)
+    monkeypatch.setattr(rt, "on_virtual_machine", lambda: vm)
+
+
+def test_budget_for_this_process_keeps_below_the_kernel_and_the_vm_share(monkeypatch: pytest.MonkeyPatch) -> None:
+    _machine(monkeypatch)
     budget = SpinBudget.for_this_process()
     assert budget is not None and budget.share == pytest.approx(0.75)
-    monkeypatch.setattr(rt, "on_virtual_machine", lambda: True)
+    _machine(monkeypatch, vm=True)
     budget = SpinBudget.for_this_process()
     assert budget is not None and budget.share == VM_SPIN_SHARE
-    monkeypatch.setattr(rt, "running_realtime", lambda: False)
-    monkeypatch.setattr(rt, "on_virtual_machine", lambda: False)
+    _machine(monkeypatch, realtime=False)
     assert SpinBudget.for_this_process() is None  # bare metal, normal policy: spin freely
-    monkeypatch.setattr(rt, "running_realtime", lambda: True)
-    monkeypatch.setattr(rt, "rt_share", lambda: None)  # sched_rt_runtime_us = -1
+    _machine(monkeypatch, rt_limit=None)  # sched_rt_runtime_us = -1
     assert SpinBudget.for_this_process() is None
 
 
 def test_engine_budget_keeps_below_the_real_time_throttle_only(monkeypatch: pytest.MonkeyPatch) -> None:
     # the isolated engine: below the kernel's real-time share (a throttled SCHED_FIFO
     # loop stops for the rest of the second), but not held to the VM share
-    import pyethercat.realtime as rt
-
-    monkeypatch.setattr(rt, "rt_share", lambda: 0.95)
-    monkeypatch.setattr(rt, "running_realtime", lambda: True)
-    monkeypatch.setattr(rt, "on_virtual_machine", lambda: True)
+    _machine(monkeypatch, vm=True)
     budget = SpinBudget.below_rt_throttle()
     assert budget is not None and budget.share == pytest.approx(0.85)
-    monkeypatch.setattr(rt, "rt_share", lambda: None)
+    _machine(monkeypatch, rt_limit=None, vm=True)
     assert SpinBudget.below_rt_throttle() is None
-    monkeypatch.setattr(rt, "rt_share", lambda: 0.95)
-    monkeypatch.setattr(rt, "running_realtime", lambda: False)
+    _machine(monkeypatch, realtime=False, vm=True)
     assert SpinBudget.below_rt_throttle() is None
 
 

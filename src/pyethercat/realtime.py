@@ -214,9 +214,9 @@ class SpinBudget:
         spent, and SOEM's segmented SDO transfers failed; with the share at
         0.1 no stall was over 7 ms)."""
         shares = []
-        limit = rt_share()
-        if limit is not None and running_realtime():
-            shares.append(max(0.1, limit - margin))
+        rt = cls.below_rt_throttle(margin)
+        if rt is not None:
+            shares.append(rt.share)
         if on_virtual_machine():
             shares.append(VM_SPIN_SHARE)
         return cls(min(shares)) if shares else None

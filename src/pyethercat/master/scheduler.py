@@ -469,16 +469,15 @@ class Scheduler:
         limit = None if timeout is None else start + timeout
         spin_end = 0.0 if virtual else start + self.reply_spin
         budget = self.spin_budget
-        if budget is not None and spin_end:
-            if not budget.allowed(start):
-                spin_end = 0.0  # (this second's share of polling is spent: block)
-            else:
-                try:
-                    self._wait_ticket(ticket, now_fn, vclock, limit, spin_end)
-                finally:
-                    budget.spent(min(now_fn(), spin_end) - start)
-                return
-        self._wait_ticket(ticket, now_fn, vclock, limit, spin_end)
+        if budget is None or not spin_end:
+            self._wait_ticket(ticket, now_fn, vclock, limit, spin_end)
+        elif not budget.allowed(start):
+            self._wait_ticket(ticket, now_fn, vclock, limit, 0.0)  # (the share is spent: block)
+        else:
+            try:
+                self._wait_ticket(ticket, now_fn, vclock, limit, spin_end)
+            finally:
+                budget.spent(min(now_fn(), spin_end) - start)
 
     def _wait_ticket(self, ticket: CyclicFrame, now_fn: Callable[[], float],
                      vclock: VirtualClock | None, limit: float | None, spin_end: float) -> None:

@@ -35,7 +35,6 @@ if TYPE_CHECKING:
 __all__ = ["serve_reply_first"]
 
 
-
 def serve_reply_first(seg: Segment, frame: bytes | bytearray | memoryview,
                       send: Callable[[bytes], None]) -> bool:
     """Answer ``frame`` through ``send`` before applying its effects, if it qualifies

@@ -772,6 +772,3 @@ def eoe_lines(segment: Any) -> list[str]:
         addr = f"{p.ip}/{p.subnet}" if p.ip is not None else "no address yet"
         out.append(f"EoE slave {s.index} {s.name}: {side}, {addr}")
     return out
-
-
-# --- child process ------------------------------------------------------------------

@@ -118,7 +118,7 @@ class EngineClock(PerfClock):
         now = time.perf_counter_ns
         spin = self.spin_ns
         budget = self.budget
-        if budget is not None and not budget.allowed(now() * 1e-9):
+        if budget is not None and not budget.allowed(time.monotonic()):
             spin = 0  # (this second's share of spinning is spent: sleep to the deadline)
         fds = self.fds
         while True:
