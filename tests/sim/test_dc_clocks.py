@@ -86,6 +86,25 @@ def test_loop_correction_is_bounded_by_the_speed_counter_start() -> None:
     assert diff > 10_000  # 60 ppm it cannot follow: the difference keeps growing
 
 
+def test_a_new_delay_written_while_the_loop_runs_moves_the_follower() -> None:
+    # The loop reads 0x0928 at every update: a delay written mid-way (a master that
+    # measures again after a topology change) is taken at the next FRMW, and the
+    # follower settles that much ahead of the reference's time as the frame saw it.
+    seg, clock = pair(50.0)
+    start_loop(seg)
+    for _ in range(1500):
+        clock.advance(1_000_000)
+        frmw(seg)
+    a, b = systimes(seg)
+    assert abs(b - a) < 200
+    fpwr(seg, ST + 1, R.DC_SYSTEM_TIME_DELAY, struct.pack("<I", 20_000))
+    for _ in range(3000):
+        clock.advance(1_000_000)
+        frmw(seg)
+    a, b = systimes(seg)
+    assert abs((b - a) - 20_000) < 200
+
+
 def test_filter_depth_smooths_the_difference() -> None:
     seg, clock = pair(0.0)
     start_loop(seg)

@@ -35,6 +35,8 @@ updates (the clock runs faster or slower, it never jumps).
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -52,6 +54,12 @@ F64 = npt.NDArray[np.float64]
 _SYSTIME_END = R.DC_SYSTEM_TIME + 8
 _CYCLIC_END = R.DC_SYNC1_CYCLE + 4
 _LOOP_LO, _LOOP_HI = R.DC_SPEED_COUNTER_START, R.DC_SPEED_FILTER_DEPTH + 1
+_MAG_MAX, _SIGN_BIT = float(0x7FFFFFFF), float(0x80000000)
+#: The loop's settings in a memory row: delay 0x0928, speed counter start 0x0930,
+#: filter depths 0x0934/0x0935 (not the loop's own outputs 0x092C and 0x0932).
+_SETTINGS = np.array([R.DC_SYSTEM_TIME_DELAY + i for i in range(4)] + [
+    R.DC_SPEED_COUNTER_START, R.DC_SPEED_COUNTER_START + 1, R.DC_TIME_FILTER_DEPTH,
+    R.DC_SPEED_FILTER_DEPTH]) - R.DC_SYSTEM_TIME_DELAY  # (in the bytes from 0x0928 on)
 # Loop model: bandwidth time constant per speed-counter-start unit (0x1000 -> about
 # 1 ms), and the bound of the correction per unit above 0x7F (0x1000 -> +-397 ppm).
 _TAU_PER_COUNT_NS = 256.0
@@ -66,11 +74,11 @@ _SYSTIME_W, _OFFSET_W = R.DC_SYSTEM_TIME // 8, R.DC_SYSTEM_TIME_OFFSET // 8
 assert R.DC_SYSTEM_TIME % 8 == 0 and R.DC_SYSTEM_TIME_OFFSET % 8 == 0
 
 
-def _u16(mem: npt.NDArray[np.uint8], rows: I64, addr: int) -> I64:
+def _u16(mem: npt.NDArray[np.uint8], rows: I64 | slice, addr: int) -> I64:
     return mem[rows, addr: addr + 2].copy().view("<u2")[:, 0].astype(np.int64)
 
 
-def _u32(mem: npt.NDArray[np.uint8], rows: I64, addr: int) -> I64:
+def _u32(mem: npt.NDArray[np.uint8], rows: I64 | slice, addr: int) -> I64:
     return mem[rows, addr: addr + 4].copy().view("<u4")[:, 0].astype(np.int64)
 
 
@@ -78,6 +86,39 @@ def _put(mem: npt.NDArray[np.uint8], rows: I64, addr: int, values: npt.NDArray[n
          dtype: str) -> None:
     raw = np.ascontiguousarray(values.astype(dtype))
     mem[rows, addr: addr + raw.itemsize] = raw.view(np.uint8).reshape(-1, raw.itemsize)
+
+
+def _as_rows(slaves: I64) -> I64 | slice:
+    """``slaves`` as a row index: a slice for a run of consecutive slaves (the usual
+    FRMW: every slave behind the reference), so that the rows are views, not copies."""
+    first, count = int(slaves[0]), len(slaves)
+    if int(slaves[-1]) - first == count - 1 and (count < 3 or bool((np.diff(slaves) == 1).all())):
+        return slice(first, first + count)
+    return slaves
+
+
+def _sign_magnitude(values: F64) -> F64:
+    """0x092C's sign-magnitude encoding of ``values`` (integral, as floats to be stored as
+    u32): bit 31 set for >= 0 (as KickCAT's emulator; the public sources disagree on
+    the sense, see the facts sheet), the magnitude below."""
+    out: F64 = np.minimum(np.abs(np.rint(values)), _MAG_MAX)
+    out += (values >= 0) * _SIGN_BIT
+    return out
+
+
+@dataclass(frozen=True, slots=True)
+class _LoopParams:
+    """The time-control loop's settings of some slaves, from their registers (per slave)."""
+
+    delay: I64          # 0x0928
+    gain: F64           # the time filter's step, 1 / 2^depth (0x0934)
+    tau: F64            # bandwidth time constant, ns (0x0930)
+    tau_tenth: F64
+    tau_16: F64
+    learn_time: F64     # tau x 2^(0x0935 - 8)
+    bound: F64          # of the speed correction (0x0930)
+    low: F64            # -bound
+    narrow: npt.NDArray[np.bool_] | None  # 32-bit system times (None: all 64-bit)
 
 
 class DcClocks:
@@ -113,9 +154,14 @@ class DcClocks:
         #: The last time-loop update (write key, difference, filter gain, tau, bound):
         #: the same write again within a frame takes a short path.
         self._repeat: tuple[tuple[bytes, int, bytes], F64, F64, F64, F64] | None = None
+        #: Row indexes of the slave sets the loop was written in (by their bytes).
+        self._rows: dict[bytes, I64 | slice] = {}
+        #: The last loop settings worked out: (slave set, their register bytes, n, settings).
+        self._params: tuple[bytes, bytes, int, _LoopParams] | None = None
         # memory and its 64-bit view (rows of little-endian words; the stride is a multiple of 8)
         self._mem8: npt.NDArray[np.uint8] | None = None
         self._mem64: I64 = np.zeros((0, 1), np.int64)
+        self._typed: dict[str, npt.NDArray[Any]] = {}
 
     def _views(self) -> None:
         clk = self._clk
@@ -128,7 +174,17 @@ class DcClocks:
         if mem is not self._mem8:
             self._mem8 = mem
             self._mem64 = mem.view("<i8")
+            self._typed.clear()
         return self._mem64
+
+    def _store(self, rows: I64 | slice, addr: int, values: npt.NDArray[np.generic], dtype: str) -> None:
+        """Write ``values`` as ``dtype`` at ``addr`` of ``rows``: one store through a typed
+        view of the memory (``addr`` is aligned to the type's size)."""
+        self.words()  # (the views follow a regrown memory)
+        view = self._typed.get(dtype)
+        if view is None:
+            view = self._typed[dtype] = self.memory.mem.view(dtype)
+        view[rows, addr // view.itemsize] = values
 
     def add_slave(self, index: int, now: int, drift_ppm: float) -> None:
         n = index + 1
@@ -205,9 +261,9 @@ class DcClocks:
         out: F64 = np.maximum(self.rate[slaves], 1e-3) * (1.0 + _TRIM_MAX)
         return out
 
-    def pass_time(self, slaves: I64) -> I64:
+    def pass_time(self, slaves: I64 | slice) -> I64:
         """Segment time at which the current frame passes the processing unit of ``slaves``."""
-        return self.frame_t0 + np.maximum(self._route().epu_ns[slaves], 0)
+        return self.frame_t0 + self._route().epu_at_ns[slaves]
 
     def system_time(self, slaves: I64, t_ns: I64 | int) -> I64:
         """System time (local + offset 0x0920) of ``slaves`` at segment time ``t_ns``."""
@@ -297,80 +353,101 @@ class DcClocks:
         """
         if not len(slaves) or offset != 0 or len(data) < 4:
             return
-        mem = self.memory.mem
-        key = (slaves.tobytes(), self.frame_t0, bytes(data))
-        # A run of consecutive slaves (the usual FRMW: all behind the reference) is
-        # indexed as a slice: views instead of gathered copies.
-        first, count = int(slaves[0]), len(slaves)
-        if int(slaves[-1]) - first == count - 1 and (count < 3 or bool(
-                (np.diff(slaves) == 1).all())):
-            slaves = slice(first, first + count)  # type: ignore[assignment]
+        raw_rows = slaves.tobytes()
+        key = (raw_rows, self.frame_t0, bytes(data))
+        rows = self._rows.get(raw_rows)
+        if rows is None:
+            if len(self._rows) >= 64:
+                self._rows.clear()  # (a bound whatever the master sends)
+            rows = self._rows[raw_rows] = _as_rows(slaves)
         rep = self._repeat
         if rep is not None and rep[0] == key:
             # The same write again in the same frame (the master packs many FRMW
             # per frame): the same difference at the same instant, so only the
             # filter moves on; nothing to learn in zero time.
             _, diff_r, gain, horizon_r, bound_r = rep
-            filt = self.filtered[slaves]
+            filt = self.filtered[rows]
             filt = filt + (diff_r - filt) * gain
-            self.filtered[slaves] = filt
-            mag = np.minimum(np.abs(np.rint(filt)), 0x7FFFFFFF).astype(np.uint32)
-            raw = mag | np.where(filt >= 0, np.uint32(0x80000000), np.uint32(0))
-            _put(mem, slaves, R.DC_SYSTEM_TIME_DIFFERENCE, raw, "<u4")
-            self.trim[slaves] = np.clip(self.learned[slaves] - filt / horizon_r, -bound_r, bound_r)
-            self.until[slaves] = horizon_r
+            self.filtered[rows] = filt
+            self._store(rows, R.DC_SYSTEM_TIME_DIFFERENCE, _sign_magnitude(filt), "<u4")
+            self.trim[rows] = np.clip(self.learned[rows] - filt / horizon_r, -bound_r, bound_r)
+            self.until[rows] = horizon_r
             return
-        t = self.pass_time(slaves)
-        own = self.system_time(slaves, t)
-        delay = _u32(mem, slaves, R.DC_SYSTEM_TIME_DELAY)
+        p = self._loop_params(raw_rows, rows)
+        t = self.pass_time(rows)
+        # The local time now, under the clock parameters in force until this update
+        # (what the system time shows, and the new anchor of the clock).
+        c = self._clk[rows]
+        dt = t - self.t0[rows]
+        old_learned = c[:, _LEARNED]
+        window = np.minimum(np.maximum(dt, 0), c[:, _UNTIL])
+        exact = c[:, _LOCAL0] + c[:, _RATE] * (
+            dt * (1.0 + old_learned) + window * (c[:, _TRIM] - old_learned))
+        own = (np.floor(exact / TICK_NS) * TICK_NS).astype(np.int64) + self.words()[rows, _OFFSET_W]
+        if p.narrow is not None:
+            own = np.where(p.narrow, own & 0xFFFF_FFFF, own)
         if len(data) >= 8:
             received = np.int64(int.from_bytes(data[:8], "little", signed=True))
-            diff = own - delay - received
-            narrow = ~self.wide[slaves]
-            if narrow.any():
-                low = (own - delay - (received & 0xFFFF_FFFF)) & 0xFFFF_FFFF
-                diff = np.where(narrow, np.where(low >= 1 << 31, low - (1 << 32), low), diff)
+            diff = own - p.delay - received
+            if p.narrow is not None:
+                low = (own - p.delay - (received & 0xFFFF_FFFF)) & 0xFFFF_FFFF
+                diff = np.where(p.narrow, np.where(low >= 1 << 31, low - (1 << 32), low), diff)
         else:
             received = np.int64(int.from_bytes(data[:4], "little"))
-            low = (own - delay - received) & 0xFFFF_FFFF
+            low = (own - p.delay - received) & 0xFFFF_FFFF
             diff = np.where(low >= 1 << 31, low - (1 << 32), low)
-        depth_t = (mem[slaves, R.DC_TIME_FILTER_DEPTH] & 0x0F).astype(np.float64)
-        depth_s = (mem[slaves, R.DC_SPEED_FILTER_DEPTH] & 0x0F).astype(np.float64)
-        start = _u16(mem, slaves, R.DC_SPEED_COUNTER_START) & 0x7FFF
-        filt = self.filtered[slaves]
-        filt = filt + (diff - filt) / np.exp2(depth_t)
-        self.filtered[slaves] = filt
-        mag = np.minimum(np.abs(np.rint(filt)), 0x7FFFFFFF).astype(np.uint32)
-        raw = mag | np.where(filt >= 0, np.uint32(0x80000000), np.uint32(0))
-        _put(mem, slaves, R.DC_SYSTEM_TIME_DIFFERENCE, raw, "<u4")
-        # speed correction
-        tau = np.maximum(start, 0x80) * _TAU_PER_COUNT_NS
-        bound = np.maximum(start - 0x7F, 1) * _TRIM_PER_COUNT
-        exact = self._exact(slaves, t)
-        last = self.last_update[slaves]
-        since = np.maximum(np.where(np.isnan(last), 0.0, exact - last), 0.0)
+        filt = self.filtered[rows]
+        filt = filt + (diff - filt) * p.gain
+        self.filtered[rows] = filt
+        self._store(rows, R.DC_SYSTEM_TIME_DIFFERENCE, _sign_magnitude(filt), "<u4")
+        # speed correction; nan - the time of no update yet: no time since (fmax drops nan)
+        since = np.fmax(exact - self.last_update[rows], 0.0)
         # The time to the next update is guessed from the spacing of the updates;
         # writes bunched in one frame (static compensation) keep the last guess.
         # A burst of frames (two close together, then a pause) is as far apart as
         # its longest gap: the guess follows longer spacings at once and shorter
         # ones slowly.
-        prev = self.period[slaves]
-        period = np.where(since > 0.1 * tau, np.maximum(since, 0.75 * prev), prev)
-        since = np.minimum(since, 16 * tau)  # (a long pause teaches the speed no more)
-        self.period[slaves] = period
-        horizon = np.maximum(tau, period)
+        prev = self.period[rows]
+        period = np.where(since > p.tau_tenth, np.maximum(since, 0.75 * prev), prev)
+        since = np.minimum(since, p.tau_16)  # (a long pause teaches the speed no more)
+        self.period[rows] = period
+        horizon = np.maximum(p.tau, period)
         prop = -filt / horizon
-        learned = np.clip(self.learned[slaves] + prop * since / (tau * np.exp2(depth_s - 8)),
-                          -bound, bound)
-        self.learned[slaves] = learned
-        self._reanchor(slaves, t)
-        # the phase part runs over the horizon; the learned part stays
-        self.trim[slaves] = np.clip(learned + prop, -bound, bound)
-        self.until[slaves] = horizon
-        self.last_update[slaves] = exact
-        counts = np.clip(np.rint(learned / _TRIM_PER_COUNT), -0x7FFF, 0x7FFF)
-        _put(mem, slaves, R.DC_SPEED_COUNTER_DIFF, counts, "<i2")
-        self._repeat = (key, diff.astype(np.float64), 1.0 / np.exp2(depth_t), horizon, bound)
+        learned = np.minimum(np.maximum(old_learned + prop * since / p.learn_time, p.low), p.bound)
+        # the clock anchored now; the phase part runs over the horizon, the learned part stays
+        self.t0[rows] = t
+        self.local0[rows] = exact
+        self.learned[rows] = learned
+        self.trim[rows] = np.minimum(np.maximum(learned + prop, p.low), p.bound)
+        self.until[rows] = horizon
+        self.last_update[rows] = exact
+        counts = np.minimum(np.maximum(np.rint(learned / _TRIM_PER_COUNT), -0x7FFF), 0x7FFF)
+        self._store(rows, R.DC_SPEED_COUNTER_DIFF, counts, "<i2")
+        self._repeat = (key, diff.astype(np.float64), p.gain, horizon, p.bound)
+
+    def _loop_params(self, raw_rows: bytes, rows: I64 | slice) -> _LoopParams:
+        """The loop settings of ``rows`` from their registers 0x0928-0x0935, worked out once
+        for as long as those bytes stay the same (whatever path writes them)."""
+        regs = self.memory.mem[rows, R.DC_SYSTEM_TIME_DELAY: _LOOP_HI][:, _SETTINGS].tobytes()
+        hit = self._params
+        if hit is not None and hit[0] == raw_rows and hit[1] == regs and hit[2] == self.n:
+            return hit[3]
+        mem = self.memory.mem
+        depth_t = (mem[rows, R.DC_TIME_FILTER_DEPTH] & 0x0F).astype(np.float64)
+        depth_s = (mem[rows, R.DC_SPEED_FILTER_DEPTH] & 0x0F).astype(np.float64)
+        start = _u16(mem, rows, R.DC_SPEED_COUNTER_START) & 0x7FFF
+        tau = np.maximum(start, 0x80) * _TAU_PER_COUNT_NS
+        bound = np.maximum(start - 0x7F, 1) * _TRIM_PER_COUNT
+        wide = self.wide[rows]
+        p = _LoopParams(
+            delay=_u32(mem, rows, R.DC_SYSTEM_TIME_DELAY),
+            gain=1.0 / np.exp2(depth_t),  # (a power of two: the same as dividing by it)
+            tau=tau, tau_tenth=0.1 * tau, tau_16=16 * tau,
+            learn_time=tau * np.exp2(depth_s - 8),
+            bound=bound, low=-bound,
+            narrow=None if wide.all() else ~wide)
+        self._params = (raw_rows, regs, self.n, p)
+        return p
 
     def loop_reset(self, slaves: I64) -> None:
         """0x0930/0x0934/0x0935 written: filters, learned speed and 0x092C/0x0932 back to zero."""

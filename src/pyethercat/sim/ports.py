@@ -82,8 +82,11 @@ class Route:
     #: len(passes), and whether the frame is processed at all (derived).
     count: int = field(init=False)
     live: bool = field(init=False)
+    #: ``epu_ns`` with 0 for slaves the frame does not pass (derived: DC pass times).
+    epu_at_ns: I64 = field(init=False)
 
     def __post_init__(self) -> None:
+        self.epu_at_ns = np.maximum(self.epu_ns, 0)
         self.closed_idx = [i for i, c in enumerate(self.port0_closed) if c]
         self.count = len(self.passes)
         self.live = bool(self.count or self.returned)
