@@ -55,6 +55,8 @@ class DeviceApps:
         self._sync_models: list[int] = []
         self._groups: ArrayKeyCache[_Groups] = ArrayKeyCache()
         self._pulses: dict[int, tuple[list[I64], int]] = {}
+        #: sync0_models' split of a slave set by model: (model, first position, instances).
+        self._sync_split: ArrayKeyCache[list[tuple[int, int, I64]]] = ArrayKeyCache(256)
 
     def add(self, app: DeviceApp | None, model: DeviceModel | None, instance: int) -> None:
         self.apps.append(app)
@@ -62,6 +64,7 @@ class DeviceApps:
         self.instance = np.append(self.instance, instance)
         self.wants_outputs = np.append(self.wants_outputs, bool(app is not None and app.wants_output_events))
         self._groups.clear()
+        self._sync_split.clear()
         self._listen()
 
     def replace(self, slave: int, app: DeviceApp | None, model: DeviceModel | None,
@@ -72,6 +75,7 @@ class DeviceApps:
         self.instance[slave] = instance
         self.wants_outputs[slave] = bool(app is not None and app.wants_output_events)
         self._groups.clear()
+        self._sync_split.clear()
         self._listen()
 
     def _model_index(self, model: DeviceModel | None) -> int:
@@ -144,11 +148,19 @@ class DeviceApps:
     def sync0_models(self, slaves: I64, times: npt.NDArray[np.uint64]) -> None:
         """SYNC0 pulses of ``slaves`` whose applications do not listen (system time of each
         one's first pulse): their models take them at :meth:`flush`, no Python per slave."""
-        mids = self.model_id[slaves]
-        for mid in self._sync_models:
-            sel = mids == mid
-            if sel.any():
-                self._pulse(mid, self.instance[slaves[sel]], int(times[sel][0]))
+        split = self._sync_split.get(slaves)
+        if split is None:
+            # Per model that takes pulses: the position of its first slave among ``slaves``
+            # and its instances, sorted (the same slave sets pulse every cycle).
+            mids = self.model_id[slaves]
+            split = []
+            for mid in self._sync_models:
+                where = np.flatnonzero(mids == mid)
+                if len(where):
+                    split.append((mid, int(where[0]), np.sort(self.instance[slaves[where]])))
+            self._sync_split.put(slaves, split)
+        for mid, first, instances in split:
+            self._pulse(mid, instances, int(times[first]))
 
     def _pulse(self, mid: int, instances: I64, time_ns: int) -> None:
         pending = self._pulses.get(mid)
@@ -163,9 +175,8 @@ class DeviceApps:
             return
         pulses, self._pulses = self._pulses, {}
         for mid, (parts, time_ns) in pulses.items():
-            instances = parts[0] if len(parts) == 1 else np.concatenate(parts)
-            if len(instances) > 1:
-                instances = np.unique(instances)
+            # (one part: sorted instances of distinct slaves; several may overlap)
+            instances = parts[0] if len(parts) == 1 else np.unique(np.concatenate(parts))
             self.models[mid].on_sync0(instances, time_ns)
 
     @property

@@ -113,6 +113,7 @@ class SyncUnits:
         self.ack0 = np.zeros(0, np.int64)
         self.ack1 = np.zeros(0, np.int64)
         #: Recorded SYNC0 pulses: ring of (system time, true segment time) per slave.
+        self._ones: I64 = np.ones(0, np.int64)
         self.rec_sys = np.zeros((0, RECORDED_PULSES), np.uint64)
         self.rec_true = np.zeros((0, RECORDED_PULSES), np.float64)
         #: Slaves with a planned pulse (index -> 1): the segment only ticks the unit then.
@@ -286,7 +287,9 @@ class SyncUnits:
         # index, not per slave: usually a single one per tick)
         if (gap < step).all():
             # one pulse each, all cyclic (the usual tick)
-            count: I64 = np.ones(len(slaves), np.int64)
+            if len(self._ones) < len(slaves):
+                self._ones = np.ones(2 * len(slaves), np.int64)
+            count: I64 = self._ones[: len(slaves)]  # (read only)
             last = first
             cyclic = None
             slot = before % RECORDED_PULSES
