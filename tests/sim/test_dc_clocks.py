@@ -7,6 +7,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from simhelp import address_all, fprd, fpwr, one, spec
 
 from pyethercat.clock import VirtualClock
@@ -417,3 +419,25 @@ def test_topology_drift_defaults_to_random_within_100ppm_with_a_seed() -> None:
     seg = parse_topology("[segment]\ndrift_ppm = 0.0\n" + text).build()
     seg.set_drift(4, 20.0)
     assert seg.dc_report()[4]["drift_ppm"] == pytest.approx(20.0)
+
+
+@settings(max_examples=300, deadline=None)
+@given(local0=st.floats(0, 2**62), rate=st.floats(0.999, 1.001), trim=st.floats(-4e-4, 4e-4),
+       until=st.floats(0, 1e9), learned=st.floats(-4e-4, 4e-4), t0=st.integers(0, 2**60),
+       ahead=st.integers(-10**6, 10**12), offset=st.integers(-2**63, 2**63 - 1), wide=st.booleans())
+def test_one_slaves_system_time_read_is_the_array_paths_bit_for_bit(
+        local0: float, rate: float, trim: float, until: float, learned: float, t0: int,
+        ahead: int, offset: int, wide: bool) -> None:
+    # The reference's 0x0910 read (every FRMW) takes a path in Python floats; it must
+    # give what the array path gives for any clock state, 32-bit chips and wrap included.
+    seg, _ = pair(0.0)
+    dc = seg.dc
+    dc.local0[1], dc.rate[1], dc.trim[1], dc.until[1], dc.learned[1] = local0, rate, trim, until, learned
+    dc.t0[1] = t0
+    dc.frame_t0 = t0 + ahead
+    dc.words()[1, R.DC_SYSTEM_TIME_OFFSET // 8] = offset
+    dc.wide[1] = wide
+    dc._narrow = not wide  # (what add_slave works out for a 32-bit chip)
+    one_path = dc.refresh_one(1)
+    array_path = int(dc.refresh_system_time(np.array([1], np.int64))[0])
+    assert one_path == array_path

@@ -34,6 +34,7 @@ updates (the clock runs faster or slower, it never jumps).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -55,6 +56,7 @@ _SYSTIME_END = R.DC_SYSTEM_TIME + 8
 _CYCLIC_END = R.DC_SYNC1_CYCLE + 4
 _LOOP_LO, _LOOP_HI = R.DC_SPEED_COUNTER_START, R.DC_SPEED_FILTER_DEPTH + 1
 _MAG_MAX, _SIGN_BIT = float(0x7FFFFFFF), float(0x80000000)
+_I64_HALF, _U64_SPAN = 1 << 63, 1 << 64
 #: The loop's settings in a memory row: delay 0x0928, speed counter start 0x0930,
 #: filter depths 0x0934/0x0935 (not the loop's own outputs 0x092C and 0x0932).
 _SETTINGS = np.array([R.DC_SYSTEM_TIME_DELAY + i for i in range(4)] + [
@@ -298,6 +300,23 @@ class DcClocks:
         """Write the system time at the frame's pass into 0x0910 of ``slaves``; return it."""
         st = self.system_time(slaves, self.pass_time(slaves))
         self.words()[slaves, _SYSTIME_W] = st
+        return st
+
+    def refresh_one(self, index: int) -> int:
+        """:meth:`refresh_system_time` of one slave (a read of 0x0910: the reference's
+        in every FRMW) in Python floats: the same operations in the same order as the
+        array path, so the same bits, without a dozen numpy calls on one element."""
+        t = self.frame_t0 + int(self._route().epu_at_ns[index])
+        local0, rate, trim, until, learned = self._clk[index].tolist()
+        dt = t - int(self.t0[index])
+        window = min(float(max(dt, 0)), until)
+        exact = local0 + rate * (dt * (1.0 + learned) + window * (trim - learned))
+        local = int(float(math.floor(exact / TICK_NS)) * TICK_NS)
+        words = self.words()
+        st = (local + int(words[index, _OFFSET_W]) + _I64_HALF) % _U64_SPAN - _I64_HALF  # (int64 wrap)
+        if not self.wide[index]:
+            st &= 0xFFFF_FFFF
+        words[index, _SYSTIME_W] = st
         return st
 
     # --- register writes ----------------------------------------------------------------

@@ -718,7 +718,7 @@ class SegmentHost:
         seg.dc.written(np.array([index], dtype=np.int64), lo, data, seg.escs[index].profile.dc_system_time)
 
     def dc_refresh(self, index: int) -> None:
-        self._seg.dc.refresh_system_time(np.array([index], dtype=np.int64))
+        self._seg.dc.refresh_one(index)
 
     def dc_sync_status(self, index: int, lo: int, hi: int, pdi: bool) -> None:
         seg = self._seg
