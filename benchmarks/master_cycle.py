@@ -23,6 +23,11 @@ in-process loop and pysoem (in a thread, ``release_gil``); prints each run
 and the loaded/idle ratio of the p99.9 jitter (target for the engine <= 1.5).
 ``--rates``: the isolated engine at 10 kHz with 10 slaves and 4 kHz with 100
 slaves, ``--rate-seconds`` each: late cycles (target <= 0.1 %), p99 jitter.
+Both print the host's floor next to them when ``cyclictest`` (rt-tests) is
+installed: how late the kernel wakes a bare SCHED_FIFO thread at the same
+period, which no loop on the host can beat; and how its idle CPUs wait
+(``guest_halt_poll_ns`` on a KVM guest: ``--guest-halt-poll-ns NS`` sets it
+for the runs and puts it back).
 
 (a) and (b) alternate: ``--alternations`` rounds of SOEM then ours, each from
 an empty master, so a change in the host's load hits both alike; figures are
@@ -47,6 +52,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -338,6 +344,68 @@ def high_rate(n: int, cycle: float, seconds: float, priority: int) -> dict[str, 
     return out
 
 
+_HALT_POLL = Path("/sys/module/haltpoll/parameters/guest_halt_poll_ns")
+
+
+def host_idle() -> dict[str, object]:
+    """How this host's idle CPUs wait: the cpuidle driver and, on a KVM guest with
+    ``cpuidle-haltpoll``, how long an idle vCPU polls before it halts (a halted vCPU
+    needs the host to run it again when a frame comes: tens of microseconds more)."""
+    out: dict[str, object] = {}
+    with contextlib.suppress(OSError):
+        out["cpuidle_driver"] = Path("/sys/devices/system/cpu/cpuidle/current_driver").read_text().strip()
+    with contextlib.suppress(OSError, ValueError):
+        out["guest_halt_poll_ns"] = int(_HALT_POLL.read_text())
+    return out
+
+
+@contextlib.contextmanager
+def guest_halt_poll(ns: int | None) -> Iterator[None]:
+    """Set ``guest_halt_poll_ns`` for the runs inside (root, KVM guest), then put it back."""
+    if ns is None or not _HALT_POLL.exists():
+        if ns is not None:
+            print("no cpuidle-haltpoll on this host: --guest-halt-poll-ns ignored", file=sys.stderr)
+        yield
+        return
+    before = _HALT_POLL.read_text().strip()
+    _HALT_POLL.write_text(str(ns))
+    try:
+        yield
+    finally:
+        _HALT_POLL.write_text(before)
+
+
+def host_floor(seconds: float, interval_us: int, priority: int) -> dict[str, object] | None:
+    """The host's own wake-up latency: ``cyclictest`` (rt-tests), one SCHED_FIFO thread
+    woken every ``interval_us``, memory locked. What no loop on this host can beat:
+    wake-ups later than a whole cycle, or than 1 ms. None without cyclictest."""
+    try:
+        run = subprocess.run(["cyclictest", "-m", "-p", str(priority), "-i", str(interval_us),
+                              "-D", str(int(seconds)), "-q", "-h", "20000"],
+                             capture_output=True, text=True, timeout=seconds + 30)
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    hist: dict[int, int] = {}
+    peak = 0
+    for line in run.stdout.splitlines():
+        parts = line.split()
+        if len(parts) == 2 and parts[0].isdigit():
+            hist[int(parts[0])] = int(parts[1])
+        elif line.startswith("# Max Latencies:"):
+            peak = int(parts[-1])
+    total = sum(hist.values())
+    if not total:
+        return None
+    out = {"interval_us": interval_us, "wakeups": total, "max_us": peak,
+           "over_cycle": sum(n for us, n in hist.items() if us > interval_us),
+           "over_1ms": sum(n for us, n in hist.items() if us > 1000)}
+    print(f"host floor (cyclictest, SCHED_FIFO {priority}, every {interval_us} us, {seconds:g} s): "
+          f"{total} wake-ups, {out['over_cycle']} later than a cycle "
+          f"({100 * out['over_cycle'] / total:.3f} %), {out['over_1ms']} later than 1 ms, "
+          f"max {peak} us", flush=True)
+    return out
+
+
 def _normal_priority() -> None:
     """This thread (and what it starts) under normal scheduling: a dashboard is no real-time job."""
     os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
@@ -446,6 +514,9 @@ def main() -> None:
                     help="only the high-rate runs: 10 kHz with 10 slaves, 4 kHz with 100 "
                          "(isolated engine, --rate-seconds each)")
     ap.add_argument("--rate-seconds", type=float, default=30.0)
+    ap.add_argument("--guest-halt-poll-ns", type=int, default=None, metavar="NS",
+                    help="on a KVM guest with cpuidle-haltpoll: let idle vCPUs poll this long "
+                         "before they halt, for the --hostile/--rates runs (put back after)")
     ap.add_argument("--realtime-figures", action="store_true",
                     help="everything the real-time path is judged by, in one run: the hostile "
                          "user, the high rates and benchmarks/sim_rtt.py")
@@ -465,12 +536,20 @@ def main() -> None:
         # loops ask for SCHED_FIFO.
         print(f"load average before: {os.getloadavg()}")
         out: dict[str, object] = {}
-        if args.hostile or args.realtime_figures:
-            out["hostile"] = hostile(args.hostile_slaves, args.hostile_seconds,
-                                     args.loop_priority)
-        if args.rates or args.realtime_figures:
-            out["rates"] = [high_rate(10, 0.0001, args.rate_seconds, args.loop_priority),
-                            high_rate(100, 0.00025, args.rate_seconds, args.loop_priority)]
+        with guest_halt_poll(args.guest_halt_poll_ns):
+            out["host_idle"] = idle = host_idle()
+            print(f"host idle: {idle}", flush=True)
+            if args.hostile or args.realtime_figures:
+                out["hostile"] = hostile(args.hostile_slaves, args.hostile_seconds,
+                                         args.loop_priority)
+                out["host_floor_1khz"] = host_floor(min(args.hostile_seconds, 30.0), 1000,
+                                                    args.loop_priority)
+            if args.rates or args.realtime_figures:
+                out["rates"] = [high_rate(10, 0.0001, args.rate_seconds, args.loop_priority),
+                                high_rate(100, 0.00025, args.rate_seconds, args.loop_priority)]
+                out["host_floor_rates"] = [
+                    host_floor(min(args.rate_seconds, 30.0), us, args.loop_priority)
+                    for us in (100, 250)]
         out["load_average_end"] = os.getloadavg()
         print(f"load average after: {out['load_average_end']}")
         if args.realtime_figures:
