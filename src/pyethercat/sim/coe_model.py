@@ -352,7 +352,7 @@ class CoeModel(DeviceModel):
 
     def live_fields(self, keys: tuple[Key, ...]) -> tuple[npt.NDArray[Any], ...]:
         """:meth:`fields_of` cut to the instances there are (rows ``0..count-1``): for a
-        ``compute`` over every instance, whose ufuncs then write in place (``out=``)."""
+        ``compute`` over every instance, which then needs no index at all."""
         n = self.count
         cols = self._live_columns.get(keys)
         if cols is None or len(cols[0]) != n:
