@@ -11,10 +11,11 @@ from __future__ import annotations
 
 import gc
 import time
+from pathlib import Path
 
 import pytest
 
-from pyethercat.realtime import VM_SPIN_SHARE, SpinBudget, quiet_collector, rt_share
+from pyethercat.realtime import VM_SPIN_SHARE, SpinBudget, idle_halt_hint, quiet_collector, rt_share
 from pyethercat.sim.server import SimServer
 
 
@@ -171,3 +172,23 @@ def test_busy_poll_share_out_of_range_is_a_one_line_error(value: str) -> None:
     assert got.exit_code != 0
     assert got.output.startswith("pyethercat: error: ") and got.output.count("\n") == 1
     assert "--busy-poll-share" in got.output
+
+
+def test_idle_halt_hint_names_the_knob_for_sub_millisecond_cycles_only(tmp_path: Path) -> None:
+    # A fake /sys: a KVM guest with the haltpoll cpuidle driver whose idle vCPUs halt at once.
+    driver = tmp_path / "devices/system/cpu/cpuidle/current_driver"
+    poll = tmp_path / "module/haltpoll/parameters/guest_halt_poll_ns"
+    driver.parent.mkdir(parents=True)
+    poll.parent.mkdir(parents=True)
+    driver.write_text("haltpoll\n")
+    poll.write_text("0\n")
+    hint = idle_halt_hint(250e-6, tmp_path)
+    assert hint is not None and "guest_halt_poll_ns 0" in hint and "250 us cycles" in hint
+    assert f"echo 200000 > {poll} (root)" in hint
+    assert idle_halt_hint(1e-3, tmp_path) is None  # a 1 ms cycle has room for the wake-up
+    poll.write_text("200000\n")
+    assert idle_halt_hint(100e-6, tmp_path) is None  # they poll already
+    poll.write_text("0\n")
+    driver.write_text("acpi_idle\n")
+    assert idle_halt_hint(100e-6, tmp_path) is None  # another idle driver: nothing to say
+    assert idle_halt_hint(100e-6, tmp_path / "none") is None  # no such files (bare metal)

@@ -66,6 +66,7 @@ from pyethercat.realtime import (
     SpinBudget,
     apply_realtime,
     die_with_parent,
+    idle_halt_hint,
     quiet_collector,
     set_timer_slack,
 )
@@ -522,6 +523,9 @@ def main() -> int:
     slack = set_timer_slack(1)
     if slack is not None:
         report.missing.append(slack)
+    host = idle_halt_hint(plan.cycle)
+    if host is not None:
+        report.missing.append(host)
     area = SharedArea.attach(plan.area_path, plan.layout)
     try:
         return run_engine(plan, area, report)
