@@ -157,7 +157,9 @@ class DeviceApps:
             for mid in self._sync_models:
                 where = np.flatnonzero(mids == mid)
                 if len(where):
-                    split.append((mid, int(where[0]), np.sort(self.instance[slaves[where]])))
+                    mine = np.sort(self.instance[slaves[where]])
+                    mine.flags.writeable = False  # (handed to the model every cycle)
+                    split.append((mid, int(where[0]), mine))
             self._sync_split.put(slaves, split)
         for mid, first, instances in split:
             self._pulse(mid, instances, int(times[first]))

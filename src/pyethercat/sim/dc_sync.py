@@ -112,8 +112,8 @@ class SyncUnits:
         self.cfg_pulses = np.zeros(0, np.int64)
         self.ack0 = np.zeros(0, np.int64)
         self.ack1 = np.zeros(0, np.int64)
+        self._ones: I64 = np.ones(0, np.int64)  # (a pulse each: the counts of a usual tick)
         #: Recorded SYNC0 pulses: ring of (system time, true segment time) per slave.
-        self._ones: I64 = np.ones(0, np.int64)
         self.rec_sys = np.zeros((0, RECORDED_PULSES), np.uint64)
         self.rec_true = np.zeros((0, RECORDED_PULSES), np.float64)
         #: Slaves with a planned pulse (index -> 1): the segment only ticks the unit then.
