@@ -1,4 +1,5 @@
-"""What several benchmark scripts share: a pyecat- veth pair, and SOEM (pysoem) in OP.
+"""What several benchmark scripts share: a pyecat- veth pair, SOEM (pysoem) in OP, and
+how the host's idle CPUs wait (KVM guest halt polling).
 
 The scripts run as ``python benchmarks/NAME.py``, so this folder is on the
 import path and they ``from common import ...``.
@@ -6,9 +7,12 @@ import path and they ``from common import ...``.
 
 from __future__ import annotations
 
+import contextlib
 import subprocess
+import sys
 import time
 import uuid
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +31,37 @@ def veth() -> tuple[str, str]:
             break
         time.sleep(0.01)
     return a, b
+
+
+_HALT_POLL = Path("/sys/module/haltpoll/parameters/guest_halt_poll_ns")
+
+
+def host_idle() -> dict[str, object]:
+    """How this host's idle CPUs wait: the cpuidle driver and, on a KVM guest with
+    ``cpuidle-haltpoll``, how long an idle vCPU polls before it halts (a halted vCPU
+    needs the host to run it again when a frame comes: tens of microseconds more)."""
+    out: dict[str, object] = {}
+    with contextlib.suppress(OSError):
+        out["cpuidle_driver"] = Path("/sys/devices/system/cpu/cpuidle/current_driver").read_text().strip()
+    with contextlib.suppress(OSError, ValueError):
+        out["guest_halt_poll_ns"] = int(_HALT_POLL.read_text())
+    return out
+
+
+@contextlib.contextmanager
+def guest_halt_poll(ns: int | None) -> Iterator[None]:
+    """Set ``guest_halt_poll_ns`` for the runs inside (root, KVM guest), then put it back."""
+    if ns is None or not _HALT_POLL.exists():
+        if ns is not None:
+            print("no cpuidle-haltpoll on this host: --guest-halt-poll-ns ignored", file=sys.stderr)
+        yield
+        return
+    before = _HALT_POLL.read_text().strip()
+    _HALT_POLL.write_text(str(ns))
+    try:
+        yield
+    finally:
+        _HALT_POLL.write_text(before)
 
 
 class Soem:

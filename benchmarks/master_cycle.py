@@ -52,11 +52,10 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
-from common import Soem, veth
+from common import Soem, guest_halt_poll, host_idle, veth
 
 from pyethercat.master.master import Master
 from pyethercat.sim.server import start_sim_process
@@ -342,37 +341,6 @@ def high_rate(n: int, cycle: float, seconds: float, priority: int) -> dict[str, 
           f"jitter p99 {jd['p99']:.1f} us, p99.9 {jd['p99.9']:.1f} us, max {jd['p100']:.1f} us "
           f"[{out['engine']}]", flush=True)
     return out
-
-
-_HALT_POLL = Path("/sys/module/haltpoll/parameters/guest_halt_poll_ns")
-
-
-def host_idle() -> dict[str, object]:
-    """How this host's idle CPUs wait: the cpuidle driver and, on a KVM guest with
-    ``cpuidle-haltpoll``, how long an idle vCPU polls before it halts (a halted vCPU
-    needs the host to run it again when a frame comes: tens of microseconds more)."""
-    out: dict[str, object] = {}
-    with contextlib.suppress(OSError):
-        out["cpuidle_driver"] = Path("/sys/devices/system/cpu/cpuidle/current_driver").read_text().strip()
-    with contextlib.suppress(OSError, ValueError):
-        out["guest_halt_poll_ns"] = int(_HALT_POLL.read_text())
-    return out
-
-
-@contextlib.contextmanager
-def guest_halt_poll(ns: int | None) -> Iterator[None]:
-    """Set ``guest_halt_poll_ns`` for the runs inside (root, KVM guest), then put it back."""
-    if ns is None or not _HALT_POLL.exists():
-        if ns is not None:
-            print("no cpuidle-haltpoll on this host: --guest-halt-poll-ns ignored", file=sys.stderr)
-        yield
-        return
-    before = _HALT_POLL.read_text().strip()
-    _HALT_POLL.write_text(str(ns))
-    try:
-        yield
-    finally:
-        _HALT_POLL.write_text(before)
 
 
 def host_floor(seconds: float, interval_us: int, priority: int) -> dict[str, object] | None:
