@@ -138,6 +138,35 @@ def test_32bit_follower_compares_low_double_words() -> None:
     assert abs(((b - a + (1 << 31)) % (1 << 32)) - (1 << 31)) < 50
 
 
+def test_a_32bit_chip_put_in_a_64bit_followers_place_compares_low_double_words() -> None:
+    # Hot swap while the master keeps the loop running: the loop's settings come back
+    # the same, but the new chip counts 32 bits; what was worked out for the old one
+    # must not stay in use.
+    clock = VirtualClock(0)
+    seg = Segment(clock)
+    seg.advance_clock = False
+    seg.add_slave(spec("ref", "ET1100"))
+    seg.add_slave(spec("wide", "ET1100"))
+    address_all(seg)
+    start_loop(seg)
+    fpwr(seg, ST, R.DC_SYSTEM_TIME_OFFSET, struct.pack("<q", 7 << 32))
+    for _ in range(100):
+        clock.advance(1_000_000)
+        frmw(seg)
+    narrow = PROFILES["ET1100"].replace(features=int(R.Feature.DC_SUPPORTED))
+    seg.insert_slave(1, spec("narrow", narrow, drift_ppm=80.0))
+    address_all(seg)
+    start_loop(seg)  # (the same settings as before the swap)
+    # the master sets the new chip's offset, as after a scan: its clock started at power-on
+    a, b = systimes(seg, 4)
+    fpwr(seg, ST + 1, R.DC_SYSTEM_TIME_OFFSET, struct.pack("<q", (a - b) % (1 << 32)))
+    for _ in range(2000):
+        clock.advance(1_000_000)
+        frmw(seg)
+    a, b = systimes(seg, 4)
+    assert abs(((b - a + (1 << 31)) % (1 << 32)) - (1 << 31)) < 50
+
+
 class Listener(DeviceApp):
     def __init__(self) -> None:
         super().__init__()

@@ -158,8 +158,9 @@ class DcClocks:
         self._repeat: tuple[tuple[bytes, int, bytes], F64, F64, F64, F64] | None = None
         #: Row indexes of the slave sets the loop was written in (by their bytes).
         self._rows: dict[bytes, I64 | slice] = {}
-        #: The last loop settings worked out: (slave set, their register bytes, n, settings).
-        self._params: tuple[bytes, bytes, int, _LoopParams] | None = None
+        #: The last loop settings worked out: (slave set, their register bytes, settings);
+        #: forgotten when a slave is added or put in another's place (add_slave).
+        self._params: tuple[bytes, bytes, _LoopParams] | None = None
         # memory and its 64-bit view (rows of little-endian words; the stride is a multiple of 8)
         self._mem8: npt.NDArray[np.uint8] | None = None
         self._mem64: I64 = np.zeros((0, 1), np.int64)
@@ -206,6 +207,8 @@ class DcClocks:
         self.rate[index] = 1.0 + drift_ppm * 1e-6
         self.wide[index] = self.escs[index].profile.dc_64bit
         self._narrow = not bool(self.wide[: self.n].all())
+        # (a chip put in the place of another may count 32 bits where it counted 64)
+        self._repeat = self._params = None
         self.sync.add_slave(index)
         self.sync.clock_changed()
 
@@ -449,8 +452,8 @@ class DcClocks:
         for as long as those bytes stay the same (whatever path writes them)."""
         regs = self.memory.mem[rows, R.DC_SYSTEM_TIME_DELAY: _LOOP_HI][:, _SETTINGS].tobytes()
         hit = self._params
-        if hit is not None and hit[0] == raw_rows and hit[1] == regs and hit[2] == self.n:
-            return hit[3]
+        if hit is not None and hit[0] == raw_rows and hit[1] == regs:
+            return hit[2]
         mem = self.memory.mem
         depth_t = (mem[rows, R.DC_TIME_FILTER_DEPTH] & 0x0F).astype(np.float64)
         depth_s = (mem[rows, R.DC_SPEED_FILTER_DEPTH] & 0x0F).astype(np.float64)
@@ -465,7 +468,7 @@ class DcClocks:
             learn_time=tau * np.exp2(depth_s - 8),
             bound=bound, low=-bound,
             narrow=None if wide.all() else ~wide)
-        self._params = (raw_rows, regs, self.n, p)
+        self._params = (raw_rows, regs, p)
         return p
 
     def loop_reset(self, slaves: I64) -> None:
