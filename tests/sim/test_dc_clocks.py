@@ -13,7 +13,7 @@ from simhelp import address_all, fprd, fpwr, one, spec
 
 from pyethercat.clock import VirtualClock
 from pyethercat.sim.device import DeviceApp
-from pyethercat.sim.profiles import PROFILES
+from pyethercat.sim.profiles import PROFILES, EscProfile
 from pyethercat.sim.segment import Segment
 from pyethercat.sim.topology import parse_topology
 from pyethercat.wire import registers as R
@@ -24,14 +24,32 @@ from pyethercat.wire.sii import sii_crc
 ST = 0x1000
 
 
-def pair(ppm: float, profile: str = "ET1100") -> tuple[Segment, VirtualClock]:
+#: An ET1100 whose DC unit counts 32 bits (no 64-bit feature flag).
+NARROW = PROFILES["ET1100"].replace(features=int(R.Feature.DC_SUPPORTED))
+
+
+def pair(ppm: float, profile: str = "ET1100",
+         follower: EscProfile | None = None) -> tuple[Segment, VirtualClock]:
+    """A reference and a follower drifting ``ppm`` (its chip ``follower``, else ``profile``)."""
     clock = VirtualClock(0)
     seg = Segment(clock)
     seg.advance_clock = False
     seg.add_slave(spec("ref", profile))
-    seg.add_slave(spec("follower", profile, drift_ppm=ppm))
+    seg.add_slave(spec("follower", profile if follower is None else follower, drift_ppm=ppm))
     address_all(seg)
     return seg, clock
+
+
+def compensate(seg: Segment, clock: VirtualClock, cycles: int) -> None:
+    """``cycles`` FRMW of the reference's time, one per 1 ms (the master's drift compensation)."""
+    for _ in range(cycles):
+        clock.advance(1_000_000)
+        frmw(seg)
+
+
+def low_word_gap(a: int, b: int) -> int:
+    """|b - a| of two 32-bit system times (the shorter way round)."""
+    return abs(((b - a + (1 << 31)) % (1 << 32)) - (1 << 31))
 
 
 def frmw(seg: Segment, size: int = 8) -> Datagram:
@@ -53,9 +71,7 @@ def start_loop(seg: Segment) -> None:
 def test_time_control_loop_locks_a_drifting_clock(ppm: float) -> None:
     seg, clock = pair(ppm)
     start_loop(seg)
-    for _ in range(3000):  # 3 s of drift compensation at 1 kHz
-        clock.advance(1_000_000)
-        frmw(seg)
+    compensate(seg, clock, 3000)  # 3 s of drift compensation at 1 kHz
     diff = decode_time_difference(struct.unpack("<I", fprd(seg, ST + 1, R.DC_SYSTEM_TIME_DIFFERENCE, 4).data)[0])
     assert diff <= 20
     # the learned speed correction cancels the quartz (0x0932 in 0.1 ppm)
@@ -79,9 +95,7 @@ def test_loop_correction_is_bounded_by_the_speed_counter_start() -> None:
     start_loop(seg)
     # a small start value: at most (0x0400 - 0x7F) * 0.1 ppm = 89.7 ppm of correction
     fpwr(seg, ST + 1, R.DC_SPEED_COUNTER_START, struct.pack("<H", 0x0400))
-    for _ in range(2000):
-        clock.advance(1_000_000)
-        frmw(seg)
+    compensate(seg, clock, 2000)
     learned = struct.unpack("<h", fprd(seg, ST + 1, R.DC_SPEED_COUNTER_DIFF, 2).data)[0]
     assert learned == -(0x0400 - 0x7F)
     diff = decode_time_difference(struct.unpack("<I", fprd(seg, ST + 1, R.DC_SYSTEM_TIME_DIFFERENCE, 4).data)[0])
@@ -94,15 +108,11 @@ def test_a_new_delay_written_while_the_loop_runs_moves_the_follower() -> None:
     # follower settles that much ahead of the reference's time as the frame saw it.
     seg, clock = pair(50.0)
     start_loop(seg)
-    for _ in range(1500):
-        clock.advance(1_000_000)
-        frmw(seg)
+    compensate(seg, clock, 1500)
     a, b = systimes(seg)
     assert abs(b - a) < 200
     fpwr(seg, ST + 1, R.DC_SYSTEM_TIME_DELAY, struct.pack("<I", 20_000))
-    for _ in range(3000):
-        clock.advance(1_000_000)
-        frmw(seg)
+    compensate(seg, clock, 3000)
     a, b = systimes(seg)
     assert abs((b - a) - 20_000) < 200
 
@@ -121,50 +131,32 @@ def test_filter_depth_smooths_the_difference() -> None:
 
 
 def test_32bit_follower_compares_low_double_words() -> None:
-    clock = VirtualClock(0)
-    seg = Segment(clock)
-    seg.advance_clock = False
-    seg.add_slave(spec("ref", "ET1100"))
-    seg.add_slave(spec("narrow", PROFILES["ET1100"].replace(features=int(R.Feature.DC_SUPPORTED)),
-                       drift_ppm=80.0))
-    address_all(seg)
+    seg, clock = pair(80.0, follower=NARROW)
     start_loop(seg)
     # the reference far beyond 2^32 ns: only the low double word reaches the 32-bit slave
     fpwr(seg, ST, R.DC_SYSTEM_TIME_OFFSET, struct.pack("<q", 7 << 32))
-    for _ in range(2000):
-        clock.advance(1_000_000)
-        frmw(seg)
+    compensate(seg, clock, 2000)
     a, b = systimes(seg, 4)
-    assert abs(((b - a + (1 << 31)) % (1 << 32)) - (1 << 31)) < 50
+    assert low_word_gap(a, b) < 50
 
 
 def test_a_32bit_chip_put_in_a_64bit_followers_place_compares_low_double_words() -> None:
     # Hot swap while the master keeps the loop running: the loop's settings come back
     # the same, but the new chip counts 32 bits; what was worked out for the old one
     # must not stay in use.
-    clock = VirtualClock(0)
-    seg = Segment(clock)
-    seg.advance_clock = False
-    seg.add_slave(spec("ref", "ET1100"))
-    seg.add_slave(spec("wide", "ET1100"))
-    address_all(seg)
+    seg, clock = pair(0.0)
     start_loop(seg)
     fpwr(seg, ST, R.DC_SYSTEM_TIME_OFFSET, struct.pack("<q", 7 << 32))
-    for _ in range(100):
-        clock.advance(1_000_000)
-        frmw(seg)
-    narrow = PROFILES["ET1100"].replace(features=int(R.Feature.DC_SUPPORTED))
-    seg.insert_slave(1, spec("narrow", narrow, drift_ppm=80.0))
+    compensate(seg, clock, 100)
+    seg.insert_slave(1, spec("narrow", NARROW, drift_ppm=80.0))
     address_all(seg)
     start_loop(seg)  # (the same settings as before the swap)
     # the master sets the new chip's offset, as after a scan: its clock started at power-on
     a, b = systimes(seg, 4)
     fpwr(seg, ST + 1, R.DC_SYSTEM_TIME_OFFSET, struct.pack("<q", (a - b) % (1 << 32)))
-    for _ in range(2000):
-        clock.advance(1_000_000)
-        frmw(seg)
+    compensate(seg, clock, 2000)
     a, b = systimes(seg, 4)
-    assert abs(((b - a + (1 << 31)) % (1 << 32)) - (1 << 31)) < 50
+    assert low_word_gap(a, b) < 50
 
 
 class Listener(DeviceApp):
