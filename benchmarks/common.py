@@ -1,5 +1,6 @@
-"""What several benchmark scripts share: a pyecat- veth pair, SOEM (pysoem) in OP, and
-how the host's idle CPUs wait (KVM guest halt polling).
+"""What several benchmark scripts share: a pyecat- veth pair, SOEM (pysoem) in OP,
+KickCAT's ``network_simulator`` serving a segment, and how the host's idle CPUs
+wait (KVM guest halt polling).
 
 The scripts run as ``python benchmarks/NAME.py``, so this folder is on the
 import path and they ``from common import ...``.
@@ -128,3 +129,38 @@ class Soem:
         m.state = self.pysoem.INIT_STATE
         m.write_state()
         m.close()
+
+
+#: Where ``../shared/tools/build-kickcat.sh`` leaves KickCAT's C++ ESC emulator and its
+#: source tree (the emulator runs from the tree's ``simulation/`` folder: its slave
+#: configurations name their EEPROM dumps and ESI files relative to it).
+KICKCAT_BINARY = Path("/tmp/kickcat-build/build/simulation/network_simulator")
+KICKCAT_SRC = Path("/tmp/kickcat-src")
+
+
+def have_kickcat(binary: Path = KICKCAT_BINARY, src: Path = KICKCAT_SRC) -> bool:
+    """Whether KickCAT's emulator is built (see :data:`KICKCAT_BINARY`)."""
+    return binary.exists() and (src / "simulation").is_dir()
+
+
+def chrt(priority: int) -> list[str]:
+    """The command prefix that runs a program under SCHED_FIFO ``priority`` (0: none)."""
+    return ["chrt", "-f", str(priority)] if priority else []
+
+
+@contextlib.contextmanager
+def kickcat_simulator(iface: str, configs: list[str], priority: int,
+                      binary: Path = KICKCAT_BINARY, src: Path = KICKCAT_SRC) -> Iterator[None]:
+    """KickCAT's ``network_simulator`` serving the slaves of ``configs`` (paths relative
+    to its ``simulation/`` folder, one per slave, in line) on ``iface``."""
+    proc = subprocess.Popen([*chrt(priority), str(binary), "-i", iface, "-s", *configs],
+                            cwd=src / "simulation", stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    try:
+        time.sleep(1.0)
+        if proc.poll() is not None:
+            raise RuntimeError(f"network_simulator exited ({proc.returncode})")
+        yield
+    finally:
+        proc.kill()
+        proc.wait()

@@ -166,13 +166,17 @@ def run_ours(iface: str, seconds: float, isolated: bool, load: bool,
         return out
 
 
-def run_soem(iface: str, seconds: float, load: bool, priority: int) -> dict[str, object]:
-    """pysoem at 1 kHz in a Python thread (send/receive with release_gil), as its users run it."""
+def run_soem(iface: str, seconds: float, load: bool, priority: int, period: int = 1_000_000,
+             complete_access: bool = True) -> dict[str, object]:
+    """pysoem every ``period`` ns (1 kHz) in a Python thread (send/receive with release_gil),
+    as its users run it. Late: a start more than a quarter period after its deadline (as
+    our loop counts); a skipped deadline is late too (``late_fraction``)."""
     import threading
 
     import pysoem
     from hostile import HostileLoad
-    m = Soem(iface).m  # (in OP)
+    soem = Soem(iface, complete_access=complete_access)  # (in OP)
+    m = soem.m
     try:
         # The working counter of a whole exchange, as the slaves give it (SOEM's own
         # expected_wkc undercounts a 2-bit input terminal on this segment: 12 for 13).
@@ -184,18 +188,19 @@ def run_soem(iface: str, seconds: float, load: bool, priority: int) -> dict[str,
         stop = threading.Event()
         starts: list[int] = []
         deadlines: list[int] = []
+        rtts: list[int] = []
         counts = {"lost": 0, "wkc": 0}
+        spin = min(100_000, period // 2)  # (spin the last stretch, sleep before it)
 
         def loop() -> None:
             if priority:
                 with contextlib.suppress(OSError):
                     os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-            period = 1_000_000
             nxt = time.perf_counter_ns() + period
             while not stop.is_set():
                 left = nxt - time.perf_counter_ns()
-                if left > 100_000:
-                    time.sleep((left - 100_000) / 1e9)
+                if left > spin:
+                    time.sleep((left - spin) / 1e9)
                 while time.perf_counter_ns() < nxt:
                     pass
                 t0 = time.perf_counter_ns()
@@ -203,6 +208,7 @@ def run_soem(iface: str, seconds: float, load: bool, priority: int) -> dict[str,
                 deadlines.append(nxt)
                 m.send_processdata(release_gil=True)
                 wkc = m.receive_processdata(2000, release_gil=True)
+                rtts.append(time.perf_counter_ns() - t0)
                 if wkc < 0:
                     counts["lost"] += 1
                 elif wkc != expected:
@@ -228,14 +234,20 @@ def run_soem(iface: str, seconds: float, load: bool, priority: int) -> dict[str,
         s_ = np.asarray(starts[first:], np.int64)
         d_ = np.asarray(deadlines[first:], np.int64)
         per = np.diff(s_)
-        gap = per > 1_500_000  # a skipped deadline: not a period sample
-        jit = np.abs(per[~gap] - 1_000_000) / 1000.0
+        gap = per > period * 3 // 2  # a skipped deadline: not a period sample
+        jit = np.abs(per[~gap] - period) / 1000.0
         q = (50, 90, 99, 99.9, 100)
         jd = {f"p{x:g}": float(v) for x, v in zip(q, np.percentile(jit, q), strict=True)}
         lat = (s_ - d_) / 1000.0
-        out = _loop_figures(jd, float(lat.max()), len(s_), int((lat > 250).sum()),
-                            int(np.sum(per[gap] // 1_000_000 - 1)), counts["lost"], counts["wkc"])
-        out["load"] = how
+        late = int((lat > period / 4000).sum())
+        skipped = int(np.sum(per[gap] // period - 1))
+        out = _loop_figures(jd, float(lat.max()), len(s_), late, skipped, counts["lost"],
+                            counts["wkc"])
+        rt = np.asarray(rtts[first:first + len(s_)], np.float64) / 1000.0
+        out.update(load=how, slaves=soem.slaves, rate_hz=round(1e9 / period),
+                   late_fraction=(late + skipped) / max(len(s_) + skipped, 1),
+                   round_trip_us={f"p{x:g}": float(v) for x, v in zip(
+                       q, np.percentile(rt, q), strict=True)})
         m.state = pysoem.INIT_STATE
         m.write_state()
         return out
@@ -295,52 +307,64 @@ def high_rate(n: int, cycle: float, seconds: float, priority: int) -> dict[str, 
             path.write_text(topology(n))
             sim = start_sim_process(path, link=f"iface:{a}", realtime=max(1, priority - 20))
             try:
-                with Master.open(b, control=False) as m:
-                    m.scan()
-                    m.configure()
-                    runner = m.start(cycle=cycle, isolated=True, realtime=priority)
-                    try:
-                        time.sleep(0.5)
-                        base = runner.stats
-                        c0, late0, lost0, wkc0, skip0 = (base.cycles, base.late, base.lost_frames,
-                                                         base.wkc_errors, base.skipped)
-                        time.sleep(seconds)
-                        st = runner.stats
-                        n_cyc = st.cycles - c0
-                        periods = st.periods()[-(n_cyc - 1):] if n_cyc > 1 else st.periods()[:0]
-                        jit = np.abs(periods - st.period_ns) / 1000.0
-                        q = (50, 90, 99, 99.9, 100)
-                        late = st.late - late0
-                        skipped = st.skipped - skip0
-                        # A skipped deadline (the cycle before overran it) is a late cycle too.
-                        out: dict[str, object] = {
-                            "slaves": len(m.slaves), "rate_hz": round(1 / cycle),
-                            "seconds": seconds, "cycles": n_cyc, "late": late,
-                            "late_fraction": (late + skipped) / max(n_cyc + skipped, 1),
-                            "skipped": skipped, "lost_frames": st.lost_frames - lost0,
-                            "wkc_errors": st.wkc_errors - wkc0, "overruns": st.overruns,
-                            "jitter_us": {f"p{x:g}": float(v) for x, v in zip(
-                                q, np.percentile(jit, q) if jit.size else [np.nan] * len(q),
-                                strict=True)},
-                            "round_trip_us": st.round_trip_us(),
-                            "engine": getattr(runner, "realtime_text", "thread")}
-                    finally:
-                        runner.halt()
-                    m.set_state("INIT")
+                out = engine_at_rate(b, cycle, seconds, priority)
             finally:
                 sim.stop()
     finally:
         subprocess.run(["ip", "link", "del", a], check=False, capture_output=True)
+    print_rate(out, seconds)
+    return out
+
+
+def engine_at_rate(iface: str, cycle: float, seconds: float, priority: int) -> dict[str, object]:
+    """The isolated engine at ``1 / cycle`` Hz over the segment that answers on ``iface``
+    (scanned and configured here, left in INIT): late cycles, jitter, round trip."""
+    with Master.open(iface, control=False) as m:
+        m.scan()
+        m.configure()
+        runner = m.start(cycle=cycle, isolated=True, realtime=priority)
+        try:
+            time.sleep(0.5)
+            base = runner.stats
+            c0, late0, lost0, wkc0, skip0 = (base.cycles, base.late, base.lost_frames,
+                                             base.wkc_errors, base.skipped)
+            time.sleep(seconds)
+            st = runner.stats
+            n_cyc = st.cycles - c0
+            periods = st.periods()[-(n_cyc - 1):] if n_cyc > 1 else st.periods()[:0]
+            jit = np.abs(periods - st.period_ns) / 1000.0
+            q = (50, 90, 99, 99.9, 100)
+            late = st.late - late0
+            skipped = st.skipped - skip0
+            # A skipped deadline (the cycle before overran it) is a late cycle too.
+            out: dict[str, object] = {
+                "slaves": len(m.slaves), "rate_hz": round(1 / cycle),
+                "seconds": seconds, "cycles": n_cyc, "late": late,
+                "late_fraction": (late + skipped) / max(n_cyc + skipped, 1),
+                "skipped": skipped, "lost_frames": st.lost_frames - lost0,
+                "wkc_errors": st.wkc_errors - wkc0, "overruns": st.overruns,
+                "jitter_us": {f"p{x:g}": float(v) for x, v in zip(
+                    q, np.percentile(jit, q) if jit.size else [np.nan] * len(q),
+                    strict=True)},
+                "round_trip_us": st.round_trip_us(),
+                "engine": getattr(runner, "realtime_text", "thread")}
+        finally:
+            runner.halt()
+        m.set_state("INIT")
+    return out
+
+
+def print_rate(out: dict[str, object], seconds: float, who: str = "") -> None:
+    """One line for a run of :func:`engine_at_rate` or :func:`run_soem` at a high rate."""
     jd, rtt = out["jitter_us"], out["round_trip_us"]
     assert isinstance(jd, dict) and isinstance(rtt, dict)
-    print(f"{out['rate_hz']} Hz, {out['slaves']} slaves, {seconds:g} s: {out['cycles']} cycles, "
-          f"late {out['late']} + skipped {out['skipped']} = "
+    print(f"{who}{out['rate_hz']} Hz, {out['slaves']} slaves, {seconds:g} s: {out['cycles']} "
+          f"cycles, late {out['late']} + skipped {out['skipped']} = "
           f"{100 * float(out['late_fraction']):.3f} % (target <= 0.1 %), "  # type: ignore[arg-type]
           f"lost {out['lost_frames']}, WKC errors {out['wkc_errors']}; round trip p50 "
-          f"{rtt['p50']:.0f} us; "
-          f"jitter p99 {jd['p99']:.1f} us, p99.9 {jd['p99.9']:.1f} us, max {jd['p100']:.1f} us "
-          f"[{out['engine']}]", flush=True)
-    return out
+          f"{rtt['p50']:.0f} us, p99 {rtt['p99']:.0f} us; "
+          f"jitter p99 {jd['p99']:.1f} us, p99.9 {jd['p99.9']:.1f} us, max {jd['p100']:.1f} us"
+          + (f" [{out['engine']}]" if "engine" in out else ""), flush=True)
 
 
 def host_floor(seconds: float, interval_us: int, priority: int) -> dict[str, object] | None:

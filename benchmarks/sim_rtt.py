@@ -47,7 +47,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from common import Soem, veth
+from common import KICKCAT_BINARY, KICKCAT_SRC, Soem, chrt, have_kickcat, kickcat_simulator, veth
 
 ROOT = Path(__file__).resolve().parents[1]
 CORPUS = ROOT.parent / "shared" / "corpus" / "esi"
@@ -71,10 +71,6 @@ ECHO = textwrap.dedent("""
             continue
         s.send(view[:n])
 """)
-
-
-def chrt(priority: int) -> list[str]:
-    return ["chrt", "-f", str(priority)] if priority else []
 
 
 def wait_line(proc: subprocess.Popen[str], want: str, seconds: float = 30.0) -> None:
@@ -117,22 +113,13 @@ def ours_and_echo(iface_m: str, iface_s: str, topo: Path, rounds: int, priority:
 
 def kickcat(iface_m: str, iface_s: str, binary: Path, src: Path, rounds: int,
             priority: int, ca: bool) -> tuple[dict[str, object], list[float]]:
-    proc = subprocess.Popen([*chrt(priority), str(binary), "-i", iface_s, "-s", *KICKCAT_CONFIGS],
-                            cwd=src / "simulation", stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL)
-    try:
-        time.sleep(1.0)
-        if proc.poll() is not None:
-            raise RuntimeError(f"network_simulator exited ({proc.returncode})")
+    with kickcat_simulator(iface_s, list(KICKCAT_CONFIGS), priority, binary, src):
         soem = Soem(iface_m, complete_access=ca)
         try:
             rtts = soem.rtts(rounds)
             return {"slaves": soem.slaves, "op": soem.op, "wkc": soem.wkc, **soem.mapping}, rtts
         finally:
             soem.close()
-    finally:
-        proc.kill()
-        proc.wait()
 
 
 def figures(samples: list[float]) -> dict[str, float]:
@@ -147,17 +134,16 @@ def main() -> None:
     ap.add_argument("--alternations", type=int, default=5)
     ap.add_argument("--priority", type=int, default=20,
                     help="SCHED_FIFO priority of the servers and of pysoem (0: none)")
-    ap.add_argument("--kickcat", type=Path, default=Path("/tmp/kickcat-build/build/simulation/"
-                                                         "network_simulator"))
-    ap.add_argument("--kickcat-src", type=Path, default=Path("/tmp/kickcat-src"))
+    ap.add_argument("--kickcat", type=Path, default=KICKCAT_BINARY)
+    ap.add_argument("--kickcat-src", type=Path, default=KICKCAT_SRC)
     ap.add_argument("--soem-complete-access", action="store_true",
                     help="let SOEM read the PDO layout with complete access (unequal on KickCAT)")
     args = ap.parse_args()
     if os.geteuid() != 0:
         print(json.dumps({"error": "needs root (veth pairs)"}))
         sys.exit(1)
-    have_kickcat = args.kickcat.exists() and (args.kickcat_src / "simulation").is_dir()
-    if not have_kickcat:
+    kickcat_built = have_kickcat(args.kickcat, args.kickcat_src)
+    if not kickcat_built:
         print(f"KickCAT's network_simulator not at {args.kickcat}: build it with "
               "../shared/tools/build-kickcat.sh; measuring ours and the echo only")
     if args.priority:
@@ -180,7 +166,7 @@ def main() -> None:
                 pooled["echo"] += floor
                 line = (f"round {k + 1}: ours {np.median(ours):.1f} us, "
                         f"echo {np.median(floor):.1f} us")
-                if have_kickcat:
+                if kickcat_built:
                     kinfo, kc = kickcat(a, b, args.kickcat, args.kickcat_src, args.rounds,
                                         args.priority, args.soem_complete_access)
                     out["kickcat_segment"] = kinfo
