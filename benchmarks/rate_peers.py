@@ -40,7 +40,15 @@ from collections.abc import Callable, Iterator
 from contextlib import AbstractContextManager, contextmanager
 from pathlib import Path
 
-from common import KICKCAT_BINARY, KICKCAT_SRC, have_kickcat, host_idle, kickcat_simulator, veth
+from common import (
+    KICKCAT_BINARY,
+    KICKCAT_SRC,
+    guest_halt_poll,
+    have_kickcat,
+    host_idle,
+    kickcat_simulator,
+    veth,
+)
 from master_cycle import engine_at_rate, host_floor, print_rate, run_soem
 
 from pyethercat.sim.sim_process import start_sim_process
@@ -76,6 +84,8 @@ def main() -> None:
                     help="SLAVES:HZ pairs, comma-separated")
     ap.add_argument("--seconds", type=float, default=10.0, help="per master, simulator and rate")
     ap.add_argument("--priority", type=int, default=40, help="the masters' SCHED_FIFO priority")
+    ap.add_argument("--guest-halt-poll-ns", type=int, default=None, metavar="NS",
+                    help="a KVM guest's idle vCPUs poll NS before they halt, for the runs")
     args = ap.parse_args()
     if os.geteuid() != 0:
         print(json.dumps({"error": "needs root (veth pairs, SCHED_FIFO)"}))
@@ -89,11 +99,23 @@ def main() -> None:
     else:
         print(f"KickCAT's network_simulator not at {KICKCAT_BINARY} (source {KICKCAT_SRC}): "
               "build it with ../shared/tools/build-kickcat.sh; measuring our simulator only")
-    out: dict[str, object] = {"load_average_start": os.getloadavg(), "host_idle": host_idle(),
-                              "seconds": args.seconds, "priority": args.priority}
-    print(f"load average before: {out['load_average_start']}; host idle: {out['host_idle']}")
+    out: dict[str, object] = {"load_average_start": os.getloadavg(), "seconds": args.seconds,
+                              "priority": args.priority}
+    with guest_halt_poll(args.guest_halt_poll_ns):
+        out["host_idle"] = host_idle()
+        print(f"load average before: {out['load_average_start']}; host idle: {out['host_idle']}")
+        out["runs"] = measure(args.runs, sims, args.seconds, args.priority)
+    out["load_average_end"] = os.getloadavg()
+    print(f"load average after: {out['load_average_end']}")
+    print(json.dumps(out))
+
+
+def measure(specs: str, sims: list[tuple[str, Callable[[str, int], AbstractContextManager[None]]]],
+            seconds: float, priority: int) -> list[dict[str, object]]:
+    """Every master against every simulator for each SLAVES:HZ of ``specs``, then the
+    host's floor at that period."""
     runs: list[dict[str, object]] = []
-    for spec in args.runs.split(","):
+    for spec in specs.split(","):
         n_text, hz_text = spec.split(":")
         n, hz = int(n_text), int(hz_text)
         period_ns = round(1e9 / hz)
@@ -103,22 +125,19 @@ def main() -> None:
                 try:
                     with serve(a, n):
                         if master == "engine":
-                            r = engine_at_rate(b, period_ns / 1e9, args.seconds, args.priority)
+                            r = engine_at_rate(b, period_ns / 1e9, seconds, priority)
                         else:
-                            r = run_soem(b, args.seconds, False, args.priority, period=period_ns,
+                            r = run_soem(b, seconds, False, priority, period=period_ns,
                                          complete_access=False)
                 finally:
                     subprocess.run(["ip", "link", "del", a], check=False, capture_output=True)
                 r.update(master=master, simulator=sim_name)
                 runs.append(r)
-                print_rate(r, args.seconds, f"{master:>6} / {sim_name:<7}: ")
+                print_rate(r, seconds, f"{master:>6} / {sim_name:<7}: ")
                 time.sleep(0.5)
-        floor = host_floor(min(args.seconds, 30.0), period_ns // 1000, args.priority)
+        floor = host_floor(min(seconds, 30.0), period_ns // 1000, priority)
         runs.append({"host_floor": floor, "rate_hz": hz})
-    out["runs"] = runs
-    out["load_average_end"] = os.getloadavg()
-    print(f"load average after: {out['load_average_end']}")
-    print(json.dumps(out))
+    return runs
 
 
 if __name__ == "__main__":
