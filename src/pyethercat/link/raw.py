@@ -47,6 +47,7 @@ import contextlib
 import errno
 import fcntl
 import os
+import select
 import socket
 import struct
 import sys
@@ -149,6 +150,23 @@ class RawLink(SocketLink):
         # With PACKET_IGNORE_OUTGOING no frame of ours is queued: poll_into needs no
         # packet type (recv_into, no address tuple per frame).
         self._ignores_outgoing = ignores_outgoing
+        # A receive that must not block asks first whether anything is there: a poll
+        # costs a third of a recvfrom that raises BlockingIOError, and a loop waiting
+        # for a reply asks many times (an error notice reads as ready: recvfrom sees it).
+        self._ready = select.poll()
+        self._ready.register(sock.fileno(), select.POLLIN)
+
+    def __getstate__(self) -> dict[str, object]:
+        # (the isolated engine takes the link over in a pickle, its socket by descriptor;
+        # a poll object does not pickle: the new process registers its own)
+        state = dict(self.__dict__)
+        del state["_ready"]
+        return state
+
+    def __setstate__(self, state: dict[str, object]) -> None:
+        self.__dict__.update(state)
+        self._ready = select.poll()
+        self._ready.register(self._sock.fileno(), select.POLLIN)
 
     def _check_present(self, now: float | None = None) -> None:
         """Raise LinkError if the bound interface was deleted.
@@ -249,6 +267,17 @@ class RawLink(SocketLink):
             return  # the notice of a spell that is already over
         raise LinkError(f"receive on {self.iface} failed: {exc}") from exc
 
+    def _nothing(self, left: float | None, flags: int) -> None:
+        """Nothing came: the interface's presence now and then, the last slice of a wait."""
+        if self._closed:
+            self._check_open()
+        now = time.monotonic()
+        if now - self._presence_checked >= _PRESENCE_PERIOD:
+            self._check_present(now)
+        if flags and left is not None and left > 0:
+            # The last slice: select keeps to the time given (SO_RCVTIMEO counts ticks).
+            self._wait_readable(left)
+
     def _receive(self, left: float | None) -> bytes | None:
         sock = self._sock
         block = min(_MAX_BLOCK if left is None else left, _MAX_BLOCK) - _TICK_MARGIN
@@ -263,18 +292,12 @@ class RawLink(SocketLink):
             flags = 0
         else:
             flags = socket.MSG_DONTWAIT
+        if flags and not self._ready.poll(0):
+            return self._nothing(left, flags)
         try:
             data, addr = sock.recvfrom(MAX_FRAME + 64, flags)
         except BlockingIOError:
-            if self._closed:
-                self._check_open()
-            now = time.monotonic()
-            if now - self._presence_checked >= _PRESENCE_PERIOD:
-                self._check_present(now)
-            if flags and left is not None and left > 0:
-                # The last slice: select keeps to the time given (SO_RCVTIMEO counts ticks).
-                self._wait_readable(left)
-            return None
+            return self._nothing(left, flags)
         except OSError as exc:
             self._receive_failed(exc)
             return None

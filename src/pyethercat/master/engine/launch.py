@@ -22,8 +22,12 @@ def link_can_move(link: Link) -> str | None:
     if not isinstance(link, SocketLink):
         return (f"the link {link.name} ({type(link).__name__}) cannot be handed to another "
                 "process (a link over one socket can)")
+    # What the plan's pickle takes of it: a link may leave out what a new process makes
+    # afresh (a raw link's poll object).
+    state = link.__getstate__()
+    items = state.items() if isinstance(state, dict) else vars(link).items()
     try:
-        pickle.dumps({k: v for k, v in vars(link).items() if k != "_sock"})
+        pickle.dumps({k: v for k, v in items if k != "_sock"})
     except (pickle.PicklingError, TypeError, AttributeError) as exc:
         return f"the link {link.name} cannot be handed to another process: {exc}"
     return None
