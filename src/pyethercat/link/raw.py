@@ -293,11 +293,13 @@ class RawLink(SocketLink):
         else:
             flags = socket.MSG_DONTWAIT
         if flags and not self._ready.poll(0):
-            return self._nothing(left, flags)
+            self._nothing(left, flags)
+            return None
         try:
             data, addr = sock.recvfrom(MAX_FRAME + 64, flags)
         except BlockingIOError:
-            return self._nothing(left, flags)
+            self._nothing(left, flags)
+            return None
         except OSError as exc:
             self._receive_failed(exc)
             return None
