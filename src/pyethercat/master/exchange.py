@@ -62,6 +62,9 @@ class CycleExchange:
         self.absent: frozenset[int] = frozenset()
         #: Per (group, datagram): each slave's share of the count, in bus order.
         self._shares: dict[tuple[int, int], list[int]] = {}
+        #: Work done while the cycle's frames are on the wire (after the last send,
+        #: before the wait for the replies): time the loop would otherwise spin away.
+        self.in_flight: Callable[[], None] | None = None
 
     def exchange(self, due: tuple[int, ...], deadline: int | None
                  ) -> tuple[bool, bool, int, int, tuple[str, ...]]:
@@ -110,6 +113,8 @@ class CycleExchange:
                 sent.append(sending)
         self.last_tickets = sent
         self.last_plans = plans
+        if self.in_flight is not None:
+            self.in_flight()
         until = None if timeout is None else sched.now() + timeout
         lost = False
         back = 0
