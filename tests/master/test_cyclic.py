@@ -94,6 +94,31 @@ def test_statistics_on_a_virtual_clock():
     assert stats.frames == 100
 
 
+def test_a_cycle_that_overruns_a_little_is_followed_at_once_not_skipped():
+    """An overrun shorter than the late threshold (a quarter period) delays the next cycle;
+    a longer one skips to the next deadline ahead."""
+    seg, m = make()
+    m.pd.bring_up(m.slaves, 1.0)
+    clock = VirtualClock()
+    period = 1_000_000
+
+    def work(cycle):
+        clock.advance(10_000)
+        if cycle.index == 20:
+            clock.advance(period + 100_000)  # ends 0.11 ms after the next deadline
+        if cycle.index == 50:
+            clock.advance(period + 300_000)  # ends 0.31 ms after it: past the threshold
+
+    r = runner(m, clock, callback=work, check_interval=0)
+    stats = r.run(cycles=100)
+    assert stats.overruns == 2 and stats.skipped == 1  # only the second overrun skips
+    lat = stats.latencies()
+    assert lat[21] == 110_000 and stats.late == 0  # cycle 21 ran 0.11 ms late, not "late"
+    assert lat[22] == 0  # and cycle 22 was back on its deadline
+    assert lat[51] == 0  # after the skip: deadline 52, on time
+    assert stats.frames == 100
+
+
 def test_wkc_error_and_lost_frame_are_counted():
     seg, m = make()
     m.pd.bring_up(m.slaves, 1.0)

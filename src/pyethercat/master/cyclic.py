@@ -485,12 +485,16 @@ class CyclicRunner:
                     if stats.callback_overruns in (1, 10, 100, 1000):
                         self.log(f"callback overran the cycle ({(t2 - t1) / 1000:.0f} us); "
                                  f"{stats.callback_overruns} so far")
-                # Resume at the first deadline still ahead instead of bursting to catch up.
-                steps = -(-(t2 - deadline) // period)
-                if steps > 1:
+                if t2 - nxt > self.late_threshold_ns:
+                    # Too late for the next deadline as well: resume at the first one
+                    # still ahead instead of bursting to catch up.
+                    steps = -(-(t2 - deadline) // period)
                     stats.skipped += int(steps - 1)
                     k += int(steps - 1)
                     stats.restart_period()
+                # (else the next cycle starts at once, less late than a late cycle: as a
+                # loop on absolute timers does; a frame a few microseconds late serves the
+                # slaves better than none, whose watchdogs and SYNC-driven outputs wait)
             k += 1
             done += 1
             if self._waiting:
