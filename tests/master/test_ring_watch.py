@@ -102,3 +102,30 @@ def test_a_bad_cable_in_a_tree_is_named_within_a_cycle_or_two_of_its_first_crc_e
     (f,) = [e.fault for e in m.ring.events if e.fault.kind == "crc"]
     assert f.where == "bad cable between slave 0 port 3 and slave 1 port 0"
     assert named <= 1000, f"named after {named} cycles"
+
+
+def test_cycles_that_keep_failing_ask_for_readings_at_a_bounded_duty() -> None:
+    # Reading and evaluating every slave is work in the loop's thread. Cycles that
+    # keep failing without a slave saying why (frames lost on the way: no IRQ) ask for
+    # readings, but each waits ten times the last one's cost: a reading of 3 ms here
+    # allows one per 30 ms at most. (Without the wait, a reading after every failed
+    # cycle: on a real clock the readings made cycles late, which failed them, which
+    # asked for more readings.)
+    seg, m, r, w = start(ring=False)
+    clock = r.clock
+    evaluate = w._evaluate
+
+    def costly(runner, pending):  # noqa: ANN001, ANN202
+        evaluate(runner, pending)
+        clock.advance(3_000_000)
+
+    w._evaluate = costly  # type: ignore[method-assign]
+    seg.drop_probability(0.2, seed=7)  # a fifth of the frames lost from now on
+    r.run(cycles=5)
+    before = w.diagnoses
+    start_ns = clock.now_ns()
+    r.run(cycles=300)
+    span_ms = (clock.now_ns() - start_ns) / 1e6
+    assert r.stats.lost_frames > 30  # the cycles did keep failing
+    readings = w.diagnoses - before
+    assert 1 <= readings <= span_ms / 30 + 1
