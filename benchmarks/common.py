@@ -17,6 +17,8 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from pyethercat.realtime import CPUIDLE_DRIVER, GUEST_HALT_POLL_NS
+
 
 def veth() -> tuple[str, str]:
     """A fresh veth pair ``pyecat-<tag>a/b``, up and with carrier (the caller removes it)."""
@@ -34,7 +36,7 @@ def veth() -> tuple[str, str]:
     return a, b
 
 
-_HALT_POLL = Path("/sys/module/haltpoll/parameters/guest_halt_poll_ns")
+_HALT_POLL = Path("/sys") / GUEST_HALT_POLL_NS
 
 
 def host_idle() -> dict[str, object]:
@@ -43,7 +45,7 @@ def host_idle() -> dict[str, object]:
     needs the host to run it again when a frame comes: tens of microseconds more)."""
     out: dict[str, object] = {}
     with contextlib.suppress(OSError):
-        out["cpuidle_driver"] = Path("/sys/devices/system/cpu/cpuidle/current_driver").read_text().strip()
+        out["cpuidle_driver"] = (Path("/sys") / CPUIDLE_DRIVER).read_text().strip()
     with contextlib.suppress(OSError, ValueError):
         out["guest_halt_poll_ns"] = int(_HALT_POLL.read_text())
     return out

@@ -20,8 +20,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-__all__ = ["RealtimeReport", "apply_realtime", "die_with_parent", "idle_halt_hint", "lock_memory",
-           "pin_cpu", "SpinBudget", "quiet_collector", "set_fifo", "set_timer_slack"]
+__all__ = ["CPUIDLE_DRIVER", "GUEST_HALT_POLL_NS", "RealtimeReport", "apply_realtime",
+           "die_with_parent", "idle_halt_hint", "lock_memory", "pin_cpu", "SpinBudget",
+           "quiet_collector", "set_fifo", "set_timer_slack"]
 
 # <sys/mman.h>: lock what is mapped now and what will be; MCL_ONFAULT (Linux 4.4)
 # locks pages as they are first touched, so address space that is only reserved
@@ -171,6 +172,12 @@ def on_virtual_machine() -> bool:
     return False
 
 
+#: Under /sys: the cpuidle driver in use, and (``haltpoll``, a KVM guest) how long an idle
+#: vCPU polls before it halts, in ns. (Also read and set by the benchmarks.)
+CPUIDLE_DRIVER = "devices/system/cpu/cpuidle/current_driver"
+GUEST_HALT_POLL_NS = "module/haltpoll/parameters/guest_halt_poll_ns"
+
+
 def idle_halt_hint(cycle_s: float, sys_root: Path = Path("/sys")) -> str | None:
     """What to change on a KVM guest whose idle vCPUs halt at once, for a loop with cycles
     under 1 ms; None when that is not the case (or not known).
@@ -182,8 +189,8 @@ def idle_halt_hint(cycle_s: float, sys_root: Path = Path("/sys")) -> str | None:
     µs with 200 µs; docs/realtime.md)."""
     if cycle_s >= 1e-3:
         return None
-    cpuidle = sys_root / "devices/system/cpu/cpuidle/current_driver"
-    poll = sys_root / "module/haltpoll/parameters/guest_halt_poll_ns"
+    cpuidle = sys_root / CPUIDLE_DRIVER
+    poll = sys_root / GUEST_HALT_POLL_NS
     try:
         if cpuidle.read_text().strip() != "haltpoll" or int(poll.read_text()) != 0:
             return None

@@ -217,8 +217,8 @@ def test_mailbox_error_app_answers_unsupported_protocol() -> None:
 
 def test_coe_io_behaviour_per_instance_for_all_and_for_some_instances() -> None:
     # Each instance echoes with its own settings (0x8000:02 offset, 0x8000:03 invert),
-    # whether a frame brought outputs for every instance or a run of them (views, in
-    # place) or for a few here and there (gathered and scattered).
+    # whether a frame brought outputs for every instance (columns cut to the instances,
+    # no index) or for some of them (gathered and scattered).
     coe = DEVICES["coe-io"]
     models: dict[object, DeviceModel] = {}
     runs = [behaviour(coe, parse_sii(coe.sii_image(serial=s)), models) for s in (1, 2, 3)]
@@ -240,12 +240,12 @@ def test_coe_io_behaviour_per_instance_for_all_and_for_some_instances() -> None:
     assert (f(0x6000, 4)[:3] - count0).tolist() == [1, 1, 1]
     f(0x7000, 1)[:3] = [0x01, 0x02, 0x03]
     f(0x7000, 3)[:3] = [7, 7, 7]
-    model.compute(np.array([1]))           # outputs of the second only (a run: views)
+    model.compute(np.array([1]))           # outputs of the second only (gathered)
     assert f(0x6000, 1)[:3].tolist() == [0x0F, 0xFD, 0xF0]
     assert f(0x6000, 3)[:3].tolist() == [0, 2, 20]
     assert (f(0x6000, 4)[:3] - count0).tolist() == [1, 2, 1]
     f(0x7000, 1)[:3] = [0x11, 0x12, 0x13]
-    model.compute(np.array([0, 2]))        # the first and the third (not a run: gathered)
+    model.compute(np.array([0, 2]))        # the first and the third (gathered)
     assert f(0x6000, 1)[:3].tolist() == [0x11, 0xFD, 0xEC]
     assert f(0x6000, 3)[:3].tolist() == [8, 2, 7]
     assert (f(0x6000, 4)[:3] - count0).tolist() == [2, 2, 2]

@@ -233,7 +233,9 @@ class CyclicRunner:
         #: SCHED_FIFO priority the loop thread asks for when it starts (0: none).
         self.thread_priority = 0
         #: Objects riding along every cycle (``before_cycle(runner)``,
-        #: ``after_cycle(runner, tickets, ok)``): the ring watch.
+        #: ``after_cycle(runner, tickets, ok)``, and optionally ``in_flight(runner)``:
+        #: work done while the cycle's frames are on the wire): the ring watch, the
+        #: isolated engine's rider.
         self.riders: list[Any] = []
         #: Distributed clocks: the FRMW (and in reference mode the time write) in every
         #: cycle's first frame, the phase lock moving the deadlines, the sync monitor.
@@ -242,6 +244,7 @@ class CyclicRunner:
         #: The frames of each cycle (prepared frames, the hot path).
         self.xchg = CycleExchange(scheduler, config, self.groups, self.clock, self.stats,
                                   self.watch, dc, self._dc, frame_timeout)
+        self.xchg.in_flight = self._riders_in_flight
         #: Where the next run() continues the cycle grid (with DC).
         self._resume_ns: int | None = None
         if dc is not None and dc.cycle_ns != self.period_ns:
@@ -526,6 +529,12 @@ class CyclicRunner:
             raise ConfigError("the cyclic loop is running: exchange_once() would race it")
         ok, lost, _back, _rtt, _names = self.xchg.exchange(self._all_due, None)
         return ok and not lost
+
+    def _riders_in_flight(self) -> None:
+        for rider in self.riders:
+            work = getattr(rider, "in_flight", None)
+            if work is not None:
+                work(self)
 
     def _exchange(self, due: tuple[int, ...], k: int, deadline: int, t0: int
                   ) -> tuple[bool, bool, int, tuple[str, ...]]:

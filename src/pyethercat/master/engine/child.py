@@ -177,7 +177,6 @@ class EngineRider:
         self._next_request = 0
         #: A publish the last cycle owes: done while the next cycle's frames are out.
         self._publish_due = False
-        runner.xchg.in_flight = self.while_in_flight
 
     # -- the cycle ----------------------------------------------------------------------------
 
@@ -234,7 +233,7 @@ class EngineRider:
         if self.user_gone:
             self._leave_step(now)
 
-    def while_in_flight(self) -> None:
+    def in_flight(self, runner: CyclicRunner) -> None:
         """The statistics and health the last cycle owes, published while this cycle's
         frames are on the wire (25 us and more of Python that would otherwise lengthen
         the cycle: at 10 kHz every tenth one ran past the next deadline)."""
