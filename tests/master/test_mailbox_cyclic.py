@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -21,7 +22,7 @@ from pyethercat.master.master import Master
 from pyethercat.wire import registers as reg
 from pyethercat.wire.al import AlState
 from pyethercat.wire.datagram import Command
-from pyethercat.wire.frame import decode_frame
+from pyethercat.wire.frame import decode_frame, encode_frame
 
 STATUS = reg.sm_address(1) + reg.SM_STATUS
 PATTERN = bytes(range(256)) * 16
@@ -163,3 +164,91 @@ def test_runner_public_wait_and_group_status() -> None:
     finally:
         m.stop()
     assert not runner.wait_exchanges(name, 1, timeout=0.5)  # stopped: no wait
+
+
+def test_lost_cyclic_frames_cost_a_cycle_not_a_poll_frame() -> None:
+    """A cyclic exchange gone wrong leaves the group's working counter off until the next one.
+
+    A mailbox waiting for its status byte then waits one exchange more
+    instead of polling with a frame of its own. Here, across segmented
+    uploads with late replies, of every four cyclic frames one is lost and
+    one comes back with working counter 0 (the slave did not answer it).
+    """
+    _seg, apps, drop, _link = coe_segment(1)
+    cyclic = 0
+
+    def lossy(frame: bytes) -> bytes | None:
+        nonlocal cyclic
+        reply = drop(frame)
+        if reply is None or not any(d.command == Command.LRW
+                                    for d in decode_frame(frame).datagrams):
+            return reply
+        cyclic += 1
+        if cyclic % 4 == 0:
+            return None
+        if cyclic % 4 == 2:
+            back = decode_frame(reply)
+            return encode_frame([replace(d, wkc=0) if d.command == Command.LRW else d
+                                 for d in back.datagrams], back.src, back.dst)
+        return reply
+
+    m = Master(PairLink.responder_link(lossy), timeout=0.002)
+    m.coe_pdo_config = False
+    m.scan()
+    runner = m.start(cycle=0.001)
+    try:
+        apps[0].late = 3
+        s = m.slaves[0]
+        assert s.mbx is not None
+        before = len(drop.frames)
+        polls = s.mbx.stats.status_polls
+        lost, bad = runner.stats.lost_frames, runner.stats.wkc_errors
+        for _ in range(3):
+            assert s.sdo_read(0x2001) == PATTERN
+        # cyclic exchanges went wrong while it waited
+        assert runner.stats.lost_frames - lost >= 10 and runner.stats.wkc_errors - bad >= 10
+        assert s.mbx.stats.status_polls == polls
+        assert _datagrams(drop.frames[before:], Command.FPRD, STATUS) == 0
+    finally:
+        runner.stop()
+
+
+class _ScriptedRunner:
+    """Just what CyclicMailboxStatus reads of a runner, with scripted verdicts."""
+
+    def __init__(self, verdicts: list[bool]) -> None:
+        from types import SimpleNamespace
+
+        self.running = True
+        self.config = SimpleNamespace(slaves={0: SimpleNamespace(group="g",
+                                                                 mailbox_status_offset=1)})
+        self.groups = [SimpleNamespace(name="g")]
+        self.verdicts = verdicts
+        self.exchanges = 0
+        self.waits: list[int] = []
+
+    def wait_exchanges(self, name: str, count: int, timeout: float) -> bool:
+        self.waits.append(count)
+        self.exchanges += count
+        return True
+
+    def group_status(self, name: str) -> object:
+        from pyethercat.master.cyclic import GroupStatus
+
+        ok = self.verdicts.pop(0)
+        image = memoryview(bytes([0, reg.SM_STATUS_MAILBOX_FULL if ok else 0xFF]))
+        return GroupStatus(name, self.exchanges, ok, image)
+
+
+def test_cyclic_status_waits_out_a_bad_counter_then_gives_up() -> None:
+    from pyethercat.master.mailboxes import CyclicMailboxStatus
+
+    runner = _ScriptedRunner([False, False, True])
+    source = CyclicMailboxStatus(lambda: runner, 0)  # type: ignore[arg-type, return-value]
+    assert source(1.0) == reg.SM_STATUS_MAILBOX_FULL  # the byte of the good exchange
+    assert runner.waits == [2, 1, 1]
+    # a counter that stays off: a few more exchanges, then None (the mailbox polls)
+    runner.verdicts = [False] * (CyclicMailboxStatus.RETRIES + 1)
+    runner.waits.clear()
+    assert source(1.0) is None
+    assert runner.waits == [2] + [1] * CyclicMailboxStatus.RETRIES

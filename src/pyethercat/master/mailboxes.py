@@ -25,6 +25,7 @@ does for mailboxes across slaves:
 from __future__ import annotations
 
 import logging
+import time
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any, TypeVar
 
@@ -62,10 +63,16 @@ class CyclicMailboxStatus:
     image through the FMMU ``master.config`` maps. A call waits until two
     more exchanges of the slave's group completed (the second one began
     after the call: the byte is newer than the caller's last SM1 read) and
-    returns the byte. None when no cyclic exchange runs, the slave has no
-    status byte, nothing came within ``budget`` or the group's working
-    counter was off (the mailbox then polls with a frame).
+    returns the byte. When the group's working counter was off (a frame
+    lost or a slave not answering since), it waits for one more exchange,
+    up to :attr:`RETRIES` times: one lost cyclic frame costs a cycle, not a
+    poll frame. None when no cyclic exchange runs, the slave has no status
+    byte, nothing came within ``budget`` or the counter stayed off (the
+    mailbox then polls with a frame).
     """
+
+    #: Further exchanges awaited while the group's working counter is off.
+    RETRIES = 3
 
     def __init__(self, runner: Callable[[], CyclicRunner | None], position: int) -> None:
         self._runner = runner
@@ -98,10 +105,19 @@ class CyclicMailboxStatus:
         runner, group, at = where
         # Two more exchanges: the second began after this call, so its byte is newer
         # than the caller's last SM1 read. (False from the loop thread itself.)
-        if budget > 0 and not runner.wait_exchanges(group, 2, budget):
-            return None
-        status = runner.group_status(group)
-        return status.image[at] if status.wkc_ok else None
+        limit = time.monotonic() + budget
+        wait = 2
+        for _ in range(self.RETRIES + 1):
+            left = limit - time.monotonic()
+            if budget > 0 and (left <= 0 or not runner.wait_exchanges(group, wait, left)):
+                return None
+            status = runner.group_status(group)
+            if status.wkc_ok:
+                return status.image[at]
+            if budget <= 0:
+                return None
+            wait = 1  # a lost frame leaves the counter off until the next exchange completes
+        return None
 
 
 class MailboxService:
