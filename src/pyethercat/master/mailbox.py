@@ -22,7 +22,8 @@ mailbox mode as the ET1100 datasheet section II "SyncManager" describes):
   (``master.config`` does it for every mailbox slave of a group),
   ``Mailbox.status_source`` takes it from the process image instead: the
   mailbox waits for a cycle that began after its last SM1 read and looks at
-  the byte; no poll frames at all.
+  the byte; no poll frames while the group's working counter comes right
+  (a lost cyclic frame costs a cycle's wait).
 - **Fetch**: FPRD of the whole SM1; reading the last byte empties it.
 - **Repeat request** (SOEM ``ec_main.c`` ``ecx_mbxreceive``, SOES ``esc.c``
   ``ESC_mbxprocess``): when a fetch may have emptied SM1 but its
