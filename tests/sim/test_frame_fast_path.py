@@ -1,7 +1,8 @@
 """The frame fast paths of Segment.process answer exactly as the general path.
 
 A segment with the fast paths switched off (``commands.brd_fast = False``: every BRD
-goes through the general broadcast path; no memo of single-datagram frame
+goes through the general broadcast path; ``commands.fprd_fast = False``: every
+FPRD through the general addressed path; no memo of single-datagram frame
 parses) is the reference; the same frames go to both and the replies and the
 memories must be identical byte for byte. The fast segment ORs short columns
 as Python ints or, with ``commands.brd_py_max = 0``, with one numpy reduce.
@@ -20,7 +21,7 @@ from pyethercat.clock import VirtualClock
 from pyethercat.sim.segment import Segment
 from pyethercat.wire import registers as R
 from pyethercat.wire.datagram import Command, Datagram
-from pyethercat.wire.frame import encode_frame
+from pyethercat.wire.frame import decode_frame, encode_frame
 
 
 class _NoMemo(dict):  # type: ignore[type-arg]
@@ -38,6 +39,7 @@ def _pair(profiles: list[str], python_ints: bool = True) -> tuple[Segment, Segme
             seg.commands.brd_py_max = 0
         if not fast:
             seg.commands.brd_fast = False
+            seg.commands.fprd_fast = False
             seg._parsed = _NoMemo()
         for i, prof in enumerate(profiles):
             seg.add_slave(spec(f"s{i}", prof))
@@ -54,6 +56,12 @@ _OP = st.one_of(
     st.tuples(st.just("brd"), _REGION, st.integers(-1, 9), st.integers(1, 8), st.binary(max_size=8)),
     st.tuples(st.just("al"), st.sampled_from([1, 2, 3, 4, 0x11])),
     st.tuples(st.just("mask"), st.integers(0, 0xFFFF)),
+    # Station addresses 0x1000 + position (APWR), some slaves twice the same.
+    st.tuples(st.just("addr"), st.lists(st.integers(0, 5), min_size=1, max_size=6)),
+    # FPRDs of one station, two in a frame after a NOP, the second after a write
+    # to the same station's address or event mask.
+    st.tuples(st.just("fprd"), st.integers(0x0FFF, 0x1006), _REGION, st.integers(0, 9),
+              st.integers(1, 8), st.sampled_from([None, R.STATION_ADDRESS, R.ECAT_EVENT_MASK])),
     # A BRD frame with some bytes changed and/or cut short (malformed, other type, C bit...).
     st.tuples(st.just("mangle"), _REGION, st.integers(1, 8),
               st.lists(st.tuples(st.integers(12, 40), st.integers(0, 255)), max_size=3),
@@ -64,7 +72,7 @@ _OP = st.one_of(
 @settings(max_examples=60, deadline=None)
 @given(st.lists(st.sampled_from(["ET1100", "ET1200", "LAN9252"]), min_size=1, max_size=6),
        st.lists(_OP, min_size=1, max_size=25), st.booleans())
-def test_brd_fast_path_matches_general_path(profiles: list[str], ops: list[tuple], python_ints: bool) -> None:
+def test_fast_paths_match_general_path(profiles: list[str], ops: list[tuple], python_ints: bool) -> None:
     fast, ref = _pair(profiles, python_ints)
     for op in ops:
         frames: list[bytes] = []
@@ -85,6 +93,19 @@ def test_brd_fast_path_matches_general_path(profiles: list[str], ops: list[tuple
             frames.append(encode_frame([Datagram.device(Command.BRD, 0, ado, n),
                                         Datagram.device(Command.NOP, 0, 0, 1),
                                         Datagram.device(Command.BRD, 0, ado, payload)]))
+        elif op[0] == "addr":
+            frames.append(encode_frame([
+                Datagram.positional(Command.APWR, i, R.STATION_ADDRESS,
+                                    struct.pack("<H", 0x1000 + (op[1][i] if i < len(op[1]) else i)))
+                for i in range(6)]))
+        elif op[0] == "fprd":
+            _, station, base, delta, n, between = op
+            ado = max(0, min(base + delta, 0xFFFF))
+            read = Datagram.device(Command.FPRD, station, ado, n)
+            frames.append(encode_frame([read]))
+            middle = (Datagram.device(Command.NOP, 0, 0, 1) if between is None else
+                      Datagram.device(Command.FPWR, station, between, struct.pack("<H", 0x1003)))
+            frames.append(encode_frame([read, middle, read]))
         elif op[0] == "al":
             frames.append(encode_frame([Datagram.device(Command.BWR, 0, R.AL_CONTROL, struct.pack("<H", op[1]))]))
         elif op[0] == "mangle":
@@ -175,3 +196,66 @@ def test_brd_after_a_loop_control_write_in_the_same_frame_sees_the_new_dl_status
                               Datagram.positional(Command.APWR, 1, R.DL_CONTROL_LOOP, bytes([loop])),
                               brd])
         assert fast.process(frame) == ref.process(frame)
+
+
+def _addressed(seg: Segment, count: int) -> None:
+    for i in range(count):
+        one(seg, Datagram.positional(Command.APWR, i, R.STATION_ADDRESS, struct.pack("<H", 0x1000 + i)))
+
+
+def test_fprd_of_al_and_dl_status_clears_the_slaves_event_every_time_it_is_raised() -> None:
+    fast, ref = _pair(["ET1100", "ET1200", "LAN9252"])
+    for seg in (fast, ref):
+        _addressed(seg, 3)
+        mask = R.EcatEvent.AL_STATUS | R.EcatEvent.DL_STATUS
+        one(seg, Datagram.device(Command.BWR, 0, R.ECAT_EVENT_MASK, struct.pack("<H", mask)))
+        one(seg, Datagram.device(Command.BRD, 0, R.DL_STATUS, 2))  # DL events of the power-up
+    al = Datagram.device(Command.FPRD, 0x1001, R.AL_STATUS, 6)
+    for state in (2, 1, 2):
+        for seg in (fast, ref):
+            one(seg, Datagram.device(Command.BWR, 0, R.AL_CONTROL, struct.pack("<H", state)))
+            assert one(seg, Datagram.device(Command.NOP, 0, 0, 1)).irq & R.EcatEvent.AL_STATUS
+            # slave 1's read clears its event only; the others still raise it
+            d = one(seg, al)
+            assert d.data[:2] == struct.pack("<H", state) and d.wkc == 1
+            assert d.irq & R.EcatEvent.AL_STATUS  # (the field shows the events before the read)
+            one(seg, Datagram.device(Command.FPRD, 0x1000, R.AL_STATUS, 2))
+            assert one(seg, Datagram.device(Command.NOP, 0, 0, 1)).irq & R.EcatEvent.AL_STATUS
+            one(seg, Datagram.device(Command.FPRD, 0x1002, R.AL_STATUS, 2))
+            assert one(seg, Datagram.device(Command.NOP, 0, 0, 1)).irq == 0
+            one(seg, al)  # nothing pending now: the plan answers
+    assert any(fast.commands.fprd_plans.values()) and not any(ref.commands.fprd_plans.values())
+    # a link change raises DL status events; one FPRD of 0x0110 per slave clears them
+    for seg in (fast, ref):
+        one(seg, Datagram.device(Command.FPWR, 0x1001, R.DL_CONTROL_LOOP, b"\x0c"))
+        assert one(seg, Datagram.device(Command.NOP, 0, 0, 1)).irq & R.EcatEvent.DL_STATUS
+        for st in (0x1000, 0x1001):
+            one(seg, Datagram.device(Command.FPRD, st, R.DL_STATUS, 2))
+        assert one(seg, Datagram.device(Command.NOP, 0, 0, 1)).irq == 0
+    assert np.array_equal(fast.memory.mem[:3], ref.memory.mem[:3])
+
+
+def test_fprd_follows_a_new_station_address_and_loop_in_the_same_frame() -> None:
+    fast, ref = _pair(["ET1100", "ET1100", "ET1100"])
+    read = Datagram.device(Command.FPRD, 0x1002, R.TYPE, 8)
+    for seg in (fast, ref):
+        _addressed(seg, 3)
+        one(seg, read)
+        one(seg, read)  # plan cached
+    assert any(fast.commands.fprd_plans.values())
+    frames = [
+        # slave 2 takes address 0x2002: the read of 0x1002 after it finds nobody
+        encode_frame([Datagram.device(Command.FPWR, 0x1002, R.STATION_ADDRESS, b"\x02\x20"),
+                      read, Datagram.device(Command.FPRD, 0x2002, R.STATION_ADDRESS, 2)]),
+        # slave 1 closes its port 1: slave 2 is off the route from then on
+        encode_frame([Datagram.device(Command.FPRD, 0x2002, R.STATION_ADDRESS, 2),
+                      Datagram.device(Command.FPWR, 0x1001, R.DL_CONTROL_LOOP, b"\x0c"),
+                      Datagram.device(Command.FPRD, 0x2002, R.STATION_ADDRESS, 2)]),
+        encode_frame([Datagram.device(Command.FPRD, 0x2002, R.STATION_ADDRESS, 2)]),
+        # the old address in a later frame: nobody has it (no plan left from before)
+        encode_frame([read]),
+    ]
+    replies = [fast.process(f) for f in frames]
+    assert replies == [ref.process(f) for f in frames]
+    wkcs = [[d.wkc for d in decode_frame(r).datagrams] for r in replies if r is not None]
+    assert wkcs == [[1, 0, 1], [1, 1, 1], [0], [0]]  # (a loop change holds from the next frame)

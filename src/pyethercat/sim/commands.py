@@ -32,7 +32,7 @@ from typing import Any, Literal, Protocol
 import numpy as np
 import numpy.typing as npt
 
-from pyethercat.sim.access import SIDE_EFFECT_MASK, WRITE_TRIGGER
+from pyethercat.sim.access import SIDE_EFFECT_MASK, SM_LOWEST, WRITE_TRIGGER
 from pyethercat.sim.dc import DcClocks
 from pyethercat.sim.esc import Esc
 from pyethercat.sim.host import Dirty
@@ -42,7 +42,7 @@ from pyethercat.sim.profiles import EscProfile
 from pyethercat.wire import registers as R
 from pyethercat.wire.datagram import WKC, Command
 
-__all__ = ["READS", "RMW", "WRITES", "BrdPlan", "CommandHost", "Commands", "station_map"]
+__all__ = ["READS", "RMW", "WRITES", "BrdPlan", "CommandHost", "Commands", "FprdPlan", "station_map"]
 
 I64 = npt.NDArray[np.int64]
 U8 = npt.NDArray[np.uint8]
@@ -103,6 +103,23 @@ class BrdPlan:
         self.dw: struct.Struct = WKC
 
 
+class FprdPlan:
+    """The frame path's FPRD of one plain register range of one slave.
+
+    ``source`` is the range in the segment's memory (the reply's data as it
+    is now), ``event`` the slave's ECAT event request byte 0x0210 there and
+    ``clear`` the events reading the range clears (DL status, AL status):
+    while one of them is pending, the general path runs and clears it.
+    """
+
+    __slots__ = ("source", "event", "clear")
+
+    def __init__(self, source: memoryview, event: memoryview, clear: int) -> None:
+        self.source = source
+        self.event = event
+        self.clear = clear
+
+
 class CommandHost(Protocol):
     """What the command rules need of the segment."""
 
@@ -140,6 +157,11 @@ class Commands:
         #: BRDs of 1/2/4/8-byte registers handled by the frame path itself
         #: (tests compare with the general path by switching this off).
         self.brd_fast = True
+        #: FPRDs of plain registers handled by the frame path itself, by the int
+        #: key (address field, length, master port): see :meth:`fprd_plan`. False
+        #: remembers a shape that takes the general path.
+        self.fprd_plans: dict[int, FprdPlan | Literal[False]] = {}
+        self.fprd_fast = True
 
     def add_slave(self, esc: Esc) -> None:
         if esc.profile not in self.profiles:
@@ -158,6 +180,7 @@ class Commands:
     def invalidate(self, sm_changed: bool = False) -> None:
         """Forget cached plans (slaves or power changed; ``sm_changed``: SM areas only)."""
         self.brd_plans.clear()
+        self.fprd_plans.clear()
         self._fast_ok.clear()
         if not sm_changed:
             self._takes.clear()
@@ -370,6 +393,41 @@ class Commands:
             self.host.event_bits &= ~clear
             self.host.invalidate(Dirty.IRQ)
         return len(rows)
+
+    def fprd_plan(self, stations: dict[int, list[int]], passes: I64, adp: int, ado: int,
+                  n: int) -> FprdPlan | Literal[False]:
+        """How the frame path may answer an FPRD of ``n`` bytes at ``ado`` of station ``adp``.
+
+        A plan when one slave on the route has the address and the range is a
+        plain register read for its chip: implemented, below the SM-governed
+        memory, and none of the registers a read brings up to date first
+        (SII control, DC system time, SYNC status). Valid while the route and
+        the station addresses stay as they were (the plans are dropped when
+        either is compiled again); False: the general path.
+        """
+        lo, hi = ado, ado + n
+        if (not self.fprd_fast or n == 0 or hi > SM_LOWEST
+                or (lo < R.SII_CONTROL + 2 and hi > R.SII_CONTROL)
+                or (lo < R.DC_SYSTEM_TIME + 8 and hi > R.DC_SYSTEM_TIME)
+                or (lo <= R.DC_SYNC1_STATUS and hi > R.DC_SYNC0_STATUS)):
+            return False
+        hits = stations.get(adp)
+        if hits is None or len(hits) != 1 or hits[0] >= len(passes):
+            return False
+        s = int(passes[hits[0]])
+        esc = self.host.escs[s]
+        if hi > len(esc.row) or not esc.impl[lo:hi].any():
+            return False
+        memory = self.host.memory
+        base = s * memory.stride
+        clear = 0
+        if lo < R.DL_STATUS + 2 and hi > R.DL_STATUS:
+            clear |= _EV_DL_STATUS
+        if lo < R.AL_STATUS + 2 and hi > R.AL_STATUS:
+            clear |= _EV_AL_STATUS
+        flat = memory.flat.data
+        return FprdPlan(flat[base + lo: base + hi],
+                        flat[base + R.ECAT_EVENT_REQUEST: base + R.ECAT_EVENT_REQUEST + 1], clear)
 
     def _brd_plan(self, route: Route, passes: I64, lo: int, hi: int) -> BrdPlan:
         host = self.host

@@ -129,6 +129,7 @@ class CompiledState:
             self.topology_dirty = False
             self.invalidate(Dirty.ADDRESSING | Dirty.FMMU | Dirty.IRQ)
             self._commands.brd_plans.clear()
+            self._commands.fprd_plans.clear()
         return self.route
 
     def route_from(self, port: int) -> Route:
@@ -168,6 +169,7 @@ class CompiledState:
 
     def compile_addressing(self) -> None:
         self.stations = station_map(self._memory, self.walk().passes)
+        self._commands.fprd_plans.clear()
         self._computed[_ADDRESSING] = self._inval[_ADDRESSING]
         self.addressing_stale = False
 

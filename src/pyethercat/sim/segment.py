@@ -96,6 +96,7 @@ I64 = npt.NDArray[np.int64]
 #: Ethernet FCS bytes (on the wire, not in the frames we exchange).
 FCS_SIZE = 4
 _BRD = int(Command.BRD)
+_FPRD = int(Command.FPRD)
 _LWR = int(Command.LWR)
 _LRD = int(Command.LRD)
 #: Addressing class of each command code (IntEnum compares cost ~0.1 us each on the
@@ -160,6 +161,7 @@ class Segment:
         self._parsed: dict[bytes, tuple[int, list[Head], bool]] = {}
         # Shared with the parts (never rebound there): the frame path reads them directly.
         self._bplan = self.commands.brd_plans
+        self._fplan = self.commands.fprd_plans
         self._corrupt = self.faults.corrupt
         self._rates = self.faults.rates
         self._sync = self.dc.sync.sync_next
@@ -489,10 +491,29 @@ class Segment:
             state.compile_irq()
         bplan = self._bplan
         fast_key = (count << 32) | (state.entry << 48)
+        fplans = self._fplan
+        # FPRD plans hold for the whole route (not a frame a closed port or a CRC error cut)
+        fprd_key = -1 if count != route.count else state.entry << 48
         for off, cmd, address, lw, irq, n in heads:
             doff = off + HEADER_SIZE
             if set_c:
                 lw |= CIRCULATING_BIT
+            if cmd == _FPRD and fprd_key >= 0 and not state.addressing_stale \
+                    and not state.topology_dirty:
+                # FPRD of a plain register of one slave (the ring diagnosis reads three per
+                # slave, mailbox polls one): the bytes copied, no call per datagram.
+                key = address | (n << 32) | fprd_key
+                fp = fplans.get(key)
+                if fp is None:
+                    fp = self.commands.fprd_plan(state.stations, route.passes, address & 0xFFFF,
+                                                 address >> 16, n)
+                    fplans[key] = fp
+                if fp and not (fp.clear and fp.event[0] & fp.clear):
+                    buf[doff:doff + n] = fp.source
+                    HEADER_TAIL.pack_into(buf, off + 2, address, lw, irq | state.irq)
+                    wkc_off = doff + n
+                    WKC.pack_into(buf, wkc_off, (WKC.unpack_from(buf, wkc_off)[0] + 1) & 0xFFFF)
+                    continue
             if cmd == _BRD:
                 plan = bplan.get((address & 0xFFFF0000) | n | fast_key)
                 if plan is not None and not plan.clear & self.event_bits and not state.topology_dirty:
