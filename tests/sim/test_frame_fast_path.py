@@ -229,8 +229,8 @@ def test_fprd_of_al_and_dl_status_clears_the_slaves_event_every_time_it_is_raise
     for seg in (fast, ref):
         one(seg, Datagram.device(Command.FPWR, 0x1001, R.DL_CONTROL_LOOP, b"\x0c"))
         assert one(seg, Datagram.device(Command.NOP, 0, 0, 1)).irq & R.EcatEvent.DL_STATUS
-        for st in (0x1000, 0x1001):
-            one(seg, Datagram.device(Command.FPRD, st, R.DL_STATUS, 2))
+        for station in (0x1000, 0x1001):
+            one(seg, Datagram.device(Command.FPRD, station, R.DL_STATUS, 2))
         assert one(seg, Datagram.device(Command.NOP, 0, 0, 1)).irq == 0
     assert np.array_equal(fast.memory.mem[:3], ref.memory.mem[:3])
 
