@@ -21,20 +21,29 @@ from pyethercat.sim.ring import ring_link
 from pyethercat.sim.topology import load_topology
 from pyethercat.wire import registers as R
 from pyethercat.wire.al import AlState
+from pyethercat.wire.datagram import Command
+from pyethercat.wire.frame import decode_frame
 
 DEMO = Path(__file__).resolve().parents[2] / "examples" / "demo.toml"
 
 
-def start(ring: bool, interval: float = 10.0):
+def start(ring: bool, interval: float = 10.0, cycle: float = 0.001,
+          frames: list[bytes] | None = None):
     clock = VirtualClock()
     seg = load_topology(DEMO).build(clock=clock)
-    link = ring_link(seg) if ring else PairLink.responder_link(seg.process)
+
+    def respond(frame: bytes) -> bytes | None:
+        if frames is not None:
+            frames.append(frame)
+        return seg.process(frame)
+
+    link = ring_link(seg) if ring else PairLink.responder_link(respond)
     m = Master(link, clock=clock)
     m.scan()
     cfg = m.configure()
     m.pd.bring_up(m.slaves, 2.0)
     r = CyclicRunner(m.scheduler, cfg, m.images, m.slaves, clock=clock, check_interval=0,
-                     recover=m.pd.recover)
+                     recover=m.pd.recover, cycle=cycle)
     # A long interval: whatever is found below was found because the loop noticed it.
     w = RingWatch(m.ring, interval=interval, log=r.log)
     r.riders.append(w)
@@ -129,3 +138,29 @@ def test_cycles_that_keep_failing_ask_for_readings_at_a_bounded_duty() -> None:
     assert r.stats.lost_frames > 30  # the cycles did keep failing
     readings = w.diagnoses - before
     assert 1 <= readings <= span_ms / 30 + 1
+
+
+def test_the_interval_reading_rides_a_tenth_of_each_cycles_wire_time() -> None:
+    # Reading every slave at once put three datagrams per slave into the next cyclic
+    # frames: at 4 kHz and 100 slaves five cycles late every interval. The interval's
+    # reading is paced: at 10 kHz a cycle carries 125 bytes of it (10 us of wire).
+    frames: list[bytes] = []
+    seg, m, r, w = start(ring=False, interval=0.002, cycle=0.0001, frames=frames)
+    before = w.diagnoses
+    del frames[:]
+    r.run(cycles=200)  # 20 ms: ten interval readings
+    readings = w.diagnoses - before
+    assert 8 <= readings <= 11
+    assert w.last is not None and len(w.last.readings) == 6
+    assert all(x.al_status == AlState.OP for x in w.last.readings)
+    carried = [sum(d.size for d in decode_frame(f).datagrams if d.command == Command.FPRD)
+               for f in frames]
+    # one slave's three reads are 64 bytes: at most two slaves' per cycle
+    assert max(carried) <= 128 and sum(1 for c in carried if c) >= 3 * readings
+    # no frames of their own: every frame of the run is a cycle's
+    assert all(any(d.command == Command.LRW for d in decode_frame(f).datagrams) for f in frames)
+    # something noticed while a paced reading runs is still named within a few cycles
+    seg.slaves[1].esc.set_al_error(0x001B, AlState.SAFEOP)
+    r.run(cycles=6)
+    (ev,) = [e for e in w.events if e.kind == "al"]
+    assert ev.position == 2 and ev.named_cycle - ev.noticed_cycle <= 4

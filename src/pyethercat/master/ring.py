@@ -206,20 +206,43 @@ class Diagnosis:
 
 
 class PendingDiagnosis:
-    """A diagnosis whose requests are on their way (:meth:`RingService.start_diagnosis`)."""
+    """A diagnosis whose requests are on their way (:meth:`RingService.start_diagnosis`).
+
+    A paced one queues its reads a slice at a time (:meth:`feed`, once per
+    cycle): ``unsent`` are the datagrams not queued yet.
+    """
 
     def __init__(self, service: RingService, requests: list[Request], positions: list[int],
-                 al: bool) -> None:
+                 al: bool, unsent: list[Datagram] | None = None) -> None:
         self._service = service
         self.requests = requests
         self.positions = positions
         self.al = al
+        self.unsent: list[Datagram] = unsent or []
+
+    def feed(self, budget: int | None, flush: bool = False) -> None:
+        """Queue the next unsent reads, ``budget`` datagram bytes of them (at least one;
+        None: all)."""
+        unsent = self.unsent
+        if not unsent:
+            return
+        take = len(unsent)
+        if budget is not None:
+            used = 0
+            for i, d in enumerate(unsent):
+                used += d.size
+                if used > budget and i:
+                    take = i
+                    break
+        part, self.unsent = unsent[:take], unsent[take:]
+        self.requests.extend(self._service.scheduler.submit(part, flush=flush))
 
     def done(self) -> bool:
-        return all(r.done() for r in self.requests)
+        return not self.unsent and all(r.done() for r in self.requests)
 
     def result(self) -> Diagnosis:
         """Wait for the requests (if needed) and evaluate them."""
+        self.feed(None, flush=True)
         self._service.scheduler.wait(self.requests)
         return self._service.evaluate(self)
 
@@ -304,11 +327,14 @@ class RingService:
 
     # -- diagnosis ----------------------------------------------------------------------
 
-    def start_diagnosis(self, flush: bool = False, al: bool = False) -> PendingDiagnosis:
+    def start_diagnosis(self, flush: bool = False, al: bool = False,
+                        pace: int | None = None) -> PendingDiagnosis:
         """Queue the reads of a diagnosis (they ride in the next frames); see :meth:`diagnose`.
 
         ``al``: read AL status and code too (what the cyclic watch names state
-        changes by; reading 0x0130 also clears the AL-status event)."""
+        changes by; reading 0x0130 also clears the AL-status event). ``pace``:
+        queue only that many datagram bytes now, the rest by
+        :meth:`PendingDiagnosis.feed`."""
         slaves = list(self._slaves())
         # How many slaves answer at all (present, addressed or not).
         dgs: list[Datagram] = [Datagram.device(Command.BRD, 0, reg.TYPE, 1)]
@@ -321,8 +347,9 @@ class RingService:
                                        diag.ERROR_COUNTERS_SIZE))
             if al:
                 dgs.append(Datagram.device(Command.FPRD, st, reg.AL_STATUS, _AL))
-        requests = self.scheduler.submit(dgs, flush=flush)
-        return PendingDiagnosis(self, requests, positions, al)
+        pending = PendingDiagnosis(self, [], positions, al, dgs)
+        pending.feed(pace, flush=flush)
+        return pending
 
     def diagnose(self) -> Diagnosis:
         """Read every slave once and locate the faults (blocking; a few frames)."""

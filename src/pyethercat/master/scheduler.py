@@ -66,7 +66,13 @@ from pyethercat.master.pdu import (
 from pyethercat.master.redundancy import Redundancy, mark_for_port
 from pyethercat.master.stepping import Stepper
 from pyethercat.wire.datagram import MAX_PAYLOAD, Datagram
-from pyethercat.wire.frame import LOCALLY_ADMINISTERED_BIT, MASTER_MAC, MIN_FRAME_SIZE
+from pyethercat.wire.frame import (
+    LOCALLY_ADMINISTERED_BIT,
+    MASTER_MAC,
+    MIN_FRAME_SIZE,
+    WIRE_EXTRA_BYTES,
+    WIRE_NS_PER_BYTE,
+)
 
 if TYPE_CHECKING:
     from pyethercat.realtime import SpinBudget
@@ -86,11 +92,6 @@ __all__ = [
 
 #: Default ``Scheduler.reply_spin``: poll up to 0.5 ms for a cyclic reply before blocking.
 DEFAULT_REPLY_SPIN = 0.0005
-#: Nanoseconds one byte takes on a 100 Mbit/s wire.
-_BYTE_NS = 80
-#: Preamble and start delimiter (8), FCS (4), inter-frame gap (12): bytes on the wire
-#: besides the frame itself (IEEE 802.3 clause 4).
-_WIRE_EXTRA = 24
 # At most this many frames are taken at once before deadlines are judged.
 _DRAIN_MAX = 64
 
@@ -378,7 +379,7 @@ class Scheduler:
             raise
         if vclock is not None and vclock.ns == before:
             # The frame takes its wire time (unless the responder moved the clock).
-            vclock.advance((max(len(raw), MIN_FRAME_SIZE) + _WIRE_EXTRA) * _BYTE_NS)
+            vclock.advance((max(len(raw), MIN_FRAME_SIZE) + WIRE_EXTRA_BYTES) * WIRE_NS_PER_BYTE)
 
     def _transmit_ring_locked(self, idx: int, raw: bytes) -> None:
         """Send on the ports the core chooses; raises only when none took the frame."""

@@ -77,6 +77,7 @@ from pyethercat.wire.frame import (
     ECAT_HEADER_SIZE,
     ETH_HEADER_SIZE,
     LOCALLY_ADMINISTERED_BIT,
+    WIRE_NS_PER_BYTE,
     ecat_offset,
 )
 
@@ -121,7 +122,7 @@ class Segment:
     With a ring (``sim.ring``) frames enter at master port A or B
     (:meth:`process_from`)."""
 
-    def __init__(self, clock: TimeSource | None = None, mac_wire_ns: int = 80) -> None:
+    def __init__(self, clock: TimeSource | None = None, mac_wire_ns: int = WIRE_NS_PER_BYTE) -> None:
         self.clock = clock if clock is not None else VirtualClock()
         self._host = SegmentHost(self)
         self.mac_wire_ns = mac_wire_ns

@@ -37,6 +37,8 @@ __all__ = [
     "SECONDARY_MAC",
     "SECONDARY_MARK",
     "UDP_PORT",
+    "WIRE_EXTRA_BYTES",
+    "WIRE_NS_PER_BYTE",
     "EtherCATFrame",
     "FrameBuilder",
     "FrameType",
@@ -84,6 +86,11 @@ ECAT_RESERVED_BIT = 0x0800
 ECAT_TYPE_SHIFT = 12
 #: The bit a slave sets in the first source-MAC byte of a frame it returns.
 LOCALLY_ADMINISTERED_BIT = 0x02
+#: Nanoseconds one byte takes on a 100 Mbit/s (100BASE-TX) wire.
+WIRE_NS_PER_BYTE = 80
+#: Preamble and start delimiter (8), FCS (4), inter-frame gap (12): bytes on the wire
+#: besides the frame itself (IEEE 802.3 clause 4).
+WIRE_EXTRA_BYTES = 24
 
 
 class FrameType(enum.IntEnum):
