@@ -493,7 +493,10 @@ class Segment:
         bplan = self._bplan
         fast_key = (count << 32) | (state.entry << 48)
         fplans = self._fplan
-        # FPRD plans hold for the whole route (not a frame a closed port or a CRC error cut)
+        # FPRD plans hold for the whole route. A frame a closed port or a CRC error cut is
+        # destroyed anyway, and a topology change earlier in the frame changes no reply of
+        # a plain register; both take the general path only so that a plan's meaning stays
+        # plain (the slaves it was made for, on the route it was made for).
         fprd_key = -1 if count != route.count else state.entry << 48
         for off, cmd, address, lw, irq, n in heads:
             doff = off + HEADER_SIZE
