@@ -105,17 +105,18 @@ class CyclicMailboxStatus:
         runner, group, at = where
         # Two more exchanges: the second began after this call, so its byte is newer
         # than the caller's last SM1 read. (False from the loop thread itself.)
+        if budget <= 0:  # (no time to wait: the byte as it is)
+            status = runner.group_status(group)
+            return status.image[at] if status.wkc_ok else None
         limit = time.monotonic() + budget
         wait = 2
         for _ in range(self.RETRIES + 1):
             left = limit - time.monotonic()
-            if budget > 0 and (left <= 0 or not runner.wait_exchanges(group, wait, left)):
+            if left <= 0 or not runner.wait_exchanges(group, wait, left):
                 return None
             status = runner.group_status(group)
             if status.wkc_ok:
                 return status.image[at]
-            if budget <= 0:
-                return None
             wait = 1  # a lost frame leaves the counter off until the next exchange completes
         return None
 

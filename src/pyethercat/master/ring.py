@@ -212,13 +212,14 @@ class PendingDiagnosis:
     cycle): ``unsent`` are the datagrams not queued yet.
     """
 
-    def __init__(self, service: RingService, requests: list[Request], positions: list[int],
-                 al: bool, unsent: list[Datagram] | None = None) -> None:
+    def __init__(self, service: RingService, datagrams: list[Datagram], positions: list[int],
+                 al: bool) -> None:
         self._service = service
-        self.requests = requests
+        #: The requests of the reads queued so far, in the order of the datagrams.
+        self.requests: list[Request] = []
         self.positions = positions
         self.al = al
-        self.unsent: list[Datagram] = unsent or []
+        self.unsent = datagrams
 
     def feed(self, budget: int | None, flush: bool = False) -> None:
         """Queue the next unsent reads, ``budget`` datagram bytes of them (at least one;
@@ -347,7 +348,7 @@ class RingService:
                                        diag.ERROR_COUNTERS_SIZE))
             if al:
                 dgs.append(Datagram.device(Command.FPRD, st, reg.AL_STATUS, _AL))
-        pending = PendingDiagnosis(self, [], positions, al, dgs)
+        pending = PendingDiagnosis(self, dgs, positions, al)
         pending.feed(pace, flush=flush)
         return pending
 

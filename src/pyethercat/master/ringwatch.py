@@ -58,8 +58,8 @@ _EVENTS = int(reg.EcatEvent.DL_STATUS | reg.EcatEvent.AL_STATUS)
 #: last reading's cost after it (the watch's share of the loop's thread: a tenth at most).
 _DUTY = 10
 #: The share of the cycle's wire time an interval reading takes (see RingWatch._pace): a
-#: whole reading at once (three datagrams per slave) made 5 cycles late at 4 kHz / 100
-#: slaves, every interval.
+#: whole reading at once put three datagrams per slave (300 at 100 slaves, 6.4 KB) into
+#: the next cyclic frames, every interval.
 _PACE_SHARE = 0.1
 
 

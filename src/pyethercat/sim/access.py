@@ -127,6 +127,20 @@ def buffer_written(status: int) -> int:
 #: hostile SM window over 0x0800 cannot lock the SM registers themselves.
 SM_LOWEST = R.DIGITAL_OUTPUT
 
+_EV_DL_STATUS = int(R.EcatEvent.DL_STATUS)
+_EV_AL_STATUS = int(R.EcatEvent.AL_STATUS)
+
+
+def cleared_by_read(lo: int, hi: int) -> int:
+    """The ECAT event request bits (0x0210) an EtherCAT read of [lo, hi) clears: DL status
+    change by reading 0x0110, AL status change by reading 0x0130 (ESC datasheet section II)."""
+    bits = 0
+    if lo < R.DL_STATUS + 2 and hi > R.DL_STATUS:
+        bits |= _EV_DL_STATUS
+    if lo < R.AL_STATUS + 2 and hi > R.AL_STATUS:
+        bits |= _EV_AL_STATUS
+    return bits
+
 
 class SmView:
     """Decoded registers of one sync manager (a snapshot)."""

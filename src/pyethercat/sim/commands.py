@@ -32,7 +32,7 @@ from typing import Any, Literal, Protocol
 import numpy as np
 import numpy.typing as npt
 
-from pyethercat.sim.access import SIDE_EFFECT_MASK, SM_LOWEST, WRITE_TRIGGER
+from pyethercat.sim.access import SIDE_EFFECT_MASK, SM_LOWEST, WRITE_TRIGGER, cleared_by_read
 from pyethercat.sim.dc import DcClocks
 from pyethercat.sim.esc import Esc
 from pyethercat.sim.host import Dirty
@@ -61,8 +61,6 @@ _WORD_FORMAT: dict[int, Literal["B", "H", "I", "Q"]] = {1: "B", 2: "H", 4: "I", 
 #: Data word and working counter of a 1/2/4/8-byte datagram, little endian.
 _DATA_WKC: dict[int, struct.Struct] = {n: struct.Struct("<" + f + "H") for n, f in _WORD_FORMAT.items()}
 _WIDE: dict[int, str] = {1: "u1", 2: "<u2", 4: "<u4", 8: "<u8"}
-_EV_DL_STATUS = int(R.EcatEvent.DL_STATUS)
-_EV_AL_STATUS = int(R.EcatEvent.AL_STATUS)
 
 
 def _per_slave_write_mask() -> npt.NDArray[np.bool_]:
@@ -420,14 +418,10 @@ class Commands:
             return False
         memory = self.host.memory
         base = s * memory.stride
-        clear = 0
-        if lo < R.DL_STATUS + 2 and hi > R.DL_STATUS:
-            clear |= _EV_DL_STATUS
-        if lo < R.AL_STATUS + 2 and hi > R.AL_STATUS:
-            clear |= _EV_AL_STATUS
         flat = memory.flat.data
         return FprdPlan(flat[base + lo: base + hi],
-                        flat[base + R.ECAT_EVENT_REQUEST: base + R.ECAT_EVENT_REQUEST + 1], clear)
+                        flat[base + R.ECAT_EVENT_REQUEST: base + R.ECAT_EVENT_REQUEST + 1],
+                        cleared_by_read(lo, hi))
 
     def _brd_plan(self, route: Route, passes: I64, lo: int, hi: int) -> BrdPlan:
         host = self.host
@@ -455,12 +449,7 @@ class Commands:
                 step = memory.stride // n
                 words = memory.flat.data.cast(_WORD_FORMAT[n])
                 plan.words = words[lo // n: lo // n + len(rows) * step: step]
-        clear = 0
-        if lo < R.DL_STATUS + 2 and hi > R.DL_STATUS:
-            clear |= _EV_DL_STATUS
-        if lo < R.AL_STATUS + 2 and hi > R.AL_STATUS:
-            clear |= _EV_AL_STATUS
-        plan.clear = clear
+        plan.clear = cleared_by_read(lo, hi)
         return plan
 
 

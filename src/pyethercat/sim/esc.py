@@ -29,6 +29,7 @@ from pyethercat.sim.access import (
     EscRegisters,
     SmView,
     buffer_written,
+    cleared_by_read,
 )
 from pyethercat.sim.al_state import AlStateMachine
 from pyethercat.sim.device import DeviceApp, Pdi
@@ -248,11 +249,7 @@ class Esc(EscRegisters):
 
     def after_read(self, lo: int, hi: int) -> None:
         """Clear-on-read events."""
-        bits = 0
-        if lo < R.DL_STATUS + 2 and hi > R.DL_STATUS:
-            bits |= R.EcatEvent.DL_STATUS
-        if lo < R.AL_STATUS + 2 and hi > R.AL_STATUS:
-            bits |= R.EcatEvent.AL_STATUS
+        bits = cleared_by_read(lo, hi)
         if bits and self.u16(R.ECAT_EVENT_REQUEST) & bits:
             self.clear_ecat_event(bits)
 
