@@ -10,6 +10,11 @@ driver, let idle vCPUs poll that long before they halt, for the run only
 (the old value is put back). The 4 kHz figures depend on it: a halted vCPU
 adds the host's wake-up to every round trip (docs/realtime.md).
 
+``--loop isolated`` (or ``both``) runs the cyclic loop in the isolated
+engine, as ``run --web`` does: the EoE service then ticks in this process
+from the runner's callback, once per engine cycle it sees (the ``ticks``
+column: EoE ticks per cycle run).
+
 ``--subnet`` is the IPv4 network of the host's TAP and the two slaves (.1,
 .10, .11); ``auto`` (the default) takes the first /24 of 10.214.0.0/16, in
 random order, that overlaps no address or route of the host.
@@ -120,9 +125,10 @@ def download(url: str, http_client: str) -> tuple[int, float]:
 
 
 def _measure(master: Master, cycle: float, targets: list[tuple[str, int, str]], size: int,
-             tap: str, host_ip: str, http_client: str) -> list[dict[str, Any]]:
+             tap: str, host_ip: str, http_client: str, loop: str) -> list[dict[str, Any]]:
     master.configure()
-    runner = master.start(cycle)
+    # (the isolated engine under SCHED_FIFO 40, its default; this process stays at --realtime)
+    runner = master.start(cycle, isolated=loop == "isolated")
     run = start_eoe(master, runner, tap=tap, host_ip=host_ip)
     rows: list[dict[str, Any]] = []
     try:
@@ -134,6 +140,7 @@ def _measure(master: Master, cycle: float, targets: list[tuple[str, int, str]], 
             before = client.stats.rx.bytes
             frags0, cycles0, skipped0, late0 = (client.stats.rx.fragments, runner.stats.cycles,
                                                 runner.stats.skipped, client.stats.late)
+            ticks0 = run.service.ticks
             got, dt = download(f"http://{ip}/blob?size={size}", http_client)
             if got != size:
                 raise SystemExit(f"eoe.py: error: {got} of {size} bytes downloaded from {ip}")
@@ -142,7 +149,7 @@ def _measure(master: Master, cycle: float, targets: list[tuple[str, int, str]], 
             ran = runner.stats.cycles - cycles0
             ticks = ran + runner.stats.skipped - skipped0  # deadlines, run or skipped
             limit = sm1 / cycle
-            rows.append({"device": name, "cycle_hz": round(1 / cycle), "mailbox": sm1,
+            rows.append({"device": name, "loop": loop, "cycle_hz": round(1 / cycle), "mailbox": sm1,
                          "seconds": round(dt, 2), "ethernet_Bps": round(eth / dt),
                          "http_Bps": round(got / dt), "limit_Bps": round(limit),
                          "ethernet_ratio": round(eth / dt / limit, 3),
@@ -151,6 +158,9 @@ def _measure(master: Master, cycle: float, targets: list[tuple[str, int, str]], 
                          # first shows the EoE logic, the second the loop keeping up
                          "fragments_per_cycle": round(frags / max(1, ran), 3),
                          "cycles_run_per_deadline": round(ran / max(1, ticks), 3),
+                         # EoE ticks per cycle run: 1 in-process; the isolated engine's
+                         # follower in the user's process may miss some
+                         "eoe_ticks_per_cycle": round((run.service.ticks - ticks0) / max(1, ran), 3),
                          # cycles whose EoE tick found last cycle's datagrams still out
                          "late_per_cycle": round((client.stats.late - late0) / max(1, ran), 3),
                          "load_average": round(os.getloadavg()[0], 1)})
@@ -177,6 +187,10 @@ def main() -> None:
     ap.add_argument("--guest-halt-poll-ns", type=int, default=None, metavar="NS",
                     help="on a KVM guest with cpuidle-haltpoll: let idle vCPUs poll this long "
                          "before they halt, for the runs (put back after; docs/realtime.md)")
+    ap.add_argument("--loop", choices=("thread", "isolated", "both"), default="thread",
+                    help="the cyclic loop: a thread of this process (the default), the "
+                         "isolated engine (a process of its own, as `run --web` starts it), "
+                         "or both, one after the other")
     ap.add_argument("--subnet", default="auto",
                     help="IPv4 network of the TAP and the slaves (auto: a free /24 of "
                          "10.214.0.0/16)")
@@ -227,23 +241,26 @@ eoe = {{ ip = "{drive_ip}/{subnet.prefixlen}", netns = "pyecat-b{tag}-drive" }}
             idle = host_idle()
             print(f"host idle: {idle}", file=sys.stderr)
             m.scan()
-            for cycle in (1 / r for r in rates):
-                rows += _measure(m, cycle, [("eoe-web", 0, str(web_ip))], args.size,
-                                 f"pyecat-b{tag}t", host_ip, args.client)
-                rows += _measure(m, cycle, [("seed002-drive", 1, str(drive_ip))], args.small,
-                                 f"pyecat-b{tag}t", host_ip, args.client)
+            loops = ("thread", "isolated") if args.loop == "both" else (args.loop,)
+            for loop in loops:
+                for cycle in (1 / r for r in rates):
+                    rows += _measure(m, cycle, [("eoe-web", 0, str(web_ip))], args.size,
+                                     f"pyecat-b{tag}t", host_ip, args.client, loop)
+                    rows += _measure(m, cycle, [("seed002-drive", 1, str(drive_ip))],
+                                     args.small, f"pyecat-b{tag}t", host_ip, args.client, loop)
     finally:
         sim.send_signal(signal.SIGINT)
         sim.wait(20)
         subprocess.run(["ip", "link", "del", a], capture_output=True)
-    print(f"{'device':<14} {'cycle':>6} {'mailbox':>7} {'Ethernet B/s':>12} {'HTTP B/s':>10} "
-          f"{'limit B/s':>10} {'eth/limit':>9} {'http/limit':>10} {'frag/cycle':>10} "
-          f"{'cycles run':>10} {'late':>6} {'load':>5}")
+    print(f"{'device':<14} {'loop':<8} {'cycle':>6} {'mailbox':>7} {'Ethernet B/s':>12} "
+          f"{'HTTP B/s':>10} {'limit B/s':>10} {'eth/limit':>9} {'http/limit':>10} "
+          f"{'frag/cycle':>10} {'cycles run':>10} {'ticks':>6} {'late':>6} {'load':>5}")
     for r in rows:
-        print(f"{r['device']:<14} {r['cycle_hz']:>5}Hz {r['mailbox']:>7} {r['ethernet_Bps']:>12} "
-              f"{r['http_Bps']:>10} {r['limit_Bps']:>10} {r['ethernet_ratio']:>9.3f} "
-              f"{r['http_ratio']:>10.3f} {r['fragments_per_cycle']:>10.3f} "
-              f"{r['cycles_run_per_deadline']:>10.3f} {r['late_per_cycle']:>6.3f} "
+        print(f"{r['device']:<14} {r['loop']:<8} {r['cycle_hz']:>5}Hz {r['mailbox']:>7} "
+              f"{r['ethernet_Bps']:>12} {r['http_Bps']:>10} {r['limit_Bps']:>10} "
+              f"{r['ethernet_ratio']:>9.3f} {r['http_ratio']:>10.3f} "
+              f"{r['fragments_per_cycle']:>10.3f} {r['cycles_run_per_deadline']:>10.3f} "
+              f"{r['eoe_ticks_per_cycle']:>6.3f} {r['late_per_cycle']:>6.3f} "
               f"{r['load_average']:>5.1f}")
     print(json.dumps({"eoe": rows, "host_idle": idle}))
 

@@ -108,15 +108,20 @@ class EngineClock(PerfClock):
     requests (``serve(time_left_ns)``, when one of ``fds`` is readable), then spins."""
 
     def __init__(self, fds: list[int], serve: Callable[[int], None], spin_ns: int,
-                 budget: SpinBudget | None = None) -> None:
+                 budget: SpinBudget | None = None,
+                 leftovers: Callable[[int], None] | None = None) -> None:
         super().__init__(spin_ns=spin_ns)
         self.fds = fds
         self.serve = serve
+        #: Called first of all with the time left: what the last cycle left to send.
+        self.leftovers = leftovers
         #: The share of each second the spin (and the scheduler's reply poll) may take.
         self.budget = budget
 
     def sleep_until(self, deadline_ns: int) -> None:
         now = time.perf_counter_ns
+        if self.leftovers is not None:
+            self.leftovers(deadline_ns - now())
         spin = self.spin_ns
         budget = self.budget
         if budget is not None and not budget.allowed(time.monotonic()):
@@ -177,6 +182,8 @@ class EngineRider:
         self._next_request = 0
         #: A publish the last cycle owes: done while the next cycle's frames are out.
         self._publish_due = False
+        #: Cycles done, as last written to the shared tick.
+        self._tick = 0
 
     # -- the cycle ----------------------------------------------------------------------------
 
@@ -186,6 +193,11 @@ class EngineRider:
         # and the user must still see the link's state and events)
         now = time.perf_counter_ns()
         self.watch_parent(now)
+        done = runner.stats.cycles - 1  # (this cycle is counted from its start)
+        if done > self._tick:
+            # The last cycle had no after (the link refused its frames): it is done all the same.
+            self._tick = done
+            self.area.write_tick(done)
         if not self._after and now - self._published_at >= _PUBLISH_NS:
             self._published_at = now
             self.publish()
@@ -220,6 +232,10 @@ class EngineRider:
             shared[lo:] = memoryview(image.buffer)[lo:]
             self._in_seq[g.name] = s + 1
             seq.set_input_seq(s + 1)
+        # The tick first, then the replies: the user's side, woken by a reply, finds the
+        # cycle that carried it done (and runs its callback at once, not a period later).
+        self._tick = runner.stats.cycles
+        self.area.write_tick(self._tick)
         self.router.answer()
         now = time.perf_counter_ns()
         if not ok or now - self._published_at >= _PUBLISH_NS:
@@ -237,6 +253,13 @@ class EngineRider:
         """The statistics and health the last cycle owes, published while this cycle's
         frames are on the wire (25 us and more of Python that would otherwise lengthen
         the cycle: at 10 kHz every tenth one ran past the next deadline)."""
+        if self.router.carrying:
+            sched = runner.scheduler
+            if sched.queued:
+                # The user's datagrams the cyclic frames had no room for go right behind
+                # them, in a frame of their own (as the in-process EoE service sends its
+                # own), not a cycle later.
+                sched.flush()
         if self._publish_due:
             self._publish_due = False
             self.publish()
@@ -324,13 +347,33 @@ class EngineRider:
             self._forget(self.router.sock.fileno())
         if self.router.open:
             # Time for a frame of their own before the deadline: send them now.
-            period = self.runner.period_ns
-            flush = left_ns > max(period // 2, 300_000)
+            flush = self._time_for_a_frame(left_ns)
             if self.router.take(flush=flush) and flush:
-                sched = self.runner.scheduler
-                limit = max(0.0, (left_ns - period // 4) / 1e9)
-                sched.wait_until(self.router.answered, limit)
-                self.router.answer()
+                self._answer_before(left_ns)
+
+    def leftovers(self, left_ns: int) -> None:
+        """The user's requests the last cycle's frames did not bring back (an EoE mailbox
+        write and read of 1 KiB each, beside the process data, take a frame of their
+        own): their replies are taken now, up to a quarter period before the deadline,
+        and handed to the user before the next cycle, not one cycle late (those still
+        queued go now when there is time for a frame)."""
+        if not self.router.carrying:
+            return
+        sched = self.runner.scheduler
+        if sched.queued and self._time_for_a_frame(left_ns):
+            sched.flush()
+        # (the rest are on the wire already: waiting for them costs no deadline)
+        self._answer_before(left_ns)
+
+    def _time_for_a_frame(self, left_ns: int) -> bool:
+        return left_ns > max(self.runner.period_ns // 2, 300_000)
+
+    def _answer_before(self, left_ns: int) -> None:
+        """Wait for the replies of what was just sent (up to a quarter period before the
+        deadline), and hand them to the user."""
+        limit = max(0.0, (left_ns - self.runner.period_ns // 4) / 1e9)
+        self.runner.scheduler.wait_until(self.router.answered, limit)
+        self.router.answer()
 
     def _forget(self, fd: int) -> None:
         if fd in self.fds:
@@ -455,11 +498,16 @@ def run_engine(plan: EnginePlan, area: SharedArea, report: RealtimeReport) -> in
     def serve(left: int) -> None:
         holder[0].serve(left)
 
+    def leftovers(left: int) -> None:
+        if holder:
+            holder[0].leftovers(left)
+
     # Spinning before each deadline and polling for each reply must leave the kernel's
     # real-time share some room: at 10 kHz they fill every cycle, and a throttled
     # SCHED_FIFO task stops for the rest of the second (gaps of 50 ms were measured).
     budget = SpinBudget.below_rt_throttle()
-    clock = EngineClock([control.fileno(), frames.fileno()], serve, plan.spin_ns, budget)
+    clock = EngineClock([control.fileno(), frames.fileno()], serve, plan.spin_ns, budget,
+                        leftovers)
     sched.spin_budget = budget
 
     def recover(positions: list[int]) -> None:

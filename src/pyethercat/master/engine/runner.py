@@ -25,6 +25,7 @@ a process of its own (:mod:`~pyethercat.master.engine.child`):
 
 from __future__ import annotations
 
+import contextlib
 import os
 import select
 import socket
@@ -421,15 +422,25 @@ class IsolatedRunner(EngineReadout, CyclicRunner):
     # -- the follower: the callback and cycles() ---------------------------------------------
 
     def _follow(self) -> None:
+        """Run the callback once per engine cycle, after the replies that cycle carried.
+
+        The engine writes its tick every cycle and only then sends the replies to
+        this process's requests, so a reply that wakes :meth:`_carry` finds its
+        cycle done: the callback runs at once with the answers at hand, and what
+        it queues reaches the engine in time for the next cycle's frames (an EoE
+        service gets a mailbox exchange every cycle, as in-process).
+        """
         last = -1
-        cycles_at = self._stats_names.index("cycles")
         area = self.area
         assert area is not None
         sched = self.scheduler
+        core = sched.core
         pause = min(self.period_ns / 2e9, 0.0005)
+        # (replies of the cycle just done are on their way: microseconds behind the tick,
+        # or, for frames of their own, until a quarter period before the next deadline)
+        settle = self.period_ns / 2e9
         while not self._stop.is_set():
-            values = area.status.read()
-            n = values[cycles_at] if values is not None else last
+            n = area.read_tick()
             if n != last:
                 with self._cond:
                     self.cycle.index = max(0, n - 1)
@@ -437,6 +448,10 @@ class IsolatedRunner(EngineReadout, CyclicRunner):
                 if self.callback is not None and last >= 0 and n > last:
                     if n > last + 1:
                         self.consumer_missed += n - last - 1
+                    if core.in_flight:
+                        # (an engine that has gone is reported by its lifeline)
+                        with contextlib.suppress(EtherCATError):
+                            sched.wait_until(lambda: not core.in_flight, settle)
                     try:
                         self.callback(self.cycle)
                     except Exception as exc:  # noqa: BLE001 - the callback's own bug
@@ -606,8 +621,9 @@ class IsolatedRunner(EngineReadout, CyclicRunner):
 
     def cycles(self, timeout: float = 1.0) -> Iterator[Cycle]:
         last = -1
-        while self.running:
-            n = self.stats.cycles
+        area = self.area
+        while self.running and area is not None:
+            n = area.read_tick()
             if n != last and n > 0:
                 if last >= 0 and n > last + 1:
                     self.consumer_missed += n - last - 1

@@ -10,7 +10,13 @@ each 8-byte aligned:
   integers behind a sequence number, a *seqlock*: the engine (the only
   writer) makes the number odd, writes, makes it even; a reader copies the
   block and takes the copy when the number was the same even value before
-  and after. The writer never waits for a reader, a reader retries;
+  and after. The writer never waits for a reader, a reader retries. The
+  engine publishes it every millisecond at most (at 4 kHz every fourth
+  cycle: its cost would lengthen the cycles);
+- a **tick**: the number of cycles the engine has done, one 64-bit store
+  every cycle, before the cycle's acyclic replies go back to the user's
+  process: what the user's side follows to run its callback once per
+  cycle, with those replies at hand;
 - per group, the **process image** (``[outputs][inputs][mailbox status]``
   as the configuration lays it out) and its **safe outputs**, with two
   sequence numbers: ``in`` (the engine writes the input bytes) and ``out``
@@ -56,6 +62,8 @@ _MAGIC = 0x50594543_454E4731  # "PYECENG1"
 # magic, total size, layout version, creator's pid, offset and length of the layout (JSON)
 _HEADER = struct.Struct("<QQQQQQ")
 _U64 = struct.Struct("<Q")
+# Version of the file's layout rules (2: the tick after the status block).
+_VERSION = 2
 _EVENT_SLOT = 256
 #: Longest event text kept (bytes of UTF-8).
 EVENT_TEXT = _EVENT_SLOT - 24
@@ -135,6 +143,8 @@ class AreaLayout:
         at = _HEADER.size
         out = {"status": at}
         at = _align(at + 8 + 8 * len(self.status_fields))
+        out["tick"] = at
+        at += 8
         for name, size in self.groups:
             out[f"seq:{name}"] = at
             at += 16
@@ -202,6 +212,7 @@ class SharedArea:
         self.buf = memoryview(self._map)
         self.offsets = layout.offsets()
         self.status = SeqBlock(self.buf, self.offsets["status"], layout.status_fields)
+        self._tick_at = self.offsets["tick"]
         self.images: dict[str, memoryview] = {}
         self.safe: dict[str, memoryview] = {}
         self.seqs: dict[str, ImageSeq] = {}
@@ -240,7 +251,7 @@ class SharedArea:
         text = layout.to_json()
         at = area.offsets["layout"]
         area.buf[at:at + len(text)] = text
-        _HEADER.pack_into(area.buf, 0, _MAGIC, layout.size, 1, os.getpid(), at, len(text))
+        _HEADER.pack_into(area.buf, 0, _MAGIC, layout.size, _VERSION, os.getpid(), at, len(text))
         return area
 
     @classmethod
@@ -255,9 +266,12 @@ class SharedArea:
         if layout is None:
             try:
                 head = os.pread(fd, _HEADER.size, 0)
-                magic, _size, _version, _pid, at, n = _HEADER.unpack(head)
+                magic, _size, version, _pid, at, n = _HEADER.unpack(head)
                 if magic != _MAGIC:
                     raise ValueError("bad magic")
+                if version != _VERSION:
+                    raise ValueError(f"layout version {version}, this pyethercat reads "
+                                     f"{_VERSION}: another pyethercat's engine")
                 layout = AreaLayout.from_json(os.pread(fd, n, at))
             except (ValueError, KeyError, struct.error) as exc:
                 os.close(fd)
@@ -268,6 +282,16 @@ class SharedArea:
             area.close()
             raise ConfigError(f"{path} is not an engine area of this layout")
         return area
+
+    # -- the tick (one writer: the engine) ------------------------------------------------
+
+    def write_tick(self, cycles: int) -> None:
+        """The engine has done ``cycles`` cycles (one aligned 8-byte store: never torn)."""
+        _U64.pack_into(self.buf, self._tick_at, cycles)
+
+    def read_tick(self) -> int:
+        """Cycles the engine has done, as of its last :meth:`write_tick`."""
+        return int(_U64.unpack_from(self.buf, self._tick_at)[0])
 
     # -- events (one writer: the engine) --------------------------------------------------
 
