@@ -80,10 +80,11 @@ def test_callback_runs_every_cycle_after_the_replies_of_its_cycle(
     as an EoE mailbox's write and read, which cannot both ride beside the process
     data: the engine sends what has no room right behind the cyclic frame and hands
     the replies over before the next cycle (before: a cycle later; 0.12 of the
-    callbacks found them, 0.41 with this follower). Nothing runs under SCHED_FIFO (the user's process must get
-    the CPU here, as on any machine with a core to spare) and the bounds leave room
-    for a loaded machine (two CPU burners on this test's two vCPUs: 0.82 and 0.86 of
-    the cycles had their callback, 0.73 and 0.89 of the callbacks their replies)."""
+    callbacks found them, 0.41 with this follower). Nothing runs under SCHED_FIFO
+    (the user's process must get the CPU here, as on any machine with a core to
+    spare) and the bounds leave room for a loaded machine (two CPU burners on this
+    test's two vCPUs: 0.82 and 0.86 of the cycles had their callback, 0.73 and 0.89
+    of the callbacks their replies)."""
     with start_sim_process(DEMO) as sim, \
             Master(sim.link, owns_link=False, timeout=0.5) as m:
         m.scan()

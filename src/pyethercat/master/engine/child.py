@@ -360,9 +360,13 @@ class EngineRider:
         if not self.router.carrying:
             return
         sched = self.runner.scheduler
-        if sched.queued and self._time_for_a_frame(left_ns):
+        if sched.queued:
+            if not self._time_for_a_frame(left_ns):
+                # (they ride in the next cyclic frame: a frame of their own now could
+                # still be on the wire, or in the slaves, when that one is due; and the
+                # wait below would send them)
+                return
             sched.flush()
-        # (the rest are on the wire already: waiting for them costs no deadline)
         self._answer_before(left_ns)
 
     def _time_for_a_frame(self, left_ns: int) -> bool:
