@@ -11,8 +11,8 @@ each 8-byte aligned:
   writer) makes the number odd, writes, makes it even; a reader copies the
   block and takes the copy when the number was the same even value before
   and after. The writer never waits for a reader, a reader retries. The
-  engine publishes it every millisecond at most (at 4 kHz every fourth
-  cycle: its cost would lengthen the cycles);
+  engine publishes it every cycle up to 1 kHz and every millisecond above
+  (at 4 kHz every fourth cycle: its cost would lengthen the cycles);
 - a **tick**: the number of cycles the engine has done, one 64-bit store
   every cycle, before the cycle's acyclic replies go back to the user's
   process: what the user's side follows to run its callback once per
