@@ -597,17 +597,25 @@ class IsolatedRunner(EngineReadout, CyclicRunner):
             raise err
 
     def wait_exchanges(self, name: str, count: int, timeout: float) -> bool:
-        g = self._group(name)
+        """Wait until ``count`` more exchanges of group ``name`` are done, counted on the
+        engine's tick (every cycle, where the status block's counters come every
+        millisecond at most): ``count`` times the group's period in cycles, so the
+        last of them began after this call."""
         if count <= 0:
             return True
-        want = g.exchanges + count
+        area = self.area
+        if area is None:
+            return False
+        want = area.read_tick() + count * self._group(name).every
         limit = time.monotonic() + timeout
+        # (a mailbox waits here for its status byte: a tenth of a millisecond late at most)
+        pause = min(self.period_ns / 8e9, 0.0001)
         while self.running:
-            if self._group(name).exchanges >= want:
+            if area.read_tick() >= want:
                 return True
             if time.monotonic() >= limit:
                 return False
-            time.sleep(min(self.period_ns / 2e9, 0.0005))
+            time.sleep(pause)
         return False
 
     def group_status(self, name: str) -> GroupStatus:
