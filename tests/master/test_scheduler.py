@@ -175,3 +175,29 @@ def test_a_reply_waiting_at_the_link_is_not_lost_after_its_deadline() -> None:
     tickets = [s.send_prepared(template, timeout=0.001) for _ in range(3)]
     assert all(t.wait_raw() is not None for t in tickets)
     assert s.stats.frames_lost == 0
+
+
+def test_receive_ready_takes_a_reply_and_sends_nothing_queued() -> None:
+    """The isolated engine's event loop between cycles: a reply at the link is taken at
+    once; datagrams queued for the next cyclic frame stay queued (no frame of their own
+    right before the deadline), and an empty link returns at once."""
+    seg = _segment(1)
+    sent: list[bytes] = []
+
+    def record(frame: bytes) -> list[bytes] | bytes | None:
+        sent.append(frame)
+        return seg.process(frame)
+
+    s = Scheduler(PairLink.responder_link(record))
+    flown = s.submit([_brd()])[0]  # sent now: its reply waits at the link
+    queued = s.submit([_brd()], flush=False)[0]
+    assert len(sent) == 1 and s.in_flight == 1 and s.queued == 1
+    assert s.receive_ready()
+    assert flown.done() and flown.result().wkc == 1
+    assert s.in_flight == 0 and s.queued == 1 and not queued.done()
+    assert len(sent) == 1
+    t0 = time.monotonic()
+    assert not s.receive_ready()  # nothing there: no wait
+    assert time.monotonic() - t0 < 2.0
+    s.flush()
+    assert queued.result().wkc == 1 and len(sent) == 2

@@ -512,6 +512,30 @@ class Scheduler:
                     continue
                 self._receive_once_locked(now, limit)
 
+    def receive_ready(self) -> bool:
+        """Take one frame the link holds now, without waiting; whether one came.
+
+        For an event loop that saw the link readable (the isolated engine between
+        cycles): unlike :meth:`wait_until` it sends nothing queued and expires
+        nothing, so datagrams waiting for the next cyclic frame keep waiting.
+        """
+        lock = self._lock
+        with lock:
+            if self._receiving or self._vclock is not None:
+                return False  # (another thread receives; virtual time has no readiness)
+            self._receiving = True
+            lock.release()
+            try:
+                got = self._recv_locked(0.0)
+            finally:
+                lock.acquire()
+                self._receiving = False
+            if got is not None:
+                self.core.on_frame(got[0], self.now(), got[1])
+                self._forward_locked()
+            self._notify()
+            return got is not None
+
     def step(self) -> None:
         """After a cycle (the loop's thread): expire late frames, resume stepped workers."""
         if not self.stepper.busy:

@@ -105,16 +105,22 @@ class _Slave:
 
 class EngineClock(PerfClock):
     """The loop's clock: between cycles it serves the control channel and the user's
-    requests (``serve(time_left_ns)``, when one of ``fds`` is readable), then spins."""
+    requests (``serve(time_left_ns)``, when one of ``fds`` is readable) and hands the
+    user the replies of frames sent for it as they come (``replies()``: the link's
+    descriptor while there are any, ``take_replies()``), then spins."""
 
     def __init__(self, fds: list[int], serve: Callable[[int], None], spin_ns: int,
                  budget: SpinBudget | None = None,
-                 leftovers: Callable[[int], None] | None = None) -> None:
+                 leftovers: Callable[[int], None] | None = None,
+                 replies: Callable[[], int | None] | None = None,
+                 take_replies: Callable[[], None] | None = None) -> None:
         super().__init__(spin_ns=spin_ns)
         self.fds = fds
         self.serve = serve
         #: Called first of all with the time left: what the last cycle left to send.
         self.leftovers = leftovers
+        self.replies = replies
+        self.take_replies = take_replies
         #: The share of each second the spin (and the scheduler's reply poll) may take.
         self.budget = budget
 
@@ -127,16 +133,25 @@ class EngineClock(PerfClock):
         if budget is not None and not budget.allowed(time.monotonic()):
             spin = 0  # (this second's share of spinning is spent: sleep to the deadline)
         fds = self.fds
+        replies = self.replies
         while True:
             left = deadline_ns - now()
             if left <= spin:
                 break
+            link = None if replies is None else replies()
             try:
-                ready, _, _ = select.select(fds, [], [], (left - spin) / 1e9)
+                ready, _, _ = select.select(fds if link is None else [*fds, link], [], [],
+                                            (left - spin) / 1e9)
             except InterruptedError:
                 continue
-            if ready:
-                self.serve(deadline_ns - now())
+            if not ready:
+                continue
+            if link is not None and link in ready:
+                assert self.take_replies is not None
+                self.take_replies()
+                if len(ready) == 1:
+                    continue
+            self.serve(deadline_ns - now())
         began = now()
         while now() < deadline_ns:
             pass
@@ -184,6 +199,7 @@ class EngineRider:
         self._publish_due = False
         #: Cycles done, as last written to the shared tick.
         self._tick = 0
+        self._link_fd = runner.scheduler.link.fileno()
 
     # -- the cycle ----------------------------------------------------------------------------
 
@@ -346,38 +362,37 @@ class EngineRider:
         if not self.router.open:
             self._forget(self.router.sock.fileno())
         if self.router.open:
-            # Time for a frame of their own before the deadline: send them now.
-            flush = self._time_for_a_frame(left_ns)
-            if self.router.take(flush=flush) and flush:
-                self._answer_before(left_ns)
+            # Time for a frame of their own before the deadline: send them now (their
+            # replies wake the clock's wait and go back at once).
+            self.router.take(flush=self._time_for_a_frame(left_ns))
 
     def leftovers(self, left_ns: int) -> None:
-        """The user's requests the last cycle's frames did not bring back (an EoE mailbox
-        write and read of 1 KiB each, beside the process data, take a frame of their
-        own): their replies are taken now, up to a quarter period before the deadline,
-        and handed to the user before the next cycle, not one cycle late (those still
-        queued go now when there is time for a frame)."""
+        """The user's datagrams the last cycle's frames had no room for (an EoE mailbox
+        write and read of 1 KiB each beside the process data): in a frame of their own
+        now, when there is time, so that their replies are back before the next cycle,
+        not one cycle late. (Those the cyclic frames' spare room took, or that went
+        right behind them, come back by :meth:`take_replies`.)"""
+        if self.router.carrying and self._time_for_a_frame(left_ns):
+            sched = self.runner.scheduler
+            if sched.queued:
+                sched.flush()
+
+    def reply_fd(self) -> int | None:
+        """The link's descriptor while frames sent for the user are on their way."""
         if not self.router.carrying:
-            return
+            return None
         sched = self.runner.scheduler
-        if sched.queued:
-            if not self._time_for_a_frame(left_ns):
-                # (they ride in the next cyclic frame: a frame of their own now could
-                # still be on the wire, or in the slaves, when that one is due; and the
-                # wait below would send them)
-                return
-            sched.flush()
-        self._answer_before(left_ns)
+        return self._link_fd if sched.in_flight else None
+
+    def take_replies(self) -> None:
+        """The link is readable between cycles: a reply the user waits for, handed over now."""
+        self.runner.scheduler.receive_ready()
+        self.router.answer()
 
     def _time_for_a_frame(self, left_ns: int) -> bool:
-        return left_ns > max(self.runner.period_ns // 2, 300_000)
-
-    def _answer_before(self, left_ns: int) -> None:
-        """Wait for the replies of what was just sent (up to a quarter period before the
-        deadline), and hand them to the user."""
-        limit = max(0.0, (left_ns - self.runner.period_ns // 4) / 1e9)
-        self.runner.scheduler.wait_until(self.router.answered, limit)
-        self.router.answer()
+        # (sent this long before the deadline, a frame is back before the cyclic one is
+        # due: round trips through a simulator on a loaded VM are 100-250 us)
+        return left_ns > max(self.runner.period_ns // 4, 300_000)
 
     def _forget(self, fd: int) -> None:
         if fd in self.fds:
@@ -506,12 +521,18 @@ def run_engine(plan: EnginePlan, area: SharedArea, report: RealtimeReport) -> in
         if holder:
             holder[0].leftovers(left)
 
+    def replies() -> int | None:
+        return holder[0].reply_fd() if holder else None
+
+    def take_replies() -> None:
+        holder[0].take_replies()
+
     # Spinning before each deadline and polling for each reply must leave the kernel's
     # real-time share some room: at 10 kHz they fill every cycle, and a throttled
     # SCHED_FIFO task stops for the rest of the second (gaps of 50 ms were measured).
     budget = SpinBudget.below_rt_throttle()
     clock = EngineClock([control.fileno(), frames.fileno()], serve, plan.spin_ns, budget,
-                        leftovers)
+                        leftovers, replies, take_replies)
     sched.spin_budget = budget
 
     def recover(positions: list[int]) -> None:
