@@ -10,7 +10,8 @@ byte, the two slaves pinging each other through the master's switch, the same
 download with 1 % of the EtherCAT frames dropped by the simulator before any
 slave sees them and, harder, with 1 % of them corrupted on their way back
 after both slaves processed them (EoE fragments the slave handed over are
-lost), and headless Chromium (through Selenium and Debian's chromedriver)
+lost), ping and the download again with the cyclic loop in the isolated
+engine (``run --isolated --eoe``), and headless Chromium (through Selenium and Debian's chromedriver)
 loading the diagnostic page before and after the drive is moved.
 
 Without a veth pair: ``run --eoe --eoe-per-slave`` on an in-process
@@ -472,3 +473,63 @@ def test_run_eoe_without_cap_net_admin_is_one_line(root: None, drop: list[str],
     assert done.stderr == (f"pyethercat: error: creating TAP interface {tap} needs root or "
                            f"CAP_NET_ADMIN\n")
     assert not os.path.exists(f"/sys/class/net/{tap}")
+
+
+def test_eoe_through_the_isolated_engine(root: None, tmp_path: Path) -> None:
+    """``run --isolated --eoe`` (as ``run --web`` starts it where the link allows): the
+    EoE service ticks in the user's process after each engine cycle and its datagrams
+    ride in the engine's frames. Ping and a 1 MiB download, byte for byte; the master's
+    log says where the loop ran."""
+    ping = _tool("ping")
+    _tool("curl")
+    tag = uuid.uuid4().hex[:5]
+    net = f"10.211.{random.randint(1, 250)}"
+    web_ns = f"pyecat-i{tag}-web"
+    topo = tmp_path / "eoe.toml"
+    topo.write_text(f"""
+[[slave]]
+name = "web"
+device = "builtin:eoe-web"
+eoe = {{ ip = "{net}.10/24", gateway = "{net}.1", netns = "{web_ns}" }}
+""")
+    a, b = make_veth_pair()
+    tap = f"pyecat-{tag}i"
+    control = str(tmp_path / "sim.sock")
+    master_log = tmp_path / "master.log"
+    sim = master = None
+    try:
+        sim = subprocess.Popen([sys.executable, "-m", "pyethercat", "sim", str(topo), "--iface", a,
+                                "--control", control, "-q"])
+        end = time.monotonic() + START_LIMIT
+        while not os.path.exists(control):
+            assert sim.poll() is None, "the simulator stopped"
+            assert time.monotonic() < end, "the simulator did not come up"
+            time.sleep(0.1)
+        with open(master_log, "wb") as log:
+            master = subprocess.Popen(
+                [sys.executable, "-m", "pyethercat", "--iface", b, "--retries", "100", "run",
+                 "--isolated", "--eoe", "--eoe-tap", tap, "--eoe-host-ip", f"{net}.1/24",
+                 "--seconds", "900"], stdout=log, stderr=subprocess.STDOUT)
+        end = time.monotonic() + START_LIMIT
+        while subprocess.run([ping, "-c", "1", "-W", "1", f"{net}.10"],
+                             capture_output=True).returncode != 0:
+            assert master.poll() is None, master_log.read_text()[-2000:]
+            assert time.monotonic() < end, f"no ping through EoE within {START_LIMIT} s"
+        done = subprocess.run([ping, "-c", "5", "-i", "0.2", f"{net}.10"], capture_output=True,
+                              text=True)
+        assert done.returncode == 0 and " 0% packet loss" in done.stdout, done.stdout
+        out = tmp_path / "blob"
+        got = subprocess.run(["curl", "-s", "-m", "240", "-o", str(out),
+                              f"http://{net}.10/blob?size={1 << 20}"], capture_output=True, text=True)
+        assert got.returncode == 0, got.stderr
+        assert hashlib.sha256(out.read_bytes()).digest() == hashlib.sha256(blob(1 << 20)).digest()
+        # The loop ran in the engine: a child process of the master's.
+        children = Path(f"/proc/{master.pid}/task/{master.pid}/children").read_text().split()
+        assert any(b"pyethercat.master.engine.child" in Path(f"/proc/{c}/cmdline").read_bytes()
+                   for c in children), children
+    finally:
+        _stop(master)
+        _stop(sim)
+        delete_veth(a)
+        subprocess.run(["ip", "netns", "delete", web_ns], capture_output=True)
+        subprocess.run(["ip", "link", "del", tap], capture_output=True)
