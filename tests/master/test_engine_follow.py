@@ -1,4 +1,4 @@
-"""The isolated engine's tick, and the user's side that follows it (``IsolatedRunner``).
+"""The isolated engine's tick and exchange records, and the user's side that follows them.
 
 The engine writes the number of cycles it has done into its shared memory
 every cycle, before it sends back the replies to the user's requests. The
@@ -8,7 +8,9 @@ then finds last cycle's mailbox exchange answered and gets one every cycle,
 as in-process. Before the tick the callback followed the status block,
 which the engine publishes at most every 950 µs: at 1 kHz a third of the
 cycles had no callback, and a quarter of the callbacks came before the
-replies of the cycle they followed.
+replies of the cycle they followed. With each group's inputs the engine
+also writes that group's exchange count and working-counter verdict, which
+a mailbox waiting for its status byte reads.
 """
 
 from __future__ import annotations
@@ -51,6 +53,32 @@ def test_the_tick_is_read_where_the_engine_wrote_it(tmp_path: Path) -> None:
             # its own 8 bytes: the status block and the group's sequence numbers unchanged
             assert reader.status.read() == (7, 1)
             assert reader.seqs["main"].input_seq() == 5
+        finally:
+            reader.close()
+    finally:
+        area.close()
+        area.unlink()
+
+
+def test_a_groups_exchange_is_read_with_its_inputs(tmp_path: Path) -> None:
+    """The exchange count and working-counter verdict a mailbox waits on come from the
+    same publish as the input bytes (the status block's may be a cycle older): never
+    read while the engine is in the middle of a publish."""
+    area = SharedArea.create(_layout(), str(tmp_path / "area"))
+    try:
+        reader = SharedArea.attach(area.path)
+        try:
+            seq, mine = area.seqs["main"], reader.seqs["main"]
+            seq.set_input_seq(1)  # a publish begun: number odd
+            seq.set_exchange(41, True)
+            assert mine.exchange(tries=50) is None
+            seq.set_input_seq(2)
+            assert mine.exchange() == (41, True)
+            seq.set_input_seq(3)
+            seq.set_exchange(42, False)  # a cycle whose frame came back short
+            seq.set_input_seq(4)
+            assert mine.exchange() == (42, False)
+            assert reader.read_tick() == 0 and reader.seqs["main"].output_seq() == 0
         finally:
             reader.close()
     finally:

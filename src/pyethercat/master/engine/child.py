@@ -246,6 +246,7 @@ class EngineRider:
             s = self._in_seq[g.name] + 1
             seq.set_input_seq(s)
             shared[lo:] = memoryview(image.buffer)[lo:]
+            seq.set_exchange(g.exchanges, g.wkc_ok)
             self._in_seq[g.name] = s + 1
             seq.set_input_seq(s + 1)
         # The tick first, then the replies: the user's side, woken by a reply, finds the

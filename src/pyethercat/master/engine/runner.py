@@ -597,21 +597,22 @@ class IsolatedRunner(EngineReadout, CyclicRunner):
             raise err
 
     def wait_exchanges(self, name: str, count: int, timeout: float) -> bool:
-        """Wait until ``count`` more exchanges of group ``name`` are done, counted on the
-        engine's tick (every cycle, where the status block's counters come every
-        millisecond at most): ``count`` times the group's period in cycles, so the
-        last of them began after this call."""
+        """Wait until ``count`` more exchanges of group ``name`` are done, as the engine
+        writes them with the group's inputs every cycle (the status block's counters
+        come every millisecond at most)."""
         if count <= 0:
             return True
-        area = self.area
-        if area is None:
+        seq = self._seq_of(name)
+        now = seq.exchange() if seq is not None else None
+        if seq is None or now is None:
             return False
-        want = area.read_tick() + count * self._group(name).every
+        want = now[0] + count
         limit = time.monotonic() + timeout
         # (a mailbox waits here for its status byte: a tenth of a millisecond late at most)
         pause = min(self.period_ns / 8e9, 0.0001)
         while self.running:
-            if area.read_tick() >= want:
+            got = seq.exchange()
+            if got is not None and got[0] >= want:
                 return True
             if time.monotonic() >= limit:
                 return False
@@ -619,10 +620,19 @@ class IsolatedRunner(EngineReadout, CyclicRunner):
         return False
 
     def group_status(self, name: str) -> GroupStatus:
+        """As the base class's; exchanges and the working-counter verdict are those of
+        the inputs now in the shared image (written with them), not the status block's."""
         g = self._group(name)
         img = g.image
-        return GroupStatus(g.name, g.exchanges, g.wkc_ok, memoryview(img.buffer).toreadonly(),
+        seq = self._seq_of(name)
+        got = seq.exchange() if seq is not None else None
+        exchanges, ok = (g.exchanges, g.wkc_ok) if got is None else got
+        return GroupStatus(g.name, exchanges, ok, memoryview(img.buffer).toreadonly(),
                            img.input_age, img.inputs_valid)
+
+    def _seq_of(self, name: str) -> ImageSeq | None:
+        area = self.area
+        return None if area is None else area.seqs.get(name)
 
     def exchange_once(self) -> bool:
         raise ConfigError("exchange_once() is for the in-process loop (isolated=False)")

@@ -21,7 +21,9 @@ each 8-byte aligned:
   as the configuration lays it out) and its **safe outputs**, with two
   sequence numbers: ``in`` (the engine writes the input bytes) and ``out``
   (the user's process writes outputs). The engine never takes outputs
-  that were being written (it keeps sending the last whole ones);
+  that were being written (it keeps sending the last whole ones). With the
+  inputs, under ``in``, the engine writes the group's exchange count and
+  whether its working counters were whole;
 - three **sample rings** (period, wake-up latency, round trip; int64 ns,
   written in place by the engine's :class:`~pyethercat.master.cyclic.CycleStats`);
 - an **event ring** (the engine's log lines) and a **health table** (one
@@ -62,7 +64,9 @@ _MAGIC = 0x50594543_454E4731  # "PYECENG1"
 # magic, total size, layout version, creator's pid, offset and length of the layout (JSON)
 _HEADER = struct.Struct("<QQQQQQ")
 _U64 = struct.Struct("<Q")
-# Version of the file's layout rules (2: the tick after the status block).
+_EXCHANGE = struct.Struct("<QQ")  # a group's exchanges and whether its counters were whole
+# Version of the file's layout rules (2: the tick after the status block, each
+# group's exchange beside its sequence numbers).
 _VERSION = 2
 _EVENT_SLOT = 256
 #: Longest event text kept (bytes of UTF-8).
@@ -147,7 +151,7 @@ class AreaLayout:
         at += 8
         for name, size in self.groups:
             out[f"seq:{name}"] = at
-            at += 16
+            at += ImageSeq.SIZE
             out[f"image:{name}"] = at
             at = _align(at + size)
             out[f"safe:{name}"] = at
@@ -180,12 +184,19 @@ class AreaLayout:
 
 
 class ImageSeq:
-    """The two sequence numbers of one group's image (inputs by the engine, outputs by the user)."""
+    """The two sequence numbers of one group's image (inputs by the engine, outputs by the
+    user), and the exchange the inputs came with: the group's exchange count and whether
+    its working counters were whole, written by the engine with the inputs (under the
+    input number, so that a reader gets them from the same cycle as the bytes)."""
+
+    #: Bytes per group: input and output sequence numbers, exchanges, working counter ok.
+    SIZE = 32
 
     def __init__(self, buf: memoryview, offset: int) -> None:
         self._buf = buf
         self._in = offset
         self._out = offset + 8
+        self._exchange = offset + 16
 
     def input_seq(self) -> int:
         return int(_U64.unpack_from(self._buf, self._in)[0])
@@ -198,6 +209,23 @@ class ImageSeq:
 
     def set_output_seq(self, value: int) -> None:
         _U64.pack_into(self._buf, self._out, value)
+
+    def set_exchange(self, exchanges: int, wkc_ok: bool) -> None:
+        """The engine's side, between the two input-number writes of a publish."""
+        _EXCHANGE.pack_into(self._buf, self._exchange, exchanges, int(wkc_ok))
+
+    def exchange(self, tries: int = 1000) -> tuple[int, bool] | None:
+        """(exchanges, working counters whole) of the inputs now in the image, or None when
+        every try met a publish (the engine stopped in the middle of one)."""
+        buf, at = self._buf, self._in
+        for _ in range(tries):
+            before = _U64.unpack_from(buf, at)[0]
+            if before & 1:
+                continue
+            exchanges, ok = _EXCHANGE.unpack_from(buf, self._exchange)
+            if _U64.unpack_from(buf, at)[0] == before:
+                return int(exchanges), bool(ok)
+        return None
 
 
 class SharedArea:
