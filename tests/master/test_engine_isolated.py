@@ -30,7 +30,7 @@ from pathlib import Path
 import pytest
 from eoe_helpers import arp_request, ping
 
-from pyethercat.errors import EngineDiedError
+from pyethercat.errors import EngineDiedError, EtherCATError
 from pyethercat.master import Master
 from pyethercat.master.engine.runner import IsolatedRunner
 from pyethercat.master.engine.shared import HEALTH_STATUS, SharedArea
@@ -38,7 +38,7 @@ from pyethercat.master.eoe import EoeService, eoe_clients
 from pyethercat.master.foe import FoeClient
 from pyethercat.wire import registers as R
 from pyethercat.wire.al import AlState
-from pyethercat.wire.datagram import Command
+from pyethercat.wire.datagram import Command, Datagram
 from pyethercat.wire.frame import ETHERTYPE_ETHERCAT, decode_frame
 from pyethercat.wire.pcap import read_pcap
 
@@ -354,6 +354,55 @@ def test_sdos_ride_in_the_engine_frames(veth_pair: tuple[str, str]) -> None:
             # (a frame may be lost to a loaded machine; a wrong working counter is a fault)
             assert stats.wkc_errors == 0
             assert m.read(1, R.AL_STATUS, 2)[0] & 0x0F == int(AlState.OP)
+        finally:
+            r.stop()
+
+
+def test_engine_survives_its_interface_going_down_while_user_requests_are_out(
+        veth_pair: tuple[str, str]) -> None:
+    """The user's reads (two 1000-byte FPRDs a frame: one rides behind the cyclic frame
+    in a frame of its own) go on while the engine's interface is taken down three times.
+    The engine's sends and receives between cycles then fail: the requests fail with
+    them (the user's scheduler times them out), the engine keeps cycling, and an SDO
+    works afterwards. (An unguarded flush between cycles made the engine exit.)"""
+    a, b = veth_pair
+    with start_sim_process(COE, link=f"iface:{b}", realtime=10), \
+            Master.open(iface=a, control=False, mailbox_timeout=5.0) as m:
+        m.scan()
+        m.configure()
+        r = m.start(cycle=0.001, isolated=True)
+        try:
+            station = m.slaves[0].station_address
+            stop = threading.Event()
+            done: list[int] = []
+            failed: list[str] = []
+
+            def reader() -> None:
+                while not stop.is_set():
+                    try:
+                        m.scheduler.transact(
+                            [Datagram.device(Command.FPRD, station, 0x1000, 1000)] * 2)
+                        done.append(1)
+                    except EtherCATError as exc:
+                        failed.append(type(exc).__name__)
+
+            t = threading.Thread(target=reader)
+            t.start()
+            try:
+                assert wait_for(lambda: len(done) >= 20)
+                for _ in range(3):
+                    subprocess.run(["ip", "link", "set", a, "down"], check=True)
+                    time.sleep(0.4)
+                    subprocess.run(["ip", "link", "set", a, "up"], check=True)
+                    time.sleep(0.6)
+                before = len(done)
+                assert wait_for(lambda: len(done) >= before + 20)
+            finally:
+                stop.set()
+                t.join()
+            assert r.running and r.engine_state == "running", r.engine_state
+            assert set(failed) <= {"TimeoutError", "LinkDownError", "LinkError"}, failed
+            assert m.slaves[0].sdo_read(0x1018, 1, "uint32") == m.slaves[0].identity.vendor_id
         finally:
             r.stop()
 

@@ -276,7 +276,7 @@ class EngineRider:
                 # The user's datagrams the cyclic frames had no room for go right behind
                 # them, in a frame of their own (as the in-process EoE service sends its
                 # own), not a cycle later.
-                sched.flush()
+                self._flush(sched)
         if self._publish_due:
             self._publish_due = False
             self.publish()
@@ -376,7 +376,7 @@ class EngineRider:
         if self.router.carrying and self._time_for_a_frame(left_ns):
             sched = self.runner.scheduler
             if sched.queued:
-                sched.flush()
+                self._flush(sched)
 
     def reply_fd(self) -> int | None:
         """The link's descriptor while frames sent for the user are on their way."""
@@ -387,8 +387,16 @@ class EngineRider:
 
     def take_replies(self) -> None:
         """The link is readable between cycles: a reply the user waits for, handed over now."""
-        self.runner.scheduler.receive_ready()
+        with contextlib.suppress(EtherCATError):  # (the next cycle meets the link's trouble)
+            self.runner.scheduler.receive_ready()
         self.router.answer()
+
+    @staticmethod
+    def _flush(sched: Scheduler) -> None:
+        """Send what is queued now. A link that refuses fails those requests (the user's
+        scheduler sends them again); the cycles deal with the link itself."""
+        with contextlib.suppress(EtherCATError):
+            sched.flush()
 
     def _time_for_a_frame(self, left_ns: int) -> bool:
         # (sent this long before the deadline, a frame is back before the cyclic one is
