@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import struct
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -34,6 +35,7 @@ pytest.importorskip("pyethercat.sim.server")
 from pyethercat.sim.server import start_sim_process  # noqa: E402
 
 DEMO = Path(__file__).resolve().parents[2] / "examples" / "demo.toml"
+COE = Path(__file__).resolve().parents[2] / "examples" / "coe.toml"
 
 
 def _layout() -> AreaLayout:
@@ -84,6 +86,54 @@ def test_a_groups_exchange_is_read_with_its_inputs(tmp_path: Path) -> None:
     finally:
         area.close()
         area.unlink()
+
+
+def test_a_cycle_is_under_way_between_its_begin_and_its_tick(tmp_path: Path) -> None:
+    area = SharedArea.create(_layout(), str(tmp_path / "area"))
+    try:
+        assert not area.under_way()
+        area.write_begun(5)  # the engine's before-cycle of cycle 5
+        assert area.under_way()
+        area.write_tick(5)  # its after-cycle
+        assert not area.under_way()
+    finally:
+        area.close()
+        area.unlink()
+
+
+def test_sdos_through_the_engine_wait_one_exchange_and_read_no_stale_status() -> None:
+    """A mailbox of the user's process waits for the status byte of an exchange that
+    began after its call: one exchange when the engine is between cycles (most of the
+    time at 1 kHz), two while one is under way; no byte was stale (no fetch came back
+    empty, no repeat request, no poll frame)."""
+    with start_sim_process(COE) as sim, \
+            Master(sim.link, owns_link=False, timeout=0.5, mailbox_timeout=5.0) as m:
+        m.scan()
+        m.configure()
+        r = m.start(cycle=0.001, isolated=True, realtime=0)
+        waits: list[int] = []
+        wait = r.wait_exchanges
+
+        def counted(name: str, count: int, timeout: float) -> bool:
+            waits.append(count)
+            return wait(name, count, timeout)
+
+        r.wait_exchanges = counted  # type: ignore[method-assign]
+        try:
+            io = m.slaves[0]
+            box = m.mailboxes.mailbox_of(0)
+            assert box is not None
+            before = replace(box.stats)
+            for _ in range(50):
+                assert io.sdo_read(0x1018, 1, "uint32") == io.identity.vendor_id
+            assert len(io.sdo_read(0x2000, 0)) == 4096
+            st = box.stats
+            assert st.repeat_requests == before.repeat_requests and st.stale == before.stale
+            assert st.status_polls == before.status_polls
+            assert st.fetches - before.fetches == st.received - before.received
+        finally:
+            r.stop()
+    assert waits and waits.count(1) > waits.count(2), waits
 
 
 def test_a_file_of_another_layout_version_is_refused(tmp_path: Path) -> None:

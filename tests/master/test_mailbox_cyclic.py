@@ -226,6 +226,10 @@ class _ScriptedRunner:
         self.verdicts = verdicts
         self.exchanges = 0
         self.waits: list[int] = []
+        self.under_way = True
+
+    def exchanges_after_now(self) -> int:
+        return 2 if self.under_way else 1
 
     def wait_exchanges(self, name: str, count: int, timeout: float) -> bool:
         self.waits.append(count)
@@ -252,3 +256,73 @@ def test_cyclic_status_waits_out_a_bad_counter_then_gives_up() -> None:
     runner.waits.clear()
     assert source(1.0) is None
     assert runner.waits == [2] + [1] * CyclicMailboxStatus.RETRIES
+    # between exchanges the next one began after the call: one is enough
+    runner.under_way = False
+    runner.verdicts = [True]
+    runner.waits.clear()
+    assert source(1.0) == reg.SM_STATUS_MAILBOX_FULL
+    assert runner.waits == [1]
+
+
+def test_an_exchange_is_under_way_from_its_first_send_to_its_end() -> None:
+    """What ``exchanges_after_now`` reads: set while the loop's frames may be passing
+    the slaves (seen from the in-flight hook, after the sends), clear between cycles."""
+    _seg, _apps, _drop, link = coe_segment(1)
+    m = Master(link)
+    m.coe_pdo_config = False
+    m.scan()
+    m.configure()
+    runner = m.start(cycle=0.001)
+    try:
+        seen: list[bool] = []
+        xchg = runner.xchg
+        hook = xchg.in_flight
+
+        def look() -> None:
+            seen.append(xchg.under_way)
+            if hook is not None:
+                hook()
+
+        xchg.in_flight = look
+        assert runner.wait_cycles(5, 5.0)
+        xchg.in_flight = hook
+        assert seen and all(seen)
+        assert runner.exchanges_after_now() in (1, 2)
+    finally:
+        runner.stop()
+    assert not runner.xchg.under_way and runner.exchanges_after_now() == 1
+
+
+def test_sdos_while_cycling_wait_one_exchange_and_read_no_stale_status() -> None:
+    """Expedited and segmented uploads at 1 kHz: most status waits are for one
+    exchange (the loop is between exchanges most of the time), and no status byte was
+    stale: no fetch came back empty, no repeat request, no poll frame, no duplicate."""
+    _seg, apps, _drop, link = coe_segment(1)
+    m = Master(link)
+    m.coe_pdo_config = False
+    m.scan()
+    m.configure()
+    runner = m.start(cycle=0.001)
+    waits: list[int] = []
+    wait = runner.wait_exchanges
+
+    def counted(name: str, count: int, timeout: float) -> bool:
+        waits.append(count)
+        return wait(name, count, timeout)
+
+    runner.wait_exchanges = counted  # type: ignore[method-assign]
+    try:
+        a = m.slaves[0]
+        assert a.mbx is not None
+        before = replace(a.mbx.stats)
+        for _ in range(100):
+            assert a.sdo_read(0x1018, 1, "uint32") == 0x00504543
+        assert a.sdo_read(0x2001) == PATTERN
+        st = a.mbx.stats
+        assert st.repeat_requests == before.repeat_requests
+        assert st.duplicates == before.duplicates and st.stale == before.stale
+        assert st.status_polls == before.status_polls
+        assert st.fetches - before.fetches == st.received - before.received
+    finally:
+        runner.stop()
+    assert waits and waits.count(1) > waits.count(2), waits

@@ -401,6 +401,12 @@ class CyclicRunner:
         want = g.exchanges + count
         return self._wait(lambda: g.exchanges >= want, timeout)
 
+    def exchanges_after_now(self) -> int:
+        """How many exchanges of a group to wait for until one began after this call: one
+        between exchanges, two while one is under way (its frames may have passed the
+        slaves before the call)."""
+        return 2 if self.xchg.under_way else 1
+
     def wait_cycles(self, count: int, timeout: float) -> bool:
         """Wait until the loop ran ``count`` more cycles (False: not in time, or it ended)."""
         want = self.stats.cycles + count

@@ -65,13 +65,25 @@ class CycleExchange:
         #: Work done while the cycle's frames are on the wire (after the last send,
         #: before the wait for the replies): time the loop would otherwise spin away.
         self.in_flight: Callable[[], None] | None = None
+        #: An exchange is under way (its frames may have passed the slaves already).
+        self.under_way = False
 
     def exchange(self, due: tuple[int, ...], deadline: int | None
                  ) -> tuple[bool, bool, int, int, tuple[str, ...]]:
         """Send, wait, check WKC, copy back: prepared frames, no per-slave work.
 
         Returns (all whole, any lost, frames back, round trip, group names).
+        ``under_way`` is set meanwhile (a mailbox waiting for its status byte
+        asks: an exchange not yet begun brings a byte newer than its last read).
         """
+        self.under_way = True
+        try:
+            return self._exchange(due, deadline)
+        finally:
+            self.under_way = False
+
+    def _exchange(self, due: tuple[int, ...], deadline: int | None
+                  ) -> tuple[bool, bool, int, int, tuple[str, ...]]:
         cache = self._safe_plans if self.safe else self._plans
         planned = cache.get(due)
         if planned is None:

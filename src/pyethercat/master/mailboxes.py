@@ -60,10 +60,10 @@ class CyclicMailboxStatus:
     """``Mailbox.status_source`` of one slave: its SM1 status byte in the running cycle's image.
 
     The group's cyclic frame reads SM1's status register (0x080D) into the
-    image through the FMMU ``master.config`` maps. A call waits until two
-    more exchanges of the slave's group completed (the second one began
-    after the call: the byte is newer than the caller's last SM1 read) and
-    returns the byte. When the group's working counter was off (a frame
+    image through the FMMU ``master.config`` maps. A call waits until an
+    exchange of the slave's group that began after the call completed (the
+    next one when none is under way, else two: the byte is newer than the
+    caller's last SM1 read) and returns the byte. When the group's working counter was off (a frame
     lost or a slave not answering since), it waits for one more exchange,
     up to :attr:`RETRIES` times: one lost cyclic frame costs a cycle, not a
     poll frame. None when no cyclic exchange runs, the slave has no status
@@ -103,13 +103,14 @@ class CyclicMailboxStatus:
         if where is None:
             return None
         runner, group, at = where
-        # Two more exchanges: the second began after this call, so its byte is newer
-        # than the caller's last SM1 read. (False from the loop thread itself.)
+        # Until an exchange that began after this call is done, so that its byte is newer
+        # than the caller's last SM1 read: the next one when none is under way, else the
+        # one after. (False from the loop thread itself.)
         if budget <= 0:  # (no time to wait: the byte as it is)
             status = runner.group_status(group)
             return status.image[at] if status.wkc_ok else None
         limit = time.monotonic() + budget
-        wait = 2
+        wait = runner.exchanges_after_now()
         for _ in range(self.RETRIES + 1):
             left = limit - time.monotonic()
             if left <= 0 or not runner.wait_exchanges(group, wait, left):

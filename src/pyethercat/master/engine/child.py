@@ -214,6 +214,7 @@ class EngineRider:
             # The last cycle had no after (the link refused its frames): it is done all the same.
             self._tick = done
             self.area.write_tick(done)
+        self.area.write_begun(done + 1)
         if not self._after and now - self._published_at >= _PUBLISH_NS:
             self._published_at = now
             self.publish()

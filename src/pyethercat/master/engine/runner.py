@@ -619,6 +619,11 @@ class IsolatedRunner(EngineReadout, CyclicRunner):
             time.sleep(pause)
         return False
 
+    def exchanges_after_now(self) -> int:
+        """As the base class's, from the cycles the engine has begun and done."""
+        area = self.area
+        return 2 if area is None or area.under_way() else 1
+
     def group_status(self, name: str) -> GroupStatus:
         """As the base class's; exchanges and the working-counter verdict are those of
         the inputs now in the shared image (written with them), not the status block's."""

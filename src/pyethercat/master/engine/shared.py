@@ -16,7 +16,9 @@ each 8-byte aligned:
 - a **tick**: the number of cycles the engine has done, one 64-bit store
   every cycle, before the cycle's acyclic replies go back to the user's
   process: what the user's side follows to run its callback once per
-  cycle, with those replies at hand;
+  cycle, with those replies at hand. Beside it the number of cycles begun,
+  written before each cycle's frames go: a cycle is under way while the two
+  differ;
 - per group, the **process image** (``[outputs][inputs][mailbox status]``
   as the configuration lays it out) and its **safe outputs**, with two
   sequence numbers: ``in`` (the engine writes the input bytes) and ``out``
@@ -65,8 +67,8 @@ _MAGIC = 0x50594543_454E4731  # "PYECENG1"
 _HEADER = struct.Struct("<QQQQQQ")
 _U64 = struct.Struct("<Q")
 _EXCHANGE = struct.Struct("<QQ")  # a group's exchanges and whether its counters were whole
-# Version of the file's layout rules (2: the tick after the status block, each
-# group's exchange beside its sequence numbers).
+# Version of the file's layout rules (2: the tick and the cycles begun after the status
+# block, each group's exchange beside its sequence numbers).
 _VERSION = 2
 _EVENT_SLOT = 256
 #: Longest event text kept (bytes of UTF-8).
@@ -148,7 +150,8 @@ class AreaLayout:
         out = {"status": at}
         at = _align(at + 8 + 8 * len(self.status_fields))
         out["tick"] = at
-        at += 8
+        out["begun"] = at + 8
+        at += 16
         for name, size in self.groups:
             out[f"seq:{name}"] = at
             at += ImageSeq.SIZE
@@ -241,6 +244,7 @@ class SharedArea:
         self.offsets = layout.offsets()
         self.status = SeqBlock(self.buf, self.offsets["status"], layout.status_fields)
         self._tick_at = self.offsets["tick"]
+        self._begun_at = self.offsets["begun"]
         self.images: dict[str, memoryview] = {}
         self.safe: dict[str, memoryview] = {}
         self.seqs: dict[str, ImageSeq] = {}
@@ -320,6 +324,15 @@ class SharedArea:
     def read_tick(self) -> int:
         """Cycles the engine has done, as of its last :meth:`write_tick`."""
         return int(_U64.unpack_from(self.buf, self._tick_at)[0])
+
+    def write_begun(self, cycles: int) -> None:
+        """The engine has begun ``cycles`` cycles (written before the cycle's frames go)."""
+        _U64.pack_into(self.buf, self._begun_at, cycles)
+
+    def under_way(self) -> bool:
+        """Whether a cycle has begun that is not done (its frames may be passing the slaves)."""
+        begun = _U64.unpack_from(self.buf, self._begun_at)[0]
+        return bool(begun > _U64.unpack_from(self.buf, self._tick_at)[0])
 
     # -- events (one writer: the engine) --------------------------------------------------
 
