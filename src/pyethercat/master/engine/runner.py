@@ -437,7 +437,7 @@ class IsolatedRunner(EngineReadout, CyclicRunner):
         core = sched.core
         pause = min(self.period_ns / 2e9, 0.0005)
         # (replies of the cycle just done are on their way: microseconds behind the tick,
-        # or, for frames of their own, until a quarter period before the next deadline)
+        # or, for frames of their own, as soon as those are back)
         settle = self.period_ns / 2e9
         while not self._stop.is_set():
             n = area.read_tick()
