@@ -65,11 +65,10 @@ class CyclicMailboxStatus:
     next one when none is under way, else two: the byte is newer than the
     caller's last SM1 read) and returns the byte. When the group's working
     counter was off (a frame lost or a slave not answering since), it waits
-    for one more exchange,
-    up to :attr:`RETRIES` times: one lost cyclic frame costs a cycle, not a
-    poll frame. None when no cyclic exchange runs, the slave has no status
-    byte, nothing came within ``budget`` or the counter stayed off (the
-    mailbox then polls with a frame).
+    for one more exchange, up to :attr:`RETRIES` times: one lost cyclic
+    frame costs a cycle, not a poll frame. None when no cyclic exchange
+    runs, the slave has no status byte, nothing came within ``budget`` or
+    the counter stayed off (the mailbox then polls with a frame).
     """
 
     #: Further exchanges awaited while the group's working counter is off.
