@@ -101,27 +101,25 @@ def _stop(proc: subprocess.Popen[bytes] | None) -> None:
         proc.wait()
 
 
-@pytest.fixture(scope="module")
-def eoe_net(root: None, tmp_path_factory: pytest.TempPathFactory) -> Iterator[EoeNet]:
+@dataclass
+class _Running:
+    iface: str
+    tap: str
+    control: str
+    master_log: Path
+    master: subprocess.Popen[bytes]
+
+
+@contextlib.contextmanager
+def _eoe_segment(tmp: Path, topology: str, netns: list[str], tap: str, host_ip: str,
+                 ping_ip: str, run_args: list[str]) -> Iterator[_Running]:
+    """``pyethercat sim`` serving ``topology`` on one end of a new veth pair, our master
+    (``run --eoe`` and ``run_args``) on the other with TAP ``tap`` at ``host_ip``; yields
+    once ``ping_ip`` answers through EoE. Everything it made is removed afterwards."""
     ping = _tool("ping")
-    _tool("curl")
-    tag = uuid.uuid4().hex[:5]
-    net = f"10.213.{random.randint(1, 250)}"
-    tmp = tmp_path_factory.mktemp("eoe")
-    web_ns, drive_ns = f"pyecat-e{tag}-web", f"pyecat-e{tag}-drive"
     topo = tmp / "eoe.toml"
-    topo.write_text(f"""
-[[slave]]
-name = "web"
-device = "builtin:eoe-web"
-eoe = {{ ip = "{net}.10/24", gateway = "{net}.1", netns = "{web_ns}" }}
-[[slave]]
-name = "drive"
-device = "builtin:seed002-drive"
-eoe = {{ ip = "{net}.11/24", gateway = "{net}.1", netns = "{drive_ns}" }}
-""")
+    topo.write_text(topology)
     a, b = make_veth_pair()
-    tap = f"pyecat-{tag}t"
     control = str(tmp / "sim.sock")
     master_log = tmp / "master.log"
     sim = master = None
@@ -141,21 +139,44 @@ eoe = {{ ip = "{net}.11/24", gateway = "{net}.1", netns = "{drive_ns}" }}
             # again by the scheduler, and a lost one holds its slave's EoE for that long.)
             master = subprocess.Popen(
                 [sys.executable, "-m", "pyethercat", "--iface", b, "--retries", "100", "run",
-                 "--eoe", "--eoe-tap", tap, "--eoe-host-ip", f"{net}.1/24", "--seconds", "900"],
+                 *run_args, "--eoe", "--eoe-tap", tap, "--eoe-host-ip", host_ip,
+                 "--seconds", "900"],
                 stdout=log, stderr=subprocess.STDOUT)
         end = time.monotonic() + START_LIMIT
-        while subprocess.run([ping, "-c", "1", "-W", "1", f"{net}.10"],
+        while subprocess.run([ping, "-c", "1", "-W", "1", ping_ip],
                              capture_output=True).returncode != 0:
             assert master.poll() is None, master_log.read_text()[-2000:]
             assert time.monotonic() < end, f"no ping through EoE within {START_LIMIT} s"
-        yield EoeNet(b, net, f"{net}.10", f"{net}.11", web_ns, drive_ns, tap, control, master_log)
+        yield _Running(b, tap, control, master_log, master)
     finally:
         _stop(master)
         _stop(sim)
         delete_veth(a)
-        for ns in (web_ns, drive_ns):  # the simulator removes them; a crash must not leak
+        for ns in netns:  # the simulator removes them; a crash must not leak
             subprocess.run(["ip", "netns", "delete", ns], capture_output=True)
         subprocess.run(["ip", "link", "del", tap], capture_output=True)
+
+
+@pytest.fixture(scope="module")
+def eoe_net(root: None, tmp_path_factory: pytest.TempPathFactory) -> Iterator[EoeNet]:
+    _tool("curl")
+    tag = uuid.uuid4().hex[:5]
+    net = f"10.213.{random.randint(1, 250)}"
+    web_ns, drive_ns = f"pyecat-e{tag}-web", f"pyecat-e{tag}-drive"
+    topology = f"""
+[[slave]]
+name = "web"
+device = "builtin:eoe-web"
+eoe = {{ ip = "{net}.10/24", gateway = "{net}.1", netns = "{web_ns}" }}
+[[slave]]
+name = "drive"
+device = "builtin:seed002-drive"
+eoe = {{ ip = "{net}.11/24", gateway = "{net}.1", netns = "{drive_ns}" }}
+"""
+    with _eoe_segment(tmp_path_factory.mktemp("eoe"), topology, [web_ns, drive_ns],
+                      f"pyecat-{tag}t", f"{net}.1/24", f"{net}.10", []) as run:
+        yield EoeNet(run.iface, net, f"{net}.10", f"{net}.11", web_ns, drive_ns, run.tap,
+                     run.control, run.master_log)
 
 
 def _mtu(name: str) -> int:
@@ -478,58 +499,27 @@ def test_run_eoe_without_cap_net_admin_is_one_line(root: None, drop: list[str],
 def test_eoe_through_the_isolated_engine(root: None, tmp_path: Path) -> None:
     """``run --isolated --eoe`` (as ``run --web`` starts it where the link allows): the
     EoE service ticks in the user's process after each engine cycle and its datagrams
-    ride in the engine's frames. Ping and a 1 MiB download, byte for byte; the master's
-    log says where the loop ran."""
+    ride in the engine's frames. Ping and a 1 MiB download, byte for byte, with the
+    loop in the engine's child process."""
     ping = _tool("ping")
     _tool("curl")
     tag = uuid.uuid4().hex[:5]
     net = f"10.211.{random.randint(1, 250)}"
     web_ns = f"pyecat-i{tag}-web"
-    topo = tmp_path / "eoe.toml"
-    topo.write_text(f"""
+    topology = f"""
 [[slave]]
 name = "web"
 device = "builtin:eoe-web"
 eoe = {{ ip = "{net}.10/24", gateway = "{net}.1", netns = "{web_ns}" }}
-""")
-    a, b = make_veth_pair()
-    tap = f"pyecat-{tag}i"
-    control = str(tmp_path / "sim.sock")
-    master_log = tmp_path / "master.log"
-    sim = master = None
-    try:
-        sim = subprocess.Popen([sys.executable, "-m", "pyethercat", "sim", str(topo), "--iface", a,
-                                "--control", control, "-q"])
-        end = time.monotonic() + START_LIMIT
-        while not os.path.exists(control):
-            assert sim.poll() is None, "the simulator stopped"
-            assert time.monotonic() < end, "the simulator did not come up"
-            time.sleep(0.1)
-        with open(master_log, "wb") as log:
-            master = subprocess.Popen(
-                [sys.executable, "-m", "pyethercat", "--iface", b, "--retries", "100", "run",
-                 "--isolated", "--eoe", "--eoe-tap", tap, "--eoe-host-ip", f"{net}.1/24",
-                 "--seconds", "900"], stdout=log, stderr=subprocess.STDOUT)
-        end = time.monotonic() + START_LIMIT
-        while subprocess.run([ping, "-c", "1", "-W", "1", f"{net}.10"],
-                             capture_output=True).returncode != 0:
-            assert master.poll() is None, master_log.read_text()[-2000:]
-            assert time.monotonic() < end, f"no ping through EoE within {START_LIMIT} s"
+"""
+    with _eoe_segment(tmp_path, topology, [web_ns], f"pyecat-{tag}i", f"{net}.1/24",
+                      f"{net}.10", ["--isolated"]) as run:
         done = subprocess.run([ping, "-c", "5", "-i", "0.2", f"{net}.10"], capture_output=True,
                               text=True)
         assert done.returncode == 0 and " 0% packet loss" in done.stdout, done.stdout
-        out = tmp_path / "blob"
-        got = subprocess.run(["curl", "-s", "-m", "240", "-o", str(out),
-                              f"http://{net}.10/blob?size={1 << 20}"], capture_output=True, text=True)
-        assert got.returncode == 0, got.stderr
-        assert hashlib.sha256(out.read_bytes()).digest() == hashlib.sha256(blob(1 << 20)).digest()
+        _download(f"{net}.10", tmp_path)
         # The loop ran in the engine: a child process of the master's.
-        children = Path(f"/proc/{master.pid}/task/{master.pid}/children").read_text().split()
+        pid = run.master.pid
+        children = Path(f"/proc/{pid}/task/{pid}/children").read_text().split()
         assert any(b"pyethercat.master.engine.child" in Path(f"/proc/{c}/cmdline").read_bytes()
                    for c in children), children
-    finally:
-        _stop(master)
-        _stop(sim)
-        delete_veth(a)
-        subprocess.run(["ip", "netns", "delete", web_ns], capture_output=True)
-        subprocess.run(["ip", "link", "del", tap], capture_output=True)

@@ -14,6 +14,7 @@ generous limits.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import random
@@ -331,7 +332,10 @@ def test_dead_engine_raises_on_the_next_access(demo_sim: tuple[SimProcess, str])
         assert m.read(0, R.AL_STATUS, 2)
 
 
-def test_sdos_ride_in_the_engine_frames(veth_pair: tuple[str, str]) -> None:
+@contextlib.contextmanager
+def coe_engine(veth_pair: tuple[str, str]) -> Iterator[tuple[Master, IsolatedRunner]]:
+    """The CoE example segment served on one end of ``veth_pair``, our master on the
+    other with its loop in the engine at 1 kHz (stopped in order afterwards)."""
     a, b = veth_pair
     # (a generous mailbox timeout: a request unanswered within half of it is sent again,
     # and on a loaded machine the answer to the first copy could then meet the next SDO)
@@ -342,20 +346,25 @@ def test_sdos_ride_in_the_engine_frames(veth_pair: tuple[str, str]) -> None:
         r = m.start(cycle=0.001, isolated=True)
         try:
             assert isinstance(r, IsolatedRunner)
-            io = m.slaves[0]
-            vendor = io.sdo_read(0x1018, 1, "uint32")
-            assert vendor == m.slaves[0].identity.vendor_id
-            for k in range(20):
-                io.sdo_write(0x8000, 1, 100 + k, "uint16")
-                assert io.sdo_read(0x8000, 1, "uint16") == 100 + k
-            st = r.status()
-            assert st["user_frames"] >= 40
-            stats = r.stats
-            # (a frame may be lost to a loaded machine; a wrong working counter is a fault)
-            assert stats.wkc_errors == 0
-            assert m.read(1, R.AL_STATUS, 2)[0] & 0x0F == int(AlState.OP)
+            yield m, r
         finally:
             r.stop()
+
+
+def test_sdos_ride_in_the_engine_frames(veth_pair: tuple[str, str]) -> None:
+    with coe_engine(veth_pair) as (m, r):
+        io = m.slaves[0]
+        vendor = io.sdo_read(0x1018, 1, "uint32")
+        assert vendor == m.slaves[0].identity.vendor_id
+        for k in range(20):
+            io.sdo_write(0x8000, 1, 100 + k, "uint16")
+            assert io.sdo_read(0x8000, 1, "uint16") == 100 + k
+        st = r.status()
+        assert st["user_frames"] >= 40
+        stats = r.stats
+        # (a frame may be lost to a loaded machine; a wrong working counter is a fault)
+        assert stats.wkc_errors == 0
+        assert m.read(1, R.AL_STATUS, 2)[0] & 0x0F == int(AlState.OP)
 
 
 def test_engine_survives_its_interface_going_down_while_user_requests_are_out(
@@ -365,46 +374,39 @@ def test_engine_survives_its_interface_going_down_while_user_requests_are_out(
     The engine's sends and receives between cycles then fail: the requests fail with
     them (the user's scheduler times them out), the engine keeps cycling, and an SDO
     works afterwards. (An unguarded flush between cycles made the engine exit.)"""
-    a, b = veth_pair
-    with start_sim_process(COE, link=f"iface:{b}", realtime=10), \
-            Master.open(iface=a, control=False, mailbox_timeout=5.0) as m:
-        m.scan()
-        m.configure()
-        r = m.start(cycle=0.001, isolated=True)
+    a, _b = veth_pair
+    with coe_engine(veth_pair) as (m, r):
+        station = m.slaves[0].station_address
+        stop = threading.Event()
+        done: list[int] = []
+        failed: list[str] = []
+
+        def reader() -> None:
+            while not stop.is_set():
+                try:
+                    m.scheduler.transact(
+                        [Datagram.device(Command.FPRD, station, 0x1000, 1000)] * 2)
+                    done.append(1)
+                except EtherCATError as exc:
+                    failed.append(type(exc).__name__)
+
+        t = threading.Thread(target=reader)
+        t.start()
         try:
-            station = m.slaves[0].station_address
-            stop = threading.Event()
-            done: list[int] = []
-            failed: list[str] = []
-
-            def reader() -> None:
-                while not stop.is_set():
-                    try:
-                        m.scheduler.transact(
-                            [Datagram.device(Command.FPRD, station, 0x1000, 1000)] * 2)
-                        done.append(1)
-                    except EtherCATError as exc:
-                        failed.append(type(exc).__name__)
-
-            t = threading.Thread(target=reader)
-            t.start()
-            try:
-                assert wait_for(lambda: len(done) >= 20)
-                for _ in range(3):
-                    subprocess.run(["ip", "link", "set", a, "down"], check=True)
-                    time.sleep(0.4)
-                    subprocess.run(["ip", "link", "set", a, "up"], check=True)
-                    time.sleep(0.6)
-                before = len(done)
-                assert wait_for(lambda: len(done) >= before + 20)
-            finally:
-                stop.set()
-                t.join()
-            assert r.running and r.engine_state == "running", r.engine_state
-            assert set(failed) <= {"TimeoutError", "LinkDownError", "LinkError"}, failed
-            assert m.slaves[0].sdo_read(0x1018, 1, "uint32") == m.slaves[0].identity.vendor_id
+            assert wait_for(lambda: len(done) >= 20)
+            for _ in range(3):
+                subprocess.run(["ip", "link", "set", a, "down"], check=True)
+                time.sleep(0.4)
+                subprocess.run(["ip", "link", "set", a, "up"], check=True)
+                time.sleep(0.6)
+            before = len(done)
+            assert wait_for(lambda: len(done) >= before + 20)
         finally:
-            r.stop()
+            stop.set()
+            t.join()
+        assert r.running and r.engine_state == "running", r.engine_state
+        assert set(failed) <= {"TimeoutError", "LinkDownError", "LinkError"}, failed
+        assert m.slaves[0].sdo_read(0x1018, 1, "uint32") == m.slaves[0].identity.vendor_id
 
 
 # A CoE I/O that serves FoE from a folder, and the seed 002 drive as an EoE endpoint

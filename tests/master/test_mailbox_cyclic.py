@@ -12,9 +12,11 @@ import threading
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import pytest
 from mini_coe import coe_segment
+from status_waits import assert_no_stale_status, count_status_waits
 
 from pyethercat.errors import ConfigError
 from pyethercat.link.pair import PairLink
@@ -264,15 +266,20 @@ def test_cyclic_status_waits_out_a_bad_counter_then_gives_up() -> None:
     assert runner.waits == [1]
 
 
-def test_an_exchange_is_under_way_from_its_first_send_to_its_end() -> None:
-    """What ``exchanges_after_now`` reads: set while the loop's frames may be passing
-    the slaves (seen from the in-flight hook, after the sends), clear between cycles."""
+def _one_slave_cycling() -> tuple[Master, Any]:
+    """One MiniCoe slave, cycling at 1 kHz (over the in-process pair link)."""
     _seg, _apps, _drop, link = coe_segment(1)
     m = Master(link)
     m.coe_pdo_config = False
     m.scan()
     m.configure()
-    runner = m.start(cycle=0.001)
+    return m, m.start(cycle=0.001)
+
+
+def test_an_exchange_is_under_way_from_its_first_send_to_its_end() -> None:
+    """What ``exchanges_after_now`` reads: set while the loop's frames may be passing
+    the slaves (seen from the in-flight hook, after the sends), clear between cycles."""
+    _m, runner = _one_slave_cycling()
     try:
         seen: list[bool] = []
         xchg = runner.xchg
@@ -297,20 +304,8 @@ def test_sdos_while_cycling_wait_one_exchange_and_read_no_stale_status() -> None
     """Expedited and segmented uploads at 1 kHz: most status waits are for one
     exchange (the loop is between exchanges most of the time), and no status byte was
     stale: no fetch came back empty, no repeat request, no poll frame, no duplicate."""
-    _seg, apps, _drop, link = coe_segment(1)
-    m = Master(link)
-    m.coe_pdo_config = False
-    m.scan()
-    m.configure()
-    runner = m.start(cycle=0.001)
-    waits: list[int] = []
-    wait = runner.wait_exchanges
-
-    def counted(name: str, count: int, timeout: float) -> bool:
-        waits.append(count)
-        return wait(name, count, timeout)
-
-    runner.wait_exchanges = counted  # type: ignore[method-assign]
+    m, runner = _one_slave_cycling()
+    waits = count_status_waits(runner)
     try:
         a = m.slaves[0]
         assert a.mbx is not None
@@ -318,11 +313,7 @@ def test_sdos_while_cycling_wait_one_exchange_and_read_no_stale_status() -> None
         for _ in range(100):
             assert a.sdo_read(0x1018, 1, "uint32") == 0x00504543
         assert a.sdo_read(0x2001) == PATTERN
-        st = a.mbx.stats
-        assert st.repeat_requests == before.repeat_requests
-        assert st.duplicates == before.duplicates and st.stale == before.stale
-        assert st.status_polls == before.status_polls
-        assert st.fetches - before.fetches == st.received - before.received
+        assert_no_stale_status(before, a.mbx.stats)
     finally:
         runner.stop()
     assert waits and waits.count(1) > waits.count(2), waits
