@@ -27,8 +27,22 @@ def count_status_waits(runner: Any) -> list[int]:  # noqa: ANN401 - any runner
     return waits
 
 
-def assert_no_stale_status(before: MailboxStats, after: MailboxStats) -> None:
-    """No sign of a stale status byte between the two snapshots of one mailbox's stats."""
+def lost_frames(master: Any, runner: Any) -> int:  # noqa: ANN401 - any master and runner
+    """Frames lost so far: the master's own and the cyclic loop's."""
+    return int(master.scheduler.stats.frames_lost) + int(runner.stats.lost_frames)
+
+
+def assert_no_stale_status(before: MailboxStats, after: MailboxStats, lost: int = 0) -> None:
+    """No sign of a stale status byte between the two snapshots of one mailbox's stats.
+
+    ``lost``: frames lost meanwhile (:func:`lost_frames`, after minus before). A lost
+    SM1 read is recovered with a repeat request and a lost cyclic frame makes the
+    mailbox poll: the same counters move for a reason the status byte has no part
+    in, so nothing is asserted then (a loaded machine may stall the simulator past
+    the frame timeout).
+    """
+    if lost:
+        return
     assert after.repeat_requests == before.repeat_requests
     assert after.duplicates == before.duplicates and after.stale == before.stale
     assert after.status_polls == before.status_polls
