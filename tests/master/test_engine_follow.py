@@ -147,13 +147,18 @@ def test_callback_runs_every_cycle_after_the_replies_of_its_cycle(
     the status block, published every 950 µs at most, the callback could run in half
     of the cycles at most (0.46 measured). ``1kHz-two-1000-byte``: two reads as large
     as an EoE mailbox's write and read, which cannot both ride beside the process
-    data: the engine sends what has no room right behind the cyclic frame and hands
-    the replies over before the next cycle (before: a cycle later; 0.12 of the
-    callbacks found them, 0.41 with this follower). Nothing runs under SCHED_FIFO
-    (the user's process must get the CPU here, as on any machine with a core to
-    spare) and the bounds leave room for a loaded machine (two CPU burners on this
-    test's two vCPUs: 0.82 and 0.86 of the cycles had their callback, 0.73 and 0.89
-    of the callbacks their replies)."""
+    data: the engine sends what has no room right behind the cyclic frame, or in a
+    frame of its own between cycles, and hands the replies over as they come (the
+    engine before this work answered them a cycle later: 0.12 of the callbacks found
+    them).
+
+    Nothing runs under SCHED_FIFO: the user's process must get the CPU, as on any
+    machine with a core to spare. The best of up to three windows of a second counts:
+    a burst of load elsewhere can starve the follower for a while, which says nothing
+    of the mechanism, while the old one stays under the bounds in every window. With
+    two CPU burners on this test's two vCPUs: 0.82 and 0.86 of the cycles had their
+    callback, 0.73 and 0.89 of the calls their replies; with three the follower
+    starved (0.64 and 0.42)."""
     with start_sim_process(DEMO) as sim, \
             Master(sim.link, owns_link=False, timeout=0.5) as m:
         m.scan()
@@ -173,18 +178,57 @@ def test_callback_runs_every_cycle_after_the_replies_of_its_cycle(
                  for n in lengths]))
 
         r = m.start(cycle=cycle, isolated=True, realtime=0, callback=callback)
+        windows: list[tuple[float, float]] = []
         try:
             assert isinstance(r, IsolatedRunner) and r.area is not None
             time.sleep(0.3)
-            indices.clear()
-            answered.clear()
-            t0 = r.area.read_tick()
-            time.sleep(2.0)
-            cycles = r.area.read_tick() - t0
-            calls, replies = len(indices), sum(answered)
+            for _ in range(3):
+                indices.clear()
+                answered.clear()
+                t0 = r.area.read_tick()
+                time.sleep(1.0)
+                cycles = r.area.read_tick() - t0
+                assert cycles >= 0.25 / cycle, cycles
+                # one call a cycle at most, in order
+                assert all(b > a for a, b in zip(indices, indices[1:], strict=False))
+                windows.append((len(indices) / cycles, sum(answered) / max(1, len(answered))))
+                if windows[-1][0] >= 0.65 and windows[-1][1] >= 0.6:
+                    break
         finally:
             r.stop()
-    assert cycles >= 0.25 / cycle, cycles
-    assert calls >= 0.65 * cycles, (calls, cycles)
-    assert all(b > a for a, b in zip(indices, indices[1:], strict=False))  # one call a cycle
-    assert replies >= 0.6 * len(answered), (replies, len(answered))
+    assert max(w[0] for w in windows) >= 0.65, windows  # callbacks per cycle
+    assert max(w[1] for w in windows) >= 0.6, windows  # callbacks with last call's replies
+
+
+def test_a_request_sent_between_cycles_is_answered_before_the_next_one() -> None:
+    """A register read sent right after a cycle (1 kHz: most of the period left) goes in a
+    frame of its own and its reply is handed over as it comes, not with the next cycle's
+    (when the engine picked it up at the end of that cycle, 0 of them came before the
+    next tick). Counts, not times; the best of up to three rounds counts, as above."""
+    with start_sim_process(DEMO) as sim, \
+            Master(sim.link, owns_link=False, timeout=0.5) as m:
+        m.scan()
+        m.configure()
+        station = m.slaves[0].station_address
+        r = m.start(cycle=0.001, isolated=True, realtime=0)
+        rounds: list[float] = []
+        try:
+            assert isinstance(r, IsolatedRunner) and r.area is not None
+            area = r.area
+            read = Datagram.device(Command.FPRD, station, R.AL_STATUS, 2)
+            for _ in range(3):
+                same = 0
+                for _ in range(100):
+                    t0 = area.read_tick()
+                    while area.read_tick() == t0:  # right after a cycle
+                        time.sleep(0.0001)
+                    t1 = area.read_tick()
+                    m.scheduler.transact([read])
+                    same += area.read_tick() == t1
+                rounds.append(same / 100)
+                if rounds[-1] >= 0.3:
+                    break
+        finally:
+            r.stop()
+    # (0.96 on an idle machine, 0.43-0.51 with two CPU burners on two vCPUs)
+    assert max(rounds) >= 0.3, rounds
