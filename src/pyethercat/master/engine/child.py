@@ -527,22 +527,11 @@ def run_engine(plan: EnginePlan, area: SharedArea, report: RealtimeReport) -> in
     def serve(left: int) -> None:
         holder[0].serve(left)
 
-    def leftovers(left: int) -> None:
-        if holder:
-            holder[0].leftovers(left)
-
-    def replies() -> int | None:
-        return holder[0].reply_fd() if holder else None
-
-    def take_replies() -> None:
-        holder[0].take_replies()
-
     # Spinning before each deadline and polling for each reply must leave the kernel's
     # real-time share some room: at 10 kHz they fill every cycle, and a throttled
     # SCHED_FIFO task stops for the rest of the second (gaps of 50 ms were measured).
     budget = SpinBudget.below_rt_throttle()
-    clock = EngineClock([control.fileno(), frames.fileno()], serve, plan.spin_ns, budget,
-                        leftovers, replies, take_replies)
+    clock = EngineClock([control.fileno(), frames.fileno()], serve, plan.spin_ns, budget)
     sched.spin_budget = budget
 
     def recover(positions: list[int]) -> None:
@@ -560,6 +549,9 @@ def run_engine(plan: EnginePlan, area: SharedArea, report: RealtimeReport) -> in
     rider = EngineRider(plan, runner, area, router, control, report)
     rider.fds = clock.fds
     holder.append(rider)
+    # (the rider's own methods, no closure in between: the clock calls them every cycle)
+    clock.leftovers, clock.replies, clock.take_replies = (rider.leftovers, rider.reply_fd,
+                                                          rider.take_replies)
     runner.riders.append(rider)
     for why in report.missing:
         runner.log(f"real time: {why}")
