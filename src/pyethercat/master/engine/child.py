@@ -111,14 +111,11 @@ class EngineClock(PerfClock):
 
     def __init__(self, fds: list[int], serve: Callable[[int], None], spin_ns: int,
                  budget: SpinBudget | None = None,
-                 leftovers: Callable[[int], None] | None = None,
                  replies: Callable[[], int | None] | None = None,
                  take_replies: Callable[[], None] | None = None) -> None:
         super().__init__(spin_ns=spin_ns)
         self.fds = fds
         self.serve = serve
-        #: Called first of all with the time left: what the last cycle left to send.
-        self.leftovers = leftovers
         self.replies = replies
         self.take_replies = take_replies
         #: The share of each second the spin (and the scheduler's reply poll) may take.
@@ -126,8 +123,6 @@ class EngineClock(PerfClock):
 
     def sleep_until(self, deadline_ns: int) -> None:
         now = time.perf_counter_ns
-        if self.leftovers is not None:
-            self.leftovers(deadline_ns - now())
         spin = self.spin_ns
         budget = self.budget
         if budget is not None and not budget.allowed(time.monotonic()):
@@ -276,8 +271,10 @@ class EngineRider:
             if sched.queued:
                 # The user's datagrams the cyclic frames had no room for go right behind
                 # them, in a frame of their own (as the in-process EoE service sends its
-                # own), not a cycle later.
-                self._flush(sched)
+                # own), not a cycle later. (A link that refuses fails those requests, which
+                # the user's scheduler sends again; the cycles deal with the link itself.)
+                with contextlib.suppress(EtherCATError):
+                    sched.flush()
         if self._publish_due:
             self._publish_due = False
             self.publish()
@@ -368,17 +365,6 @@ class EngineRider:
             # replies wake the clock's wait and go back at once).
             self.router.take(flush=self._time_for_a_frame(left_ns))
 
-    def leftovers(self, left_ns: int) -> None:
-        """The user's datagrams the last cycle's frames had no room for (an EoE mailbox
-        write and read of 1 KiB each beside the process data): in a frame of their own
-        now, when there is time, so that their replies are back before the next cycle,
-        not one cycle late. (Those the cyclic frames' spare room took, or that went
-        right behind them, come back by :meth:`take_replies`.)"""
-        if self.router.carrying and self._time_for_a_frame(left_ns):
-            sched = self.runner.scheduler
-            if sched.queued:
-                self._flush(sched)
-
     def reply_fd(self) -> int | None:
         """The link's descriptor while frames sent for the user are on their way."""
         if not self.router.carrying:
@@ -391,13 +377,6 @@ class EngineRider:
         with contextlib.suppress(EtherCATError):  # (the next cycle meets the link's trouble)
             self.runner.scheduler.receive_ready()
         self.router.answer()
-
-    @staticmethod
-    def _flush(sched: Scheduler) -> None:
-        """Send what is queued now. A link that refuses fails those requests (the user's
-        scheduler sends them again); the cycles deal with the link itself."""
-        with contextlib.suppress(EtherCATError):
-            sched.flush()
 
     def _time_for_a_frame(self, left_ns: int) -> bool:
         # (sent this long before the deadline, a frame is back before the cyclic one is
@@ -550,8 +529,7 @@ def run_engine(plan: EnginePlan, area: SharedArea, report: RealtimeReport) -> in
     rider.fds = clock.fds
     holder.append(rider)
     # (the rider's own methods, no closure in between: the clock calls them every cycle)
-    clock.leftovers, clock.replies, clock.take_replies = (rider.leftovers, rider.reply_fd,
-                                                          rider.take_replies)
+    clock.replies, clock.take_replies = rider.reply_fd, rider.take_replies
     runner.riders.append(rider)
     for why in report.missing:
         runner.log(f"real time: {why}")

@@ -6,8 +6,8 @@ recovery); only its link changes: frames go to the engine over a Unix
 socketpair (:class:`EngineLink`). The engine takes the datagrams out of each
 frame and queues them on its own scheduler: they ride in the spare room of
 the next cyclic frame, or go at once in a frame of their own when the next
-deadline is far enough away (and so do those a cycle's frames had no room
-for, once its frames are back). When every datagram of the frame is answered,
+deadline is far enough away (those the cyclic frames have no room for go
+right behind them). When every datagram of the frame is answered,
 the engine sends the user's frame back as the slaves returned it (the
 user's frame index, each datagram's data, address and working counter); a
 frame whose datagrams are lost is not answered, and the user's scheduler
