@@ -204,7 +204,7 @@ def test_a_request_sent_between_cycles_is_answered_before_the_next_one() -> None
     """A register read sent right after a cycle (1 kHz: most of the period left) goes in a
     frame of its own and its reply is handed over as it comes, not with the next cycle's
     (when the engine picked it up at the end of that cycle, 0 of them came before the
-    next tick). Counts, not times; the best of up to three rounds counts, as above."""
+    next tick, whatever the load). Counts, not times; the best of up to five rounds counts."""
     with start_sim_process(DEMO) as sim, \
             Master(sim.link, owns_link=False, timeout=0.5) as m:
         m.scan()
@@ -216,7 +216,7 @@ def test_a_request_sent_between_cycles_is_answered_before_the_next_one() -> None
             assert isinstance(r, IsolatedRunner) and r.area is not None
             area = r.area
             read = Datagram.device(Command.FPRD, station, R.AL_STATUS, 2)
-            for _ in range(3):
+            for _ in range(5):
                 same = 0
                 for _ in range(100):
                     t0 = area.read_tick()
@@ -226,9 +226,10 @@ def test_a_request_sent_between_cycles_is_answered_before_the_next_one() -> None
                     m.scheduler.transact([read])
                     same += area.read_tick() == t1
                 rounds.append(same / 100)
-                if rounds[-1] >= 0.3:
+                if rounds[-1] >= 0.1:
                     break
         finally:
             r.stop()
-    # (0.96 on an idle machine, 0.43-0.51 with two CPU burners on two vCPUs)
-    assert max(rounds) >= 0.3, rounds
+    # (0.96 on an idle machine, 0.18-0.51 with two CPU burners on two vCPUs; 0 in every
+    # round when replies wait for the next cycle's end)
+    assert max(rounds) >= 0.1, rounds
