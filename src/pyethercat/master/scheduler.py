@@ -519,22 +519,12 @@ class Scheduler:
         cycles): unlike :meth:`wait_until` it sends nothing queued and expires
         nothing, so datagrams waiting for the next cyclic frame keep waiting.
         """
-        lock = self._lock
-        with lock:
+        with self._lock:
             if self._receiving or self._vclock is not None:
                 return False  # (another thread receives; virtual time has no readiness)
-            self._receiving = True
-            lock.release()
-            try:
-                got = self._recv_locked(0.0)
-            finally:
-                lock.acquire()
-                self._receiving = False
-            if got is not None:
-                self.core.on_frame(got[0], self.now(), got[1])
-                self._forward_locked()
+            _now, came = self._take_frame_locked(0.0)
             self._notify()
-            return got is not None
+            return came
 
     def step(self) -> None:
         """After a cycle (the loop's thread): expire late frames, resume stepped workers."""
@@ -548,18 +538,10 @@ class Scheduler:
                 self._send_queued_locked(now)
         self.stepper.step()
 
-    def _receive_once_locked(self, now: float, limit: float | None) -> None:
-        """Receive one frame (lock released while blocking) and handle timeouts."""
-        if self._vclock is not None:
-            self._receive_virtual_locked(now)
-            return
-        core = self.core
-        first = due = core.next_deadline()
-        if first is None:
-            first = now + core.timeout
-        if limit is not None and limit < first:
-            first = limit
-        wait = first - now if first > now else 0.0
+    def _take_frame_locked(self, wait: float) -> tuple[float, bool]:
+        """Receive one frame, the lock released while waiting up to ``wait`` seconds, and
+        hand it to the core; (the time after, whether one came). A link error wakes the
+        waiters and is raised."""
         self._receiving = True
         lock = self._lock
         lock.release()
@@ -577,8 +559,23 @@ class Scheduler:
             self._notify()
             raise error
         if got is not None:
-            core.on_frame(got[0], now, got[1])
+            self.core.on_frame(got[0], now, got[1])
             self._forward_locked()
+        return now, got is not None
+
+    def _receive_once_locked(self, now: float, limit: float | None) -> None:
+        """Receive one frame (lock released while blocking) and handle timeouts."""
+        if self._vclock is not None:
+            self._receive_virtual_locked(now)
+            return
+        core = self.core
+        first = due = core.next_deadline()
+        if first is None:
+            first = now + core.timeout
+        if limit is not None and limit < first:
+            first = limit
+        wait = first - now if first > now else 0.0
+        now, _came = self._take_frame_locked(wait)
         if now >= first:
             if due is not None and now >= due:
                 # (only when a frame is overdue: a poll within the deadlines, the

@@ -192,8 +192,6 @@ class EngineRider:
         self._next_request = 0
         #: A publish the last cycle owes: done while the next cycle's frames are out.
         self._publish_due = False
-        #: Cycles done, as last written to the shared tick.
-        self._tick = 0
         self._link_fd = runner.scheduler.link.fileno()
 
     # -- the cycle ----------------------------------------------------------------------------
@@ -205,9 +203,8 @@ class EngineRider:
         now = time.perf_counter_ns()
         self.watch_parent(now)
         done = runner.stats.cycles - 1  # (this cycle is counted from its start)
-        if done > self._tick:
+        if done > self.area.read_tick():
             # The last cycle had no after (the link refused its frames): it is done all the same.
-            self._tick = done
             self.area.write_tick(done)
         self.area.write_begun(done + 1)
         if not self._after and now - self._published_at >= _PUBLISH_NS:
@@ -247,8 +244,7 @@ class EngineRider:
             seq.set_input_seq(s + 1)
         # The tick first, then the replies: the user's side, woken by a reply, finds the
         # cycle that carried it done (and runs its callback at once, not a period later).
-        self._tick = runner.stats.cycles
-        self.area.write_tick(self._tick)
+        self.area.write_tick(runner.stats.cycles)
         self.router.answer()
         now = time.perf_counter_ns()
         if not ok or now - self._published_at >= _PUBLISH_NS:
